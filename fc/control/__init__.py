@@ -1,0 +1,57 @@
+"""Control laws: the corrected PID-SMC (known-bound and adaptive) and two baselines.
+
+All implement :class:`fc.control.base.Controller`; :func:`make_controller` builds one by name.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fc.control.base import Controller, Diagnostics, constant_reference
+from fc.control.cascade_pid import CascadePid, CascadePidParams
+from fc.control.gains import PAPER_GAINS, ChannelGains
+from fc.control.pid_smc import AdaptationBounds, PidSmc, PidSmcParams
+from fc.control.sign_smc import SignSmc, SignSmcParams
+from smcpilot.errors import ConfigError
+from smcpilot.model import PaperModel
+
+#: Controller names, in the order reports list them.
+CONTROLLER_NAMES: tuple[str, ...] = ("pid_smc", "adaptive_pid_smc", "sign_smc", "cascade_pid")
+
+
+def make_controller(name: str, model: PaperModel, **options: Any) -> Controller:
+    """Build a controller by name.
+
+    ``options`` go to the controller's parameter dataclass (e.g. ``sigma_source="oracle"``,
+    ``chi_hat0=(0, 0, 0, 0)``, ``gains=...`` for the PID-SMC flavours).
+    """
+    try:
+        if name == "pid_smc":
+            return PidSmc(model, PidSmcParams(adaptive=False, **options))
+        if name == "adaptive_pid_smc":
+            return PidSmc(model, PidSmcParams(adaptive=True, **options))
+        if name == "sign_smc":
+            return SignSmc(model, SignSmcParams(**options))
+        if name == "cascade_pid":
+            return CascadePid(model, CascadePidParams(**options))
+    except TypeError as exc:  # an option this controller does not have
+        raise ConfigError(f"controller {name!r}: {exc}") from None
+    raise ConfigError(f"unknown controller {name!r}; choose from: {', '.join(CONTROLLER_NAMES)}")
+
+
+__all__ = [
+    "AdaptationBounds",
+    "CONTROLLER_NAMES",
+    "CascadePid",
+    "CascadePidParams",
+    "ChannelGains",
+    "Controller",
+    "Diagnostics",
+    "PAPER_GAINS",
+    "PidSmc",
+    "PidSmcParams",
+    "SignSmc",
+    "SignSmcParams",
+    "constant_reference",
+    "make_controller",
+]

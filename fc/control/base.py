@@ -1,0 +1,91 @@
+"""The interface every attitude/altitude controller implements, and the tuples it exchanges.
+
+All quantities are in the paper's frame (z up) and channel order (phi, theta, psi, z); see
+:mod:`smcpilot.model`. The tuples are plain so the hot path allocates as little as possible:
+
+``meas`` (8 floats)
+    ``(phi, phi_dot, theta, theta_dot, psi, psi_dot, z, z_dot)``: rad, rad/s, m, m/s.
+``ref`` (16 floats)
+    per channel ``(x_d, x_d', x_d'', x_d''')``, channel-major.
+``accel`` (4 floats or None)
+    measured ``(phi'', theta'', psi'', z'')``, used only by controllers configured for the
+    paper's "oracle" sigma.
+``u`` (4 floats)
+    inputs ``(u_phi [N], u_theta [N], u_psi [N m], u_z [N])`` = the paper's (u2, u3, u4, u1).
+``state``
+    the controller's own states, a flat tuple whose meaning is given by ``state_names``.
+
+A controller offers the same law in two forms:
+
+- continuous time: :meth:`Controller.command` gives u for the current state and
+  :meth:`Controller.derivatives` the time derivative of the state, for integrating the
+  controller inside the plant's ODE;
+- sampled data: :meth:`Controller.step` advances the state by ``dt_s`` (forward Euler of the
+  same derivatives, zero-order hold) and returns the u to hold until the next step.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple, Protocol, Sequence
+
+Meas = Sequence[float]
+Ref = Sequence[float]
+Vec4 = tuple[float, float, float, float]
+
+
+class Diagnostics(NamedTuple):
+    """Per-channel internals (each a 4-tuple in channel order, or None where it has no meaning).
+
+    ``s``: sliding variable S = c1 e + c2 e'; ``sigma``: PID sliding manifold (or the baseline's
+    switching function); ``chi_hat``: switching gain in use; ``u``: input; ``u_dot``: its rate.
+    """
+
+    s: Vec4 | None
+    sigma: Vec4 | None
+    chi_hat: Vec4 | None
+    u: Vec4
+    u_dot: Vec4 | None
+
+
+class Controller(Protocol):
+    """What the runners, the flight controller and the benchmarks need from a control law."""
+
+    #: short identifier (``pid_smc``, ``adaptive_pid_smc``, ``sign_smc``, ``cascade_pid``).
+    name: str
+    #: names of the entries of the state tuple.
+    state_names: tuple[str, ...]
+
+    def initial_state(self, meas: Meas) -> tuple[float, ...]:
+        """Controller state at t = 0 for the vehicle state ``meas``."""
+        ...
+
+    def command(self, meas: Meas, ref: Ref, state: Sequence[float]) -> Vec4:
+        """Input u in effect for this state (continuous-time form)."""
+        ...
+
+    def derivatives(
+        self, meas: Meas, ref: Ref, state: Sequence[float], accel: Sequence[float] | None = None
+    ) -> tuple[tuple[float, ...], Diagnostics]:
+        """Time derivative of the state and the diagnostics (continuous-time form)."""
+        ...
+
+    def step(
+        self,
+        meas: Meas,
+        ref: Ref,
+        state: Sequence[float],
+        dt_s: float,
+        accel: Sequence[float] | None = None,
+    ) -> tuple[Vec4, tuple[float, ...], Diagnostics]:
+        """Advance by ``dt_s`` seconds; return (u to hold, new state, diagnostics)."""
+        ...
+
+
+def constant_reference(targets: Sequence[float]) -> tuple[float, ...]:
+    """The 16-float reference of constant set-points (derivatives zero), channel order."""
+    if len(targets) != 4:
+        raise ValueError("need 4 targets (phi, theta, psi, z)")
+    out: list[float] = []
+    for x in targets:
+        out.extend((float(x), 0.0, 0.0, 0.0))
+    return tuple(out)

@@ -1,0 +1,1 @@
+"""Reproduction of the paper's simulation (§VI, spec §5): scenario, metrics, figures, report."""

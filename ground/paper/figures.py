@@ -1,0 +1,179 @@
+"""PNG figures of a paper-scenario run (matplotlib, Agg backend: no display needed)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from ground.paper.run import PaperRun  # noqa: E402
+from smcpilot.model import CHANNELS, INPUT_UNITS, STATE_UNITS  # noqa: E402
+
+LABELS = {
+    "pid_smc": "PID-SMC (known χ)",
+    "adaptive_pid_smc": "adaptive PID-SMC",
+    "sign_smc": "sign SMC",
+    "cascade_pid": "cascaded PID",
+}
+COLORS = {"pid_smc": "tab:blue", "adaptive_pid_smc": "tab:green", "sign_smc": "tab:red", "cascade_pid": "tab:gray"}
+SYMBOLS = {"phi": "φ", "theta": "θ", "psi": "ψ", "z": "z"}
+
+
+def _grid(title: str, nrows: int = 2, ncols: int = 2, height: float = 6.5):
+    fig, axes = plt.subplots(nrows, ncols, figsize=(11, height), sharex=True, squeeze=False)
+    fig.suptitle(title)
+    return fig, axes
+
+
+def _save(fig, out: Path, name: str) -> Path:
+    fig.tight_layout()
+    path = out / name
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _mark_divergence(ax, tr) -> None:
+    if tr.diverged and tr.diverged_at_s is not None:
+        ax.axvline(tr.diverged_at_s, color=COLORS.get(tr.controller, "k"), ls=":", lw=1)
+
+
+def write_figures(run: PaperRun, out_dir: str | Path) -> list[Path]:
+    """Write every figure into ``out_dir`` (created if needed); return the paths."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    trs = run.trajectories
+    paths: list[Path] = []
+    mode = "continuous RK4" if run.options.rate_hz is None else f"sampled at {run.options.rate_hz:g} Hz"
+    sub = f"paper scenario, {mode}, σ from {run.options.sigma_source}"
+
+    # 1. states vs references
+    fig, axes = _grid(f"Attitude and altitude vs reference ({sub})")
+    for i, c in enumerate(CHANNELS):
+        ax = axes.flat[i]
+        for name, tr in trs.items():
+            ax.plot(tr.t_s, tr.x[:, 2 * i], color=COLORS[name], label=LABELS[name], lw=1.2)
+            _mark_divergence(ax, tr)
+        first = next(iter(trs.values()))
+        ax.plot(first.t_s, first.x_ref[:, i], "k--", lw=1, label="reference")
+        ax.set_ylabel(f"{SYMBOLS[c]} [{STATE_UNITS[i]}]")
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=8)
+    for ax in axes[-1]:
+        ax.set_xlabel("t [s]")
+    paths.append(_save(fig, out, "states.png"))
+
+    # 2. tracking errors (symlog so both the transient and the residual show)
+    fig, axes = _grid(f"Tracking errors e = x − x_d ({sub})")
+    for i, c in enumerate(CHANNELS):
+        ax = axes.flat[i]
+        for name, tr in trs.items():
+            ax.plot(tr.t_s, tr.errors[:, i], color=COLORS[name], label=LABELS[name], lw=1.2)
+        ax.axhspan(-0.01, 0.01, color="k", alpha=0.07)
+        ax.set_yscale("symlog", linthresh=1e-3)
+        ax.set_ylabel(f"e_{SYMBOLS[c]} [{STATE_UNITS[i]}]")
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=8)
+    for ax in axes[-1]:
+        ax.set_xlabel("t [s]")
+    paths.append(_save(fig, out, "errors.png"))
+
+    # 3. S and sigma of the PID-SMC flavours
+    smc = {n: tr for n, tr in trs.items() if tr.s is not None}
+    if smc:
+        fig, axes = plt.subplots(4, 2, figsize=(11, 9), sharex=True)
+        fig.suptitle(f"Sliding variable S and PID manifold σ ({sub})")
+        for i, c in enumerate(CHANNELS):
+            for name, tr in smc.items():
+                axes[i, 0].plot(tr.t_s, tr.s[:, i], color=COLORS[name], label=LABELS[name], lw=1.2)
+                axes[i, 1].plot(tr.t_s, tr.sigma[:, i], color=COLORS[name], label=LABELS[name], lw=1.2)
+            axes[i, 0].set_ylabel(f"S_{SYMBOLS[c]}")
+            axes[i, 1].set_ylabel(f"σ_{SYMBOLS[c]}")
+            for ax in axes[i]:
+                ax.set_yscale("symlog", linthresh=1e-3)
+                ax.grid(alpha=0.3)
+        axes[0, 0].legend(fontsize=8)
+        axes[-1, 0].set_xlabel("t [s]")
+        axes[-1, 1].set_xlabel("t [s]")
+        paths.append(_save(fig, out, "sliding.png"))
+
+    # 4. inputs per channel
+    fig, axes = _grid(f"Control inputs u ({sub})")
+    for i, c in enumerate(CHANNELS):
+        ax = axes.flat[i]
+        for name, tr in trs.items():
+            ax.plot(tr.t_s, tr.u[:, i], color=COLORS[name], label=LABELS[name], lw=0.8)
+        ax.set_ylabel(f"u_{SYMBOLS[c]} [{INPUT_UNITS[i]}]")
+        ax.grid(alpha=0.3)
+        finite = np.concatenate([tr.u[:, i] for tr in trs.values() if tr.controller != "sign_smc"] or [np.zeros(1)])
+        lim = np.nanpercentile(np.abs(finite), 99.5) if finite.size else 1.0
+        if np.isfinite(lim) and lim > 0:
+            ax.set_ylim(-1.3 * lim if np.nanmin(finite) < 0 else 0.0, 1.3 * lim)
+    axes[0, 0].legend(fontsize=8)
+    for ax in axes[-1]:
+        ax.set_xlabel("t [s]")
+    paths.append(_save(fig, out, "inputs.png"))
+
+    # 5. chi_hat
+    ad = trs.get("adaptive_pid_smc")
+    known = trs.get("pid_smc")
+    if ad is not None or known is not None:
+        fig, axes = _grid(f"Switching gain χ̂ (adaptive) and χ (known bound) ({sub})")
+        for i, c in enumerate(CHANNELS):
+            ax = axes.flat[i]
+            if ad is not None and ad.chi_hat is not None:
+                ax.plot(ad.t_s, ad.chi_hat[:, i], color=COLORS["adaptive_pid_smc"], label="χ̂ (adaptive)")
+            if known is not None and known.chi_hat is not None:
+                ax.plot(known.t_s, known.chi_hat[:, i], "--", color=COLORS["pid_smc"], label="χ (known bound)")
+            ax.set_ylabel(f"χ_{SYMBOLS[c]}")
+            ax.grid(alpha=0.3)
+        axes[0, 0].legend(fontsize=8)
+        for ax in axes[-1]:
+            ax.set_xlabel("t [s]")
+        paths.append(_save(fig, out, "chi_hat.png"))
+
+    # 6. rotor speeds (signed square root of w^2, so unrealisable commands show below zero)
+    n = len(trs)
+    fig, axes = plt.subplots(n, 1, figsize=(11, 2.2 * n + 0.8), sharex=True, squeeze=False)
+    fig.suptitle(f"Rotor speeds (negative: ω² < 0, not realisable) ({sub})")
+    hover = float(np.sqrt(run.model.hover_omega_sq))
+    for k, (name, tr) in enumerate(trs.items()):
+        ax = axes[k, 0]
+        w = np.sign(tr.w_sq) * np.sqrt(np.abs(tr.w_sq))
+        for j in range(4):
+            ax.plot(tr.t_s, w[:, j], lw=0.9, label=f"ω{j + 1}")
+        ax.axhline(hover, color="k", ls="--", lw=0.8, label="hover")
+        ax.set_ylabel(f"{LABELS[name]}\n[rad/s]", fontsize=8)
+        ax.grid(alpha=0.3)
+        lim = np.nanpercentile(np.abs(w), 99.5)
+        if np.isfinite(lim) and lim > 0:
+            ax.set_ylim(min(-0.05 * lim, np.nanmin(w)) if np.nanmin(w) < 0 else 0.0, 1.2 * lim)
+    axes[0, 0].legend(fontsize=7, ncol=5)
+    axes[-1, 0].set_xlabel("t [s]")
+    paths.append(_save(fig, out, "rotor_speeds.png"))
+
+    # 7. chattering comparison: a zoom on u near the end, and total variation per controller
+    fig, axes = plt.subplots(2, 4, figsize=(13, 6))
+    fig.suptitle(f"Chattering: u over 0.1 s at t = 10 s (top) and total variation Σ|Δu| (bottom, log) ({sub})")
+    for i, c in enumerate(CHANNELS):
+        ax = axes[0, i]
+        for name, tr in trs.items():
+            sel = (tr.t_s >= 10.0) & (tr.t_s <= 10.1)
+            if sel.any():
+                ax.plot(tr.t_s[sel], tr.u[sel, i], color=COLORS[name], label=LABELS[name], lw=1)
+        ax.set_title(f"u_{SYMBOLS[c]} [{INPUT_UNITS[i]}]", fontsize=9)
+        ax.grid(alpha=0.3)
+        ax2 = axes[1, i]
+        names = list(trs)
+        tv = [float(np.nansum(np.abs(np.diff(trs[nm].u[:, i])))) for nm in names]
+        ax2.bar(range(len(names)), tv, color=[COLORS[nm] for nm in names])
+        ax2.set_xticks(range(len(names)), [LABELS[nm].replace(" ", "\n", 1) for nm in names], fontsize=7)
+        ax2.set_yscale("log")
+        ax2.grid(alpha=0.3, axis="y")
+    axes[0, 0].legend(fontsize=7)
+    paths.append(_save(fig, out, "chattering.png"))
+    return paths

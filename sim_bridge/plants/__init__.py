@@ -1,0 +1,1 @@
+"""Plants the simulator bridge can integrate."""

@@ -1,0 +1,31 @@
+"""Exception classes shared by every part of smcpilot.
+
+Each error says what was wrong in words a user can act on; the CLI prints the message and exits
+non-zero instead of showing a traceback.
+"""
+
+from __future__ import annotations
+
+
+class SmcpilotError(Exception):
+    """Base class of every error smcpilot raises on purpose."""
+
+
+class ConfigError(SmcpilotError, ValueError):
+    """A parameter, option or configuration file is invalid (the message names the key)."""
+
+
+class InvalidGainError(ConfigError):
+    """A controller gain is outside its valid range (e.g. kd = 0, c2 = 0, delta outside (0, 1))."""
+
+
+class VehicleFileError(ConfigError):
+    """A vehicle TOML file is unreadable or has a missing, unknown or out-of-range key."""
+
+
+class DivergenceError(SmcpilotError):
+    """A simulation left the region where the model is meaningful (NaN, inf or huge states)."""
+
+    def __init__(self, message: str, time_s: float) -> None:
+        super().__init__(message)
+        self.time_s = time_s

@@ -1,0 +1,265 @@
+"""The paper's quadrotor model, corrected (``pid-smc-spec.md`` §1): the one place its equations live.
+
+Frame: the paper's inertial frame, z up. Euler angles phi (roll), theta (pitch), psi (yaw) in rad;
+as in the paper, Euler-angle rates stand in for body rates (small-angle simplification).
+
+Channel order everywhere is the paper's ``U = [u2, u3, u4, u1]`` (eq. 12):
+
+====== ======= =========================================== ==========
+index  channel input                                       unit
+====== ======= =========================================== ==========
+0      phi     u2 = Kp (w3^2 - w1^2), roll force difference  N (torque d u2)
+1      theta   u3 = Kp (w4^2 - w2^2), pitch force difference N (torque d u3)
+2      psi     u4 = Cd (w1^2 - w2^2 + w3^2 - w4^2)          N m
+3      z       u1 = Kp (w1^2 + w2^2 + w3^2 + w4^2)          N
+====== ======= =========================================== ==========
+
+Dynamics per channel: ``x_k'' = f_k(X) + g_k(X) u_k + d_k`` with X = (phi, phi', theta, theta',
+psi, psi', z, z'). The controller uses f and g as its nominal model; the simulator uses them as
+the truth and adds disturbances d. Both build a :class:`PaperModel` from the same
+:class:`~smcpilot.vehicle.VehicleParams`, so the equations exist once.
+
+All methods take and return plain floats (they sit in the hot path).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from smcpilot.typos import MODEL_TYPOS, parse_typos
+from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
+
+CHANNELS: tuple[str, str, str, str] = ("phi", "theta", "psi", "z")
+#: Unit of each channel's input u_k.
+INPUT_UNITS: tuple[str, str, str, str] = ("N", "N", "N m", "N")
+#: Unit of each channel's coordinate x_k.
+STATE_UNITS: tuple[str, str, str, str] = ("rad", "rad", "rad", "m")
+
+_sqrt = math.sqrt
+_sin = math.sin
+_cos = math.cos
+
+
+@dataclass(frozen=True)
+class PaperModel:
+    """Coefficients of eqs. (10)-(14), derived once from a vehicle.
+
+    Build with :meth:`from_vehicle`. ``typos`` holds the names (see :mod:`smcpilot.typos`) of the
+    model typos to reproduce literally; the default is the corrected model.
+    """
+
+    mass_kg: float
+    gravity_mps2: float
+    arm_length_m: float
+    thrust_coeff_n_s2: float
+    drag_coeff_n_m_s2: float
+    lin_drag_x_n_s_m: float
+    lin_drag_y_n_s_m: float
+    a1: float
+    a2: float
+    a3: float
+    a4: float
+    a5: float
+    a6: float
+    a7: float
+    a8: float
+    a9: float
+    b1: float
+    b2: float
+    b3: float
+    typos: frozenset[str] = frozenset()
+
+    @classmethod
+    def from_vehicle(
+        cls, vehicle: VehicleParams = DEFAULT_VEHICLE, typos: frozenset[str] | str | None = None
+    ) -> "PaperModel":
+        ty = parse_typos(typos) & MODEL_TYPOS
+        v = vehicle
+        ix, iy, iz = v.ixx_kg_m2, v.iyy_kg_m2, v.izz_kg_m2
+        b3 = v.drag_coeff_n_m_s2 / iz if "b3" in ty else 1.0 / iz
+        return cls(
+            mass_kg=v.mass_kg,
+            gravity_mps2=v.gravity_mps2,
+            arm_length_m=v.arm_length_m,
+            thrust_coeff_n_s2=v.thrust_coeff_n_s2,
+            drag_coeff_n_m_s2=v.drag_coeff_n_m_s2,
+            lin_drag_x_n_s_m=v.lin_drag_x_n_s_m,
+            lin_drag_y_n_s_m=v.lin_drag_y_n_s_m,
+            a1=(iy - iz) / ix,
+            a2=-v.rot_drag_x_n_m_s2 / ix,
+            a3=-v.rotor_inertia_kg_m2 / ix,
+            a4=(iz - ix) / iy,
+            a5=-v.rot_drag_y_n_m_s2 / iy,
+            a6=v.rotor_inertia_kg_m2 / iy,
+            a7=(ix - iy) / iz,
+            a8=-v.rot_drag_z_n_m_s2 / iz,
+            a9=-v.lin_drag_z_n_s_m / v.mass_kg,
+            b1=v.arm_length_m / ix,
+            b2=v.arm_length_m / iy,
+            b3=b3,
+            typos=ty,
+        )
+
+    # -- eq. (11): mixer --------------------------------------------------------------------------
+    def mix(self, w1_sq: float, w2_sq: float, w3_sq: float, w4_sq: float) -> tuple[float, float, float, float]:
+        """Rotor speeds squared [(rad/s)^2] -> inputs (u_phi, u_theta, u_psi, u_z) = (u2, u3, u4, u1)."""
+        kp = self.thrust_coeff_n_s2
+        return (
+            kp * (w3_sq - w1_sq),
+            kp * (w4_sq - w2_sq),
+            self.drag_coeff_n_m_s2 * (w1_sq - w2_sq + w3_sq - w4_sq),
+            kp * (w1_sq + w2_sq + w3_sq + w4_sq),
+        )
+
+    def unmix(self, u_phi: float, u_theta: float, u_psi: float, u_z: float) -> tuple[float, float, float, float]:
+        """Inverse of :meth:`mix`: inputs -> (w1^2, w2^2, w3^2, w4^2), (rad/s)^2.
+
+        A result below zero means the command cannot be realised by any rotor speeds.
+        """
+        t = u_z / self.thrust_coeff_n_s2
+        y = u_psi / self.drag_coeff_n_m_s2
+        r = u_phi / self.thrust_coeff_n_s2
+        p = u_theta / self.thrust_coeff_n_s2
+        q13 = 0.25 * (t + y)
+        q24 = 0.25 * (t - y)
+        return (q13 - 0.5 * r, q24 - 0.5 * p, q13 + 0.5 * r, q24 + 0.5 * p)
+
+    @staticmethod
+    def omega_bar(w1_sq: float, w2_sq: float, w3_sq: float, w4_sq: float) -> float:
+        """Net rotor speed w1 - w2 + w3 - w4 [rad/s] for the gyroscopic term (negatives clamp to 0)."""
+        return (
+            _sqrt(w1_sq if w1_sq > 0.0 else 0.0)
+            - _sqrt(w2_sq if w2_sq > 0.0 else 0.0)
+            + _sqrt(w3_sq if w3_sq > 0.0 else 0.0)
+            - _sqrt(w4_sq if w4_sq > 0.0 else 0.0)
+        )
+
+    def omega_bar_of_inputs(self, u_phi: float, u_theta: float, u_psi: float, u_z: float) -> float:
+        """Omega-bar of the rotor speeds that realise the inputs."""
+        return self.omega_bar(*self.unmix(u_phi, u_theta, u_psi, u_z))
+
+    # -- eq. (13) with corrections: drift f and input gain g --------------------------------------
+    def drift(
+        self, phi_dot: float, theta_dot: float, psi_dot: float, z_dot: float, omega_bar: float
+    ) -> tuple[float, float, float, float]:
+        """f = (f_phi, f_theta, f_psi, f_z): rad/s^2, rad/s^2, rad/s^2, m/s^2."""
+        fz = self.a9 * z_dot * psi_dot if "z-drift" in self.typos else self.a9 * z_dot
+        return (
+            self.a1 * theta_dot * psi_dot + self.a2 * phi_dot * phi_dot + self.a3 * omega_bar * theta_dot,
+            self.a4 * phi_dot * psi_dot + self.a5 * theta_dot * theta_dot + self.a6 * omega_bar * phi_dot,
+            self.a7 * phi_dot * theta_dot + self.a8 * psi_dot * psi_dot,
+            fz - self.gravity_mps2,
+        )
+
+    def gain_z(self, phi: float, theta: float) -> float:
+        """g_z = cos(phi) cos(theta) / m, 1/kg. (g_phi = b1, g_theta = b2, g_psi = b3 are constants.)"""
+        return _cos(phi) * _cos(theta) / self.mass_kg
+
+    def gains(self, phi: float, theta: float) -> tuple[float, float, float, float]:
+        """g = (b1 [1/(kg m)], b2 [1/(kg m)], b3 [1/(kg m^2)], g_z [1/kg])."""
+        return (self.b1, self.b2, self.b3, _cos(phi) * _cos(theta) / self.mass_kg)
+
+    def accelerations(
+        self,
+        phi: float,
+        phi_dot: float,
+        theta: float,
+        theta_dot: float,
+        psi_dot: float,
+        z_dot: float,
+        u_phi: float,
+        u_theta: float,
+        u_psi: float,
+        u_z: float,
+        omega_bar: float,
+    ) -> tuple[float, float, float, float]:
+        """Nominal accelerations f + g u (no disturbance): (phi'', theta'', psi'' [rad/s^2], z'' [m/s^2])."""
+        f0, f1, f2, f3 = self.drift(phi_dot, theta_dot, psi_dot, z_dot, omega_bar)
+        return (
+            f0 + self.b1 * u_phi,
+            f1 + self.b2 * u_theta,
+            f2 + self.b3 * u_psi,
+            f3 + _cos(phi) * _cos(theta) / self.mass_kg * u_z,
+        )
+
+    # -- time derivatives of f and g (spec §2; the paper's (20)/(27) drop half of each product) ---
+    def drift_rates(
+        self,
+        phi: float,
+        phi_dot: float,
+        theta: float,
+        theta_dot: float,
+        psi_dot: float,
+        z_dot: float,
+        phi_dd: float,
+        theta_dd: float,
+        psi_dd: float,
+        z_dd: float,
+        omega_bar: float,
+    ) -> tuple[float, float, float, float, float]:
+        """(f_phi', f_theta', f_psi', f_z', g_z') with Omega-bar held constant over the step.
+
+        The accelerations are inputs (the controller passes its nominal ``f + g u``).
+        """
+        if "fdot" in self.typos:
+            # As printed in eqs. (20)/(34): a1 x4' x6' + 2 a2 x2' x2 + a3 W x4', etc.
+            fp = self.a1 * theta_dd * psi_dd + 2.0 * self.a2 * phi_dd * phi_dot + self.a3 * omega_bar * theta_dd
+            ft = self.a4 * phi_dd * psi_dd + 2.0 * self.a5 * theta_dd * theta_dot + self.a6 * omega_bar * phi_dd
+            fs = self.a7 * phi_dd * theta_dd + 2.0 * self.a8 * psi_dd * psi_dot
+        else:
+            fp = (
+                self.a1 * (theta_dd * psi_dot + theta_dot * psi_dd)
+                + 2.0 * self.a2 * phi_dot * phi_dd
+                + self.a3 * omega_bar * theta_dd
+            )
+            ft = (
+                self.a4 * (phi_dd * psi_dot + phi_dot * psi_dd)
+                + 2.0 * self.a5 * theta_dot * theta_dd
+                + self.a6 * omega_bar * phi_dd
+            )
+            fs = self.a7 * (phi_dd * theta_dot + phi_dot * theta_dd) + 2.0 * self.a8 * psi_dot * psi_dd
+        if "z-drift" in self.typos:
+            fz = self.a9 * (z_dd * psi_dot + z_dot * psi_dd)
+        else:
+            fz = self.a9 * z_dd
+        sp, cp = _sin(phi), _cos(phi)
+        st, ct = _sin(theta), _cos(theta)
+        gz_dot = -(phi_dot * sp * ct + theta_dot * cp * st) / self.mass_kg
+        return fp, ft, fs, fz, gz_dot
+
+    # -- physical actuation (plant side) ----------------------------------------------------------
+    def actuation(
+        self, w1_sq: float, w2_sq: float, w3_sq: float, w4_sq: float
+    ) -> tuple[float, float, float, float]:
+        """Inputs that rotor speeds really produce: eq. (11), or eq. (7)'s printed pitch moment.
+
+        With the ``pitch-moment`` typo the pitch input is Kp (w4^2 - w1^2) instead of
+        Kp (w4^2 - w2^2); otherwise this equals :meth:`mix`.
+        """
+        u_phi, u_theta, u_psi, u_z = self.mix(w1_sq, w2_sq, w3_sq, w4_sq)
+        if "pitch-moment" in self.typos:
+            u_theta = self.thrust_coeff_n_s2 * (w4_sq - w1_sq)
+        return u_phi, u_theta, u_psi, u_z
+
+    def horizontal_accelerations(
+        self, phi: float, theta: float, psi: float, x_dot: float, y_dot: float, u_z: float
+    ) -> tuple[float, float]:
+        """(x'', y'') [m/s^2] of eq. (10), z-up inertial frame."""
+        sp, cp = _sin(phi), _cos(phi)
+        st = _sin(theta)
+        ss, cs = _sin(psi), _cos(psi)
+        m = self.mass_kg
+        return (
+            (-self.lin_drag_x_n_s_m * x_dot + (cp * st * cs + sp * ss) * u_z) / m,
+            (-self.lin_drag_y_n_s_m * y_dot + (cp * st * ss - sp * cs) * u_z) / m,
+        )
+
+    def hover_inputs(self, phi: float = 0.0, theta: float = 0.0) -> tuple[float, float, float, float]:
+        """Hover trim (0, 0, 0, m g / (cos phi cos theta)) in channel order."""
+        return (0.0, 0.0, 0.0, self.mass_kg * self.gravity_mps2 / (_cos(phi) * _cos(theta)))
+
+    @property
+    def hover_omega_sq(self) -> float:
+        """Rotor speed squared at level hover, (rad/s)^2."""
+        return self.mass_kg * self.gravity_mps2 / (4.0 * self.thrust_coeff_n_s2)
