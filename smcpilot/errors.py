@@ -29,3 +29,23 @@ class DivergenceError(SmcpilotError):
     def __init__(self, message: str, time_s: float) -> None:
         super().__init__(message)
         self.time_s = time_s
+
+
+class EndpointError(ConfigError):
+    """A MAVLink endpoint URL (``udp:HOST:PORT``, ``udpout:HOST:PORT``, ``udpin:HOST:PORT``) is invalid."""
+
+
+class LinkError(SmcpilotError):
+    """A MAVLink link could not be opened or was used after it was closed."""
+
+
+class LinkClosedError(LinkError):
+    """A MAVLink link was used after :meth:`close`."""
+
+
+class TlogError(SmcpilotError):
+    """A telemetry log (``.tlog``) could not be written or read."""
+
+
+class TlogFormatError(TlogError):
+    """A ``.tlog`` file is not a sequence of (8-byte timestamp, valid MAVLink packet) records."""

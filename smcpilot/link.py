@@ -1,0 +1,586 @@
+"""MAVLink over UDP: the link plumbing the flight controller and the simulator bridge share.
+
+Endpoints are written the way MAVLink tools write them:
+
+``udp:HOST:PORT`` or ``udpout:HOST:PORT``
+    send to HOST:PORT from an ephemeral port of our own (bound on loopback when HOST is a loopback
+    address, else on all interfaces), and also answer every address that writes to us.
+``udpin:HOST:PORT``
+    bind HOST:PORT (``udpin::PORT`` = all interfaces; PORT 0 = any free port), no destination
+    until someone writes to us; then answer whoever writes.
+
+(Careful: pymavlink and MAVProxy read a bare ``udp:`` as *listen*; here it means *send*.)
+
+:class:`MavlinkUdp` sends each message to every known peer, packs several messages into one
+datagram with :meth:`MavlinkUdp.send_many`, and parses every datagram completely and on its own
+(a datagram holds whole packets, so no parser state is carried from one datagram, or one peer,
+to the next). Bad bytes never raise: they are dropped and counted in
+:attr:`MavlinkUdp.counters`, and the parser resynchronises on the next start-of-frame byte inside
+the same datagram, so a good packet behind garbage still arrives. Sending never raises on
+network errors either (an unreachable ground station must not stop the control loop): they are
+counted in ``tx_errors``.
+
+The three messages of the control loop (ATTITUDE, LOCAL_POSITION_NED, HIL_ACTUATOR_CONTROLS) are
+encoded and decoded by :mod:`smcpilot.fastcodec` (same bytes, same message objects, several times
+faster); everything else goes through pymavlink.
+
+Every message sent and every message returned by :meth:`MavlinkUdp.recv` is written to the tlog,
+if one is given, stamped with the injected ``clock_us()`` (simulated time in lockstep, so logs
+are reproducible bit for bit). Peer expiry uses real time (``time.monotonic``), because peers
+come and go in the real world.
+
+A link is not thread-safe: one thread owns it.
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import math
+import re
+import select
+import socket
+import struct
+import time
+from dataclasses import asdict, dataclass
+from types import TracebackType
+from typing import Callable, Iterable, Literal, Sequence
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from smcpilot import fastcodec
+from smcpilot.errors import EndpointError, LinkClosedError, LinkError
+from smcpilot.tlog import TlogWriter
+
+__all__ = [
+    "Address",
+    "Endpoint",
+    "LinkCounters",
+    "MavlinkUdp",
+    "parse_endpoint",
+    "DEFAULT_PEER_TIMEOUT_S",
+    "DEFAULT_MAX_DATAGRAM_BYTES",
+]
+
+#: A UDP peer address as the socket module gives it: ``(host, port)``.
+Address = tuple[str, int]
+
+#: A peer that has not written for this long stops receiving :meth:`MavlinkUdp.send`.
+DEFAULT_PEER_TIMEOUT_S = 10.0
+#: :meth:`MavlinkUdp.send_many` starts a new datagram before one would exceed this size; 1400
+#: stays under an Ethernet/Wi-Fi MTU, so datagrams are not fragmented on the way to a GCS.
+DEFAULT_MAX_DATAGRAM_BYTES = 1400
+#: At most this many peers learnt from incoming traffic are remembered (the initial destination
+#: of an ``out`` endpoint comes on top); a flood of new source addresses cannot make us send to
+#: more places than this.
+DEFAULT_MAX_PEERS = 16
+
+_SCHEMES: dict[str, Literal["out", "in"]] = {"udp": "out", "udpout": "out", "udpin": "in"}
+_HOST_RE = re.compile(r"^[A-Za-z0-9](?:[A-Za-z0-9.-]*[A-Za-z0-9])?$")
+_ENDPOINT_FORMS = "udp:HOST:PORT, udpout:HOST:PORT or udpin:HOST:PORT"
+
+_RECV_BUFFER_BYTES = 65535
+_MAGIC_V1 = mavlink.PROTOCOL_MARKER_V1
+_MAGIC_V2 = mavlink.PROTOCOL_MARKER_V2
+_START_OF_FRAME = re.compile(b"[\xfd\xfe]")
+_SIGNATURE_BYTES = mavlink.MAVLINK_SIGNATURE_BLOCK_LEN
+_DECODE_ERRORS = (mavlink.MAVError, struct.error, ArithmeticError, LookupError, TypeError, ValueError)
+_FD_SETSIZE = 1024
+_UNKNOWN_MESSAGE = mavlink.MAVLink_unknown
+
+
+@dataclass(frozen=True)
+class Endpoint:
+    """Where a link sends or listens. ``mode`` "out": send to host:port; "in": bind host:port."""
+
+    mode: Literal["out", "in"]
+    host: str
+    port: int
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("out", "in"):
+            raise EndpointError(f"endpoint {self!r}: mode must be 'out' or 'in'")
+        if not isinstance(self.host, str) or not self.host:
+            raise EndpointError(f"endpoint {self!r}: host must be a non-empty string")
+        lowest_port = 0 if self.mode == "in" else 1
+        if not isinstance(self.port, int) or not lowest_port <= self.port <= 65535:
+            raise EndpointError(f"endpoint {self!r}: port must be an integer in {lowest_port}..65535")
+
+    @property
+    def url(self) -> str:
+        """Canonical URL form, ``udpout:HOST:PORT`` or ``udpin:HOST:PORT``."""
+        return f"udp{self.mode}:{self.host}:{self.port}"
+
+    def __str__(self) -> str:
+        return self.url
+
+
+def parse_endpoint(url: str) -> Endpoint:
+    """Parse ``udp:HOST:PORT``, ``udpout:HOST:PORT`` or ``udpin:HOST:PORT`` (IPv4 or host name).
+
+    ``udpin`` accepts an empty host (all interfaces) and port 0 (any free port). Raises
+    :class:`~smcpilot.errors.EndpointError` naming the URL for anything else.
+    """
+    if not isinstance(url, str):
+        raise EndpointError(f"endpoint must be a string like {_ENDPOINT_FORMS}, got {url!r}")
+    text = url.strip()
+    scheme, colon, rest = text.partition(":")
+    mode = _SCHEMES.get(scheme.lower())
+    if not colon or mode is None:
+        raise EndpointError(f"endpoint {url!r}: unknown form; expected {_ENDPOINT_FORMS}")
+    if rest.startswith("//"):
+        raise EndpointError(f"endpoint {url!r}: write {scheme}:HOST:PORT without '//'")
+    host, colon, port_text = rest.rpartition(":")
+    if not colon:
+        raise EndpointError(f"endpoint {url!r}: missing ':PORT'; expected {_ENDPOINT_FORMS}")
+    if ":" in host or host.startswith("["):
+        raise EndpointError(f"endpoint {url!r}: IPv6 addresses are not supported; use an IPv4 address or host name")
+    if not port_text.isdigit() or not port_text.isascii():
+        raise EndpointError(f"endpoint {url!r}: port {port_text!r} is not a number")
+    port = int(port_text)
+    lowest_port = 0 if mode == "in" else 1
+    if not lowest_port <= port <= 65535:
+        raise EndpointError(f"endpoint {url!r}: port {port} is outside {lowest_port}..65535")
+    if not host:
+        if mode == "out":
+            raise EndpointError(f"endpoint {url!r}: an outgoing endpoint needs a host to send to")
+        host = "0.0.0.0"
+    elif not _HOST_RE.match(host) or len(host) > 253:
+        raise EndpointError(f"endpoint {url!r}: {host!r} is not a valid IPv4 address or host name")
+    return Endpoint(mode=mode, host=host, port=port)
+
+
+@dataclass(slots=True)
+class LinkCounters:
+    """Traffic statistics of one link (mutable; read them, or ``reset()``).
+
+    ``rx_bad`` counts runs of bytes that are not a good packet (garbage, a truncated packet, a
+    bad CRC, bad header flags): a whole garbage datagram counts once, and a good packet ends a
+    run. ``rx_unknown`` counts well-framed packets whose id the dialect does not know (their CRC
+    cannot be checked). ``rx_foreign_system`` counts good packets dropped because their source
+    system is not ``accept_system``. ``tx_messages`` counts messages encoded (each took a
+    sequence number), ``tx_datagrams`` datagrams the OS accepted, ``tx_errors`` failed sends
+    (unreachable peer, full buffer, ...), including ICMP refusals reported on a later receive.
+    """
+
+    rx_datagrams: int = 0
+    rx_messages: int = 0
+    rx_bad: int = 0
+    rx_unknown: int = 0
+    rx_foreign_system: int = 0
+    tx_messages: int = 0
+    tx_datagrams: int = 0
+    tx_errors: int = 0
+    #: errno of the most recent failed send, 0 if none.
+    last_tx_errno: int = 0
+    #: datagrams from a new address not remembered as a peer because ``max_peers`` were known
+    #: (their messages are still returned by ``recv``).
+    peers_rejected: int = 0
+
+    def as_dict(self) -> dict[str, int]:
+        """A plain-dict snapshot."""
+        return asdict(self)
+
+    def reset(self) -> None:
+        """Set every counter back to zero."""
+        for name in self.__slots__:  # type: ignore[attr-defined]
+            setattr(self, name, 0)
+
+
+class _LinkWriter:
+    """File-like shim so ``link.mav.<message>_send(...)`` sends through the link."""
+
+    __slots__ = ("_link",)
+
+    def __init__(self, link: MavlinkUdp) -> None:
+        self._link = link
+
+    def write(self, packet: bytes) -> None:
+        self._link._send_encoded(packet)
+
+
+def _wall_clock_us() -> int:
+    return time.time_ns() // 1000
+
+
+class MavlinkUdp:
+    """A MAVLink 2 link over one UDP socket; see the module docstring. Use as a context manager."""
+
+    def __init__(
+        self,
+        endpoint_or_url: Endpoint | str,
+        *,
+        source_system: int,
+        source_component: int,
+        accept_system: int | None = None,
+        tlog: TlogWriter | None = None,
+        clock_us: Callable[[], int] | None = None,
+        peer_timeout_s: float = DEFAULT_PEER_TIMEOUT_S,
+        max_peers: int = DEFAULT_MAX_PEERS,
+        max_datagram_bytes: int = DEFAULT_MAX_DATAGRAM_BYTES,
+        fast_codec: bool = True,
+        monotonic_s: Callable[[], float] = time.monotonic,
+    ) -> None:
+        """Open the socket.
+
+        ``source_system``/``source_component`` go into every packet we send; with
+        ``accept_system`` set, packets from any other system id are dropped. ``tlog`` (owned by
+        the caller, not closed here) records traffic stamped with ``clock_us()`` (default: wall
+        clock, µs since the epoch). ``fast_codec=False`` forces pymavlink for every message.
+        ``monotonic_s`` is the real-time clock for peer expiry (injectable for tests).
+        """
+        endpoint = parse_endpoint(endpoint_or_url) if isinstance(endpoint_or_url, str) else endpoint_or_url
+        if not isinstance(endpoint, Endpoint):
+            raise EndpointError(f"endpoint must be an Endpoint or a URL string, got {endpoint_or_url!r}")
+        for name, value, lowest in (
+            ("source_system", source_system, 0),
+            ("source_component", source_component, 0),
+            ("accept_system", 0 if accept_system is None else accept_system, 0),
+        ):
+            if not isinstance(value, int) or not lowest <= value <= 255:
+                raise LinkError(f"{name} must be an integer in 0..255, got {value!r}")
+        if not peer_timeout_s > 0:
+            raise LinkError(f"peer_timeout_s must be > 0, got {peer_timeout_s!r}")
+        if max_peers < 1:
+            raise LinkError(f"max_peers must be >= 1, got {max_peers!r}")
+        if max_datagram_bytes < 300:
+            raise LinkError(f"max_datagram_bytes must be >= 300 (one MAVLink packet), got {max_datagram_bytes!r}")
+
+        self._endpoint = endpoint
+        self._accept_system = accept_system
+        self._tlog = tlog
+        self._clock_us = clock_us if clock_us is not None else _wall_clock_us
+        self._peer_timeout_s = float(peer_timeout_s)
+        self._max_peers = max_peers
+        self._max_datagram_bytes = max_datagram_bytes
+        self._monotonic_s = monotonic_s
+        self._packers = dict(fastcodec.PACKERS) if fast_codec else {}
+        self._decoders = dict(fastcodec.DECODERS) if fast_codec else {}
+        self.counters = LinkCounters()
+
+        self._mav = mavlink.MAVLink(_LinkWriter(self), srcSystem=source_system, srcComponent=source_component)
+        self._decoder = mavlink.MAVLink(None)  # decode() only: stateless without signing
+        self._decode = self._decoder.decode
+
+        self._initial_destination: Address | None = None
+        self._peer_seen_s: dict[Address, float] = {}
+        self._destinations: tuple[Address, ...] = ()
+        self._next_prune_s = math.inf
+        self._closed = True
+
+        sock = self._open_socket(endpoint)
+        self._sock = sock
+        self._fd = sock.fileno()
+        self._local_address: Address = sock.getsockname()[:2]
+        self._closed = False
+        self._rebuild_destinations()
+
+    def _open_socket(self, endpoint: Endpoint) -> socket.socket:
+        try:
+            infos = socket.getaddrinfo(endpoint.host, endpoint.port, socket.AF_INET, socket.SOCK_DGRAM)
+        except OSError as exc:
+            raise LinkError(f"endpoint {endpoint.url}: cannot resolve host {endpoint.host!r}: {exc}") from exc
+        address: Address = infos[0][4][:2]
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            if endpoint.mode == "in":
+                sock.bind(address)
+            else:
+                loopback = ipaddress.ip_address(address[0]).is_loopback
+                sock.bind(("127.0.0.1" if loopback else "0.0.0.0", 0))
+                self._initial_destination = address
+            sock.setblocking(False)
+        except OSError as exc:
+            sock.close()
+            raise LinkError(f"endpoint {endpoint.url}: cannot bind UDP socket: {exc.strerror or exc}") from exc
+        return sock
+
+    # ------------------------------------------------------------------ properties
+
+    @property
+    def endpoint(self) -> Endpoint:
+        """The endpoint this link was opened on."""
+        return self._endpoint
+
+    @property
+    def local_address(self) -> Address:
+        """``(host, port)`` our socket is bound to."""
+        return self._local_address
+
+    @property
+    def mav(self) -> mavlink.MAVLink:
+        """pymavlink encoder: ``link.mav.attitude_encode(...)`` builds a message for :meth:`send`;
+        ``link.mav.heartbeat_send(...)`` sends at once to every peer. Its ``seq`` is the link's
+        sequence counter."""
+        return self._mav
+
+    @property
+    def peers(self) -> tuple[Address, ...]:
+        """Addresses :meth:`send` currently reaches: the initial destination, then every address
+        that has written good packets to us within ``peer_timeout_s``."""
+        if self._next_prune_s <= self._monotonic_s():
+            self._prune_peers()
+        return self._destinations
+
+    @property
+    def closed(self) -> bool:
+        """True once :meth:`close` has run."""
+        return self._closed
+
+    def fileno(self) -> int:
+        """The socket's file descriptor, for the caller's own ``select``."""
+        return self._fd
+
+    # ------------------------------------------------------------------ sending
+
+    def send(self, msg: mavlink.MAVLink_message) -> None:
+        """Encode ``msg`` (next sequence number) and send it to every peer; log it once."""
+        packet = self._encode(msg)
+        if self._tlog is not None:
+            self._tlog.write(self._clock_us(), packet)
+        self._send_datagram_to_peers(packet)
+
+    def send_many(self, msgs: Iterable[mavlink.MAVLink_message]) -> None:
+        """Encode several messages and send them in as few datagrams as fit
+        ``max_datagram_bytes`` (normally one) to every peer; all logged with one timestamp."""
+        encode = self._encode
+        packets = [encode(msg) for msg in msgs]
+        if not packets:
+            return
+        if self._tlog is not None:
+            self._tlog.write_many(self._clock_us(), packets)
+        for datagram in self._datagrams(packets):
+            self._send_datagram_to_peers(datagram)
+
+    def send_to(self, msg: mavlink.MAVLink_message, addr: Address) -> None:
+        """Encode ``msg`` and send it to ``addr`` only (e.g. a COMMAND_ACK to the requester)."""
+        packet = self._encode(msg)
+        if self._tlog is not None:
+            self._tlog.write(self._clock_us(), packet)
+        self._send_datagram(packet, addr)
+
+    def _encode(self, msg: mavlink.MAVLink_message) -> bytes:
+        if self._closed:
+            raise LinkClosedError(f"link {self._endpoint.url} is closed")
+        mav = self._mav
+        seq = mav.seq
+        packer = self._packers.get(type(msg))
+        if packer is not None and not mav.signing.sign_outgoing:
+            packet = packer(msg, seq, mav.srcSystem, mav.srcComponent)
+        else:
+            packet = msg.pack(mav)
+        mav.seq = (seq + 1) & 0xFF
+        self.counters.tx_messages += 1
+        return packet
+
+    def _send_encoded(self, packet: bytes) -> None:
+        """Send a packet pymavlink's ``MAVLink.send`` has encoded (it advances ``seq`` itself)."""
+        if self._closed:
+            raise LinkClosedError(f"link {self._endpoint.url} is closed")
+        self.counters.tx_messages += 1
+        if self._tlog is not None:
+            self._tlog.write(self._clock_us(), packet)
+        self._send_datagram_to_peers(packet)
+
+    def _datagrams(self, packets: Sequence[bytes]) -> list[bytes]:
+        limit = self._max_datagram_bytes
+        datagrams: list[bytes] = []
+        batch: list[bytes] = []
+        size = 0
+        for packet in packets:
+            if size + len(packet) > limit and batch:
+                datagrams.append(b"".join(batch))
+                batch, size = [], 0
+            batch.append(packet)
+            size += len(packet)
+        datagrams.append(b"".join(batch))
+        return datagrams
+
+    def _send_datagram_to_peers(self, datagram: bytes) -> None:
+        if self._next_prune_s <= self._monotonic_s():
+            self._prune_peers()
+        sendto = self._sock.sendto
+        counters = self.counters
+        for addr in self._destinations:
+            try:
+                sendto(datagram, addr)
+            except OSError as exc:
+                counters.tx_errors += 1
+                counters.last_tx_errno = exc.errno or 0
+            else:
+                counters.tx_datagrams += 1
+
+    def _send_datagram(self, datagram: bytes, addr: Address) -> None:
+        counters = self.counters
+        try:
+            self._sock.sendto(datagram, addr)
+        except OSError as exc:
+            counters.tx_errors += 1
+            counters.last_tx_errno = exc.errno or 0
+        else:
+            counters.tx_datagrams += 1
+
+    # ------------------------------------------------------------------ receiving
+
+    def recv(self, timeout_s: float, *, max_datagrams: int = 256) -> list[tuple[mavlink.MAVLink_message, Address]]:
+        """Wait up to ``timeout_s`` for a datagram, then take every datagram already queued
+        (at most ``max_datagrams``) without waiting; return their good messages with the sender's
+        address, in arrival order. ``timeout_s <= 0`` only polls. Returns ``[]`` on timeout, or
+        when everything that arrived was dropped."""
+        if self._closed:
+            raise LinkClosedError(f"link {self._endpoint.url} is closed")
+        received: list[tuple[mavlink.MAVLink_message, Address]] = []
+        if timeout_s > 0 and not self._wait_readable(timeout_s):
+            return received
+        recvfrom = self._sock.recvfrom
+        counters = self.counters
+        parse = self._parse_datagram
+        now_s = -1.0
+        for _ in range(max_datagrams):
+            try:
+                data, addr = recvfrom(_RECV_BUFFER_BYTES)
+            except BlockingIOError:
+                break
+            except (ConnectionRefusedError, ConnectionResetError) as exc:
+                # An ICMP "port unreachable" for an earlier send, reported here by some systems.
+                counters.tx_errors += 1
+                counters.last_tx_errno = exc.errno or 0
+                continue
+            counters.rx_datagrams += 1
+            if parse(data, addr, received):
+                if now_s < 0:
+                    now_s = self._monotonic_s()
+                seen = self._peer_seen_s
+                if addr in seen:
+                    seen[addr] = now_s
+                else:
+                    self._add_peer(addr, now_s)
+        return received
+
+    def _wait_readable(self, timeout_s: float) -> bool:
+        if self._fd < _FD_SETSIZE:
+            readable, _, _ = select.select((self._fd,), (), (), timeout_s)
+            return bool(readable)
+        poller = select.poll()  # pragma: no cover - only in processes with > 1024 open files
+        poller.register(self._fd, select.POLLIN)
+        return bool(poller.poll(math.ceil(timeout_s * 1000.0)))
+
+    def _parse_datagram(
+        self, data: bytes, addr: Address, received: list[tuple[mavlink.MAVLink_message, Address]]
+    ) -> int:
+        """Append the good messages of one datagram to ``received``; return how many."""
+        counters = self.counters
+        decoders = self._decoders
+        accept_system = self._accept_system
+        tlog = self._tlog
+        stamp_us = -1
+        accepted = 0
+        in_bad_run = False
+        decoder: Callable[[bytes], mavlink.MAVLink_message | None] | None = None
+        src_system = -1
+        size = len(data)
+        i = 0
+        while i < size:
+            magic = data[i]
+            end = -1
+            if magic == _MAGIC_V2:
+                if i + 10 <= size:
+                    flags = data[i + 2]
+                    if not flags & ~1:  # only the "signed" incompat flag is defined
+                        end = i + 12 + data[i + 1] + (_SIGNATURE_BYTES if flags else 0)
+                        src_system = data[i + 5]
+                        decoder = None if flags else decoders.get(data[i + 7] | (data[i + 8] << 8) | (data[i + 9] << 16))
+            elif magic == _MAGIC_V1:
+                if i + 6 <= size:
+                    end = i + 8 + data[i + 1]
+                    src_system = data[i + 3]
+                    decoder = None
+            if 0 <= end <= size:
+                packet = data[i:end]
+                if decoder is not None:
+                    msg = decoder(packet)
+                else:
+                    try:
+                        msg = self._decode(bytearray(packet))
+                    except _DECODE_ERRORS:
+                        msg = None
+                    else:
+                        if isinstance(msg, _UNKNOWN_MESSAGE):  # framed, but not in our dialect
+                            counters.rx_unknown += 1
+                            in_bad_run = False
+                            i = end
+                            continue
+                if msg is not None:
+                    in_bad_run = False
+                    i = end
+                    if accept_system is not None and src_system != accept_system:
+                        counters.rx_foreign_system += 1
+                        continue
+                    received.append((msg, addr))
+                    accepted += 1
+                    if tlog is not None:
+                        if stamp_us < 0:
+                            stamp_us = self._clock_us()
+                        tlog.write(stamp_us, packet)
+                    continue
+            # Not a good packet at i: count the run once and resynchronise on the next
+            # start-of-frame byte after i.
+            if not in_bad_run:
+                counters.rx_bad += 1
+                in_bad_run = True
+            found = _START_OF_FRAME.search(data, i + 1)
+            i = found.start() if found is not None else size
+        counters.rx_messages += accepted
+        return accepted
+
+    # ------------------------------------------------------------------ peers
+
+    def _add_peer(self, addr: Address, now_s: float) -> None:
+        seen = self._peer_seen_s
+        if len(seen) >= self._max_peers:
+            self._prune_peers()
+            if len(seen) >= self._max_peers:
+                self.counters.peers_rejected += 1
+                return
+        seen[addr] = now_s
+        self._next_prune_s = min(self._next_prune_s, now_s + self._peer_timeout_s)
+        self._rebuild_destinations()
+
+    def _prune_peers(self) -> None:
+        seen = self._peer_seen_s
+        now_s = self._monotonic_s()
+        oldest_allowed_s = now_s - self._peer_timeout_s
+        stale = [addr for addr, seen_s in seen.items() if seen_s < oldest_allowed_s]
+        for addr in stale:
+            del seen[addr]
+        self._next_prune_s = min(seen.values()) + self._peer_timeout_s if seen else math.inf
+        if stale:
+            self._rebuild_destinations()
+
+    def _rebuild_destinations(self) -> None:
+        initial = self._initial_destination
+        learnt = tuple(addr for addr in self._peer_seen_s if addr != initial)
+        self._destinations = ((initial,) if initial is not None else ()) + learnt
+
+    # ------------------------------------------------------------------ lifetime
+
+    def close(self) -> None:
+        """Close the socket (the tlog stays open: it belongs to the caller). Idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        self._sock.close()
+
+    def __enter__(self) -> MavlinkUdp:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        state = "closed" if self._closed else f"local={self._local_address[0]}:{self._local_address[1]}"
+        return f"MavlinkUdp({self._endpoint.url}, {state})"

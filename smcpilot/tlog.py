@@ -1,0 +1,235 @@
+"""Telemetry logs in the standard ``.tlog`` format (QGroundControl, MAVProxy, pymavlink).
+
+A ``.tlog`` is a plain concatenation of records; each record is an 8-byte big-endian unsigned
+timestamp in microseconds followed by one raw MAVLink packet (v1 or v2, exactly as on the wire).
+There is no file header, so any prefix made of whole records is itself a valid log.
+
+:class:`TlogWriter` keeps whole records in a memory buffer and hands them to the operating system
+with ``os.write`` only as whole records: a log cut short by a crash still ends on a record
+boundary. Records the owner has written reach the file when the buffer fills, on :meth:`flush`
+and on :meth:`close`. A process killed by SIGTERM runs no ``finally`` blocks unless the SIGTERM
+handler raises (``signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(143))`` does), so
+an owner that wants every record on disk installs such a handler and closes the writer in a
+``finally`` or ``with`` block.
+
+:func:`read_tlog` reads a log back as ``(time_us, message)`` pairs with exact integer timestamps
+(pymavlink's own reader turns them into float seconds).
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+from pathlib import Path
+from types import TracebackType
+from typing import Iterable, Iterator
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from smcpilot.errors import TlogError, TlogFormatError
+
+__all__ = ["TlogWriter", "read_tlog", "TIMESTAMP_BYTES"]
+
+#: Size of the timestamp that precedes every packet in a ``.tlog``.
+TIMESTAMP_BYTES = 8
+
+_TIMESTAMP = struct.Struct(">Q")
+_TIMESTAMP_PACK = _TIMESTAMP.pack
+_MAX_TIME_US = 2**64 - 1
+
+_MAGIC_V1 = mavlink.PROTOCOL_MARKER_V1
+_MAGIC_V2 = mavlink.PROTOCOL_MARKER_V2
+_HEADER_V1_BYTES = 6
+_HEADER_V2_BYTES = 10
+_CRC_BYTES = 2
+_SIGNATURE_BYTES = mavlink.MAVLINK_SIGNATURE_BLOCK_LEN
+_IFLAG_SIGNED = mavlink.MAVLINK_IFLAG_SIGNED
+_READ_CHUNK_BYTES = 1 << 20
+
+
+class TlogWriter:
+    """Write MAVLink packets with timestamps to a new ``.tlog`` file (truncates an existing one).
+
+    Not thread-safe: one owner writes. Use as a context manager, or call :meth:`close` in a
+    ``finally`` block.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], *, buffer_bytes: int = 64 * 1024) -> None:
+        """Create (or truncate) ``path``; records are buffered up to about ``buffer_bytes``."""
+        if buffer_bytes < 0:
+            raise TlogError(f"{path}: buffer_bytes must be >= 0, got {buffer_bytes}")
+        self._path = Path(path)
+        self._buffer_limit_bytes = buffer_bytes
+        self._buffer = bytearray()
+        self._records_written = 0
+        try:
+            self._fd = os.open(
+                self._path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | getattr(os, "O_CLOEXEC", 0), 0o644
+            )
+        except OSError as exc:
+            raise TlogError(f"cannot create tlog {self._path}: {exc.strerror}") from exc
+
+    @property
+    def path(self) -> Path:
+        """The log file."""
+        return self._path
+
+    @property
+    def closed(self) -> bool:
+        """True once :meth:`close` has run."""
+        return self._fd < 0
+
+    @property
+    def records_written(self) -> int:
+        """Number of records accepted by :meth:`write` / :meth:`write_many` so far."""
+        return self._records_written
+
+    def write(self, time_us: int, packet: bytes | bytearray) -> None:
+        """Append one record: ``time_us`` (µs, 0 ≤ t < 2**64) then the raw MAVLink ``packet``."""
+        if self._fd < 0:
+            raise TlogError(f"tlog {self._path} is closed")
+        buffer = self._buffer
+        try:
+            buffer += _TIMESTAMP_PACK(time_us)
+        except struct.error as exc:
+            raise TlogError(
+                f"tlog {self._path}: timestamp must be an integer in [0, {_MAX_TIME_US}] µs, got {time_us!r}"
+            ) from exc
+        buffer += packet
+        self._records_written += 1
+        if len(buffer) >= self._buffer_limit_bytes:
+            self._drain()
+
+    def write_many(self, time_us: int, packets: Iterable[bytes | bytearray]) -> None:
+        """Append one record per packet, all with the same timestamp ``time_us``."""
+        if self._fd < 0:
+            raise TlogError(f"tlog {self._path} is closed")
+        try:
+            stamp = _TIMESTAMP_PACK(time_us)
+        except struct.error as exc:
+            raise TlogError(
+                f"tlog {self._path}: timestamp must be an integer in [0, {_MAX_TIME_US}] µs, got {time_us!r}"
+            ) from exc
+        buffer = self._buffer
+        for packet in packets:
+            buffer += stamp
+            buffer += packet
+            self._records_written += 1
+        if len(buffer) >= self._buffer_limit_bytes:
+            self._drain()
+
+    def flush(self, *, fsync: bool = False) -> None:
+        """Hand every buffered record to the OS; with ``fsync`` also wait until it is on disk."""
+        if self._fd < 0:
+            raise TlogError(f"tlog {self._path} is closed")
+        self._drain()
+        if fsync:
+            os.fsync(self._fd)
+
+    def close(self) -> None:
+        """Flush and close the file. Calling it again does nothing."""
+        if self._fd < 0:
+            return
+        try:
+            self._drain()
+        finally:
+            fd, self._fd = self._fd, -1
+            os.close(fd)
+
+    def _drain(self) -> None:
+        buffer = self._buffer
+        if not buffer:
+            return
+        view = memoryview(buffer)
+        written = 0
+        try:
+            while written < len(buffer):
+                written += os.write(self._fd, view[written:])
+        except OSError as exc:
+            raise TlogError(f"cannot write tlog {self._path}: {exc.strerror}") from exc
+        finally:
+            view.release()
+            del buffer[:written]
+
+    def __enter__(self) -> TlogWriter:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        state = "closed" if self.closed else f"{self._records_written} records"
+        return f"TlogWriter({str(self._path)!r}, {state})"
+
+
+def read_tlog(path: str | os.PathLike[str]) -> Iterator[tuple[int, mavlink.MAVLink_message]]:
+    """Yield ``(time_us, message)`` for every record of the ``.tlog`` at ``path``, in file order.
+
+    Messages are decoded by pymavlink (ardupilotmega dialect, which includes common); an id the
+    dialect does not know is yielded as ``MAVLink_unknown``. Each message also gets pymavlink's
+    ``_timestamp`` attribute (float seconds). A bad magic byte, a bad CRC or a record cut short
+    raises :class:`~smcpilot.errors.TlogFormatError` naming the byte offset, after every record
+    before it has been yielded.
+    """
+    decoder = mavlink.MAVLink(None)
+    decode = decoder.decode
+    path = Path(path)
+    try:
+        handle = open(path, "rb")
+    except OSError as exc:
+        raise TlogError(f"cannot open tlog {path}: {exc.strerror}") from exc
+    with handle:
+        data = bytearray()
+        start = 0  # index into data of the next record
+        offset = 0  # file offset of data[0]
+        at_eof = False
+        while True:
+            if not at_eof and len(data) - start < 8 + 280 + _SIGNATURE_BYTES:
+                del data[:start]
+                offset += start
+                start = 0
+                chunk = handle.read(_READ_CHUNK_BYTES)
+                if chunk:
+                    data += chunk
+                else:
+                    at_eof = True
+            available = len(data) - start
+            if available == 0 and at_eof:
+                return
+            where = offset + start
+            if available < TIMESTAMP_BYTES + 3:
+                if at_eof:
+                    raise TlogFormatError(f"{path}: record at byte {where} is cut short")
+                continue
+            magic = data[start + TIMESTAMP_BYTES]
+            length = data[start + TIMESTAMP_BYTES + 1]
+            if magic == _MAGIC_V2:
+                flags = data[start + TIMESTAMP_BYTES + 2]
+                total = _HEADER_V2_BYTES + length + _CRC_BYTES
+                if flags & _IFLAG_SIGNED:
+                    total += _SIGNATURE_BYTES
+            elif magic == _MAGIC_V1:
+                total = _HEADER_V1_BYTES + length + _CRC_BYTES
+            else:
+                raise TlogFormatError(
+                    f"{path}: record at byte {where} does not hold a MAVLink packet (byte 0x{magic:02x} "
+                    f"after the timestamp, expected 0xfd or 0xfe)"
+                )
+            end = start + TIMESTAMP_BYTES + total
+            if end > len(data):
+                if at_eof:
+                    raise TlogFormatError(f"{path}: record at byte {where} is cut short")
+                continue
+            (time_us,) = _TIMESTAMP.unpack_from(data, start)
+            try:
+                message = decode(data[start + TIMESTAMP_BYTES : end])
+            except mavlink.MAVError as exc:
+                raise TlogFormatError(f"{path}: bad MAVLink packet at byte {where + TIMESTAMP_BYTES}: {exc}") from exc
+            message._timestamp = time_us * 1.0e-6
+            start = end
+            yield time_us, message

@@ -1,0 +1,124 @@
+"""smcpilot.fastcodec produces and reads exactly what pymavlink does, for random field values."""
+
+from __future__ import annotations
+
+import math
+import struct
+
+import pytest
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from smcpilot import fastcodec
+
+U8 = st.integers(0, 0xFF)
+U32 = st.integers(0, 2**32 - 1)
+U64 = st.integers(0, 2**64 - 1)
+#: float32-representable values (NaN, ±inf, ±0, subnormals, extremes) with plenty of zeros, so
+#: that MAVLink 2 trailing-zero truncation is exercised down to the 1-byte minimum payload.
+F32 = st.one_of(st.just(0.0), st.floats(width=32), st.sampled_from([math.nan, math.inf, -math.inf, -0.0, 3.4028234663852886e38]))
+#: any Python float, including ones float32 cannot hold (both encoders must then fail alike).
+F64 = st.one_of(F32, st.floats(allow_nan=True, allow_infinity=True))
+
+
+def reference(msg: mavlink.MAVLink_message, seq: int, system: int, component: int) -> bytes:
+    mav = mavlink.MAVLink(None, srcSystem=system, srcComponent=component)
+    mav.seq = seq
+    return msg.pack(mav)
+
+
+def same_value(a: object, b: object) -> bool:
+    if isinstance(a, float) and isinstance(b, float):
+        return struct.pack("<d", a) == struct.pack("<d", b) or (math.isnan(a) and math.isnan(b))
+    if isinstance(a, list) and isinstance(b, list):
+        return len(a) == len(b) and all(same_value(x, y) for x, y in zip(a, b))
+    return a == b
+
+
+def assert_same_message(fast: mavlink.MAVLink_message, slow: mavlink.MAVLink_message) -> None:
+    assert type(fast) is type(slow)
+    fast_vars, slow_vars = vars(fast), vars(slow)
+    assert fast_vars.keys() == slow_vars.keys()
+    for key, slow_value in slow_vars.items():
+        if key == "_header":
+            assert vars(fast_vars[key]) == vars(slow_value)
+        else:
+            assert same_value(fast_vars[key], slow_value), key
+
+
+def assert_round_trip(packet: bytes) -> None:
+    slow = mavlink.MAVLink(None).decode(bytearray(packet))
+    fast = fastcodec.decode_packet(packet)
+    assert fast is not None
+    assert_same_message(fast, slow)
+
+
+@settings(max_examples=400, deadline=None)
+@given(seq=U8, system=U8, component=U8, t=U32, values=st.lists(F32, min_size=6, max_size=6))
+@example(seq=0, system=0, component=0, t=0, values=[0.0] * 6)  # all-zero payload -> 1 byte
+@example(seq=255, system=255, component=255, t=2**32 - 1, values=[math.nan, math.inf, -math.inf, -0.0, 1e-45, 0.0])
+def test_attitude_and_local_position_ned_match_pymavlink(seq: int, system: int, component: int, t: int, values: list[float]) -> None:
+    mav = mavlink.MAVLink(None)
+    for encode_msg, encode_fast in (
+        (mav.attitude_encode, fastcodec.encode_attitude),
+        (mav.local_position_ned_encode, fastcodec.encode_local_position_ned),
+    ):
+        msg = encode_msg(t, *values)
+        expected = reference(msg, seq, system, component)
+        assert encode_fast(seq, system, component, t, *values) == expected
+        assert fastcodec.pack_message(msg, seq, system, component) == expected
+        assert_round_trip(expected)
+
+
+@settings(max_examples=400, deadline=None)
+@given(seq=U8, system=U8, component=U8, t=U64, controls=st.lists(F32, min_size=16, max_size=16), mode=U8, flags=U64)
+@example(seq=0, system=1, component=1, t=0, controls=[0.0] * 16, mode=0, flags=0)
+@example(seq=7, system=1, component=1, t=2**64 - 1, controls=[0.5] * 4 + [0.0] * 12, mode=0, flags=2**64 - 1)
+def test_hil_actuator_controls_match_pymavlink(
+    seq: int, system: int, component: int, t: int, controls: list[float], mode: int, flags: int
+) -> None:
+    msg = mavlink.MAVLink(None).hil_actuator_controls_encode(t, controls, mode, flags)
+    expected = reference(msg, seq, system, component)
+    assert fastcodec.encode_hil_actuator_controls(seq, system, component, t, controls, mode, flags) == expected
+    assert fastcodec.pack_message(msg, seq, system, component) == expected
+    assert_round_trip(expected)
+
+
+@settings(max_examples=300, deadline=None)
+@given(values=st.lists(F64, min_size=6, max_size=6), t=st.integers(-(2**33), 2**33))
+def test_out_of_range_values_fail_like_pymavlink(values: list[float], t: int) -> None:
+    msg = mavlink.MAVLink(None).attitude_encode(t, *values)
+    try:
+        expected: bytes | type[BaseException] = reference(msg, 0, 1, 1)
+    except (struct.error, OverflowError) as exc:
+        expected = type(exc)
+    try:
+        got: bytes | type[BaseException] = fastcodec.encode_attitude(0, 1, 1, t, *values)
+    except (struct.error, OverflowError) as exc:
+        got = type(exc)
+    assert got == expected
+
+
+def test_pack_message_leaves_other_types_to_pymavlink() -> None:
+    msg = mavlink.MAVLink(None).heartbeat_encode(2, 3, 0, 0, 0)
+    assert fastcodec.pack_message(msg, 0, 1, 1) is None
+    assert fastcodec.FAST_MSG_IDS == {30, 32, 93}
+
+
+@pytest.mark.parametrize("flip_index", [1 + 9, 12, -2, -1])
+def test_corrupted_packet_decodes_to_none(flip_index: int) -> None:
+    packet = bytearray(fastcodec.encode_attitude(3, 1, 1, 1000, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6))
+    packet[flip_index] ^= 0x01
+    assert fastcodec.decode_packet(bytes(packet)) is None
+
+
+def test_payload_longer_than_known_fields_decodes_like_pymavlink() -> None:
+    """A newer dialect may append extension fields; both decoders ignore the extra bytes."""
+    base = fastcodec.encode_local_position_ned(9, 1, 1, 5, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0)
+    payload = base[10:-2] + b"\x11\x22\x33"
+    header = bytes([0xFD, len(payload)]) + base[2:10]
+    extra = bytes([mavlink.MAVLink_local_position_ned_message.crc_extra])
+    crc = mavlink.x25crc(header[1:] + payload + extra).crc
+    packet = header + payload + struct.pack("<H", crc)
+    assert_round_trip(packet)
