@@ -102,3 +102,13 @@ class CascadePid:
         u, err = self._output(meas, ref, state)
         new = tuple(state[i] + dt_s * err[i] for i in range(4))
         return u, new, Diagnostics(None, None, None, u, None)
+
+    def anti_windup(
+        self,
+        prev: Sequence[float],
+        new: Sequence[float],
+        u_realised: Sequence[float],
+        limited: Sequence[bool],
+    ) -> tuple[float, ...]:
+        """Integrators of limited channels keep their previous values."""
+        return tuple(prev[i] if limited[i] else new[i] for i in range(4))

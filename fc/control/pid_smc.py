@@ -273,6 +273,28 @@ class PidSmc:
         return u_out, tuple(new), Diagnostics(s, sg, chi, u_out, ud)
 
 
+    # -- saturation feedback ----------------------------------------------------------------------
+    def anti_windup(
+        self,
+        prev: Sequence[float],
+        new: Sequence[float],
+        u_realised: Sequence[float],
+        limited: Sequence[bool],
+    ) -> tuple[float, ...]:
+        """State after the actuators could only realise ``u_realised`` on the ``limited`` channels.
+
+        On a limited channel u tracks what the motors really produce and int S and chi_hat keep
+        their previous values (they must not wind up against a limit the law cannot see).
+        """
+        out = list(new)
+        for i in range(4):
+            if limited[i]:
+                out[i] = prev[i]
+                out[4 + i] = u_realised[i]
+                out[8 + i] = prev[8 + i]
+        return tuple(out)
+
+
 def _channel(
     x: float,
     x_dot: float,

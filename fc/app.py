@@ -1,0 +1,445 @@
+"""The flight-controller process: MAVLink in, control law, MAVLink out, at a fixed rate.
+
+Two links:
+
+- the **simulator link** (``--sim``, normally ``udpin:127.0.0.1:PORT``): state in as
+  ``ATTITUDE`` + ``LOCAL_POSITION_NED`` (NED/FRD, one datagram per tick, stamped with simulated
+  time), motor commands out as ``HIL_ACTUATOR_CONTROLS`` (controls[0..3] in [0, 1]; mode has
+  SAFETY_ARMED when armed; flags bit 0 = lockstep);
+- the **ground link** (``--gcs``): telemetry out (:mod:`fc.telemetry`), set-points and commands in
+  (:mod:`fc.gcs`).
+
+Timing:
+
+- **lockstep**: every state message is one tick of simulated time; the FC answers each with one
+  actuator message and the simulator advances only then. The clock is the simulator's. A
+  simulator silent for ``watchdog_s`` wall seconds ends the FC with an error (exit 3).
+- **real time**: a fixed-rate loop on the wall clock with absolute deadlines; each tick uses the
+  latest state. Late ticks are counted (overruns) and their lateness recorded. State older than
+  ``failsafe_state_timeout_s`` puts the FC in failsafe (level, descend, ``STATUSTEXT``).
+
+Everything the FC sends and receives is logged to a ``.tlog`` (simulated-time stamps in
+lockstep, so the log is reproducible bit for bit), plus the law's internals every tick.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import select
+import signal
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, TextIO
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from fc import telemetry
+from fc.config import FcConfig
+from fc.flight import FlightControl, TickOutput, VehicleState
+from fc.gcs import GcsHandler
+from fc.plan import PlanStep
+from smcpilot.clock import SimClock, WallClock
+from smcpilot.frames import body_rates_to_euler_rates, euler_frd_to_flu, ned_to_nwu, rates_frd_to_flu
+from smcpilot.link import MavlinkUdp
+from smcpilot.tlog import TlogWriter
+from smcpilot.vehicle import VehicleParams
+
+#: Component id of the flight controller (MAV_COMP_ID_AUTOPILOT1).
+FC_COMPONENT = 1
+#: ArduCopter custom mode numbers used so far (the GCS protocol adds the rest).
+MODE_GUIDED = 4
+MODE_LAND = 9
+
+EXIT_OK = 0
+EXIT_CONFIG = 2
+EXIT_WATCHDOG = 3
+
+_isfinite = math.isfinite
+
+
+class WatchdogError(RuntimeError):
+    """The simulator went silent."""
+
+
+@dataclass
+class FcStats:
+    """Counters reported at exit (and summarised from the log by ``smcpilot log summary``)."""
+
+    ticks: int = 0
+    overruns: int = 0
+    lateness_s: list[float] = field(default_factory=list)
+    rx_invalid_state: int = 0
+    duplicate_states: int = 0
+    failsafe_events: int = 0
+
+    def summary(self) -> dict:
+        late = sorted(self.lateness_s)
+
+        def pct(p: float) -> float | None:
+            if not late:
+                return None
+            return late[min(len(late) - 1, int(p * (len(late) - 1) + 0.5))]
+
+        return {
+            "ticks": self.ticks,
+            "overruns": self.overruns,
+            "lateness_p50_s": pct(0.5),
+            "lateness_p99_s": pct(0.99),
+            "lateness_max_s": late[-1] if late else None,
+            "rx_invalid_state": self.rx_invalid_state,
+            "duplicate_states": self.duplicate_states,
+            "failsafe_events": self.failsafe_events,
+        }
+
+
+def state_from_mavlink(att: mavlink.MAVLink_attitude_message, pos: mavlink.MAVLink_local_position_ned_message):
+    """(VehicleState in the paper frame, body rates FLU) from the two wire messages, or None if
+    any field is not finite."""
+    vals = (att.roll, att.pitch, att.yaw, att.rollspeed, att.pitchspeed, att.yawspeed, pos.x, pos.y, pos.z, pos.vx, pos.vy, pos.vz)
+    for v in vals:
+        if not _isfinite(v):
+            return None
+    phi, theta, psi = euler_frd_to_flu(att.roll, att.pitch, att.yaw)
+    p, q, r = rates_frd_to_flu(att.rollspeed, att.pitchspeed, att.yawspeed)
+    phi_d, theta_d, psi_d = body_rates_to_euler_rates(phi, theta, p, q, r)
+    x, y, z = ned_to_nwu((pos.x, pos.y, pos.z))
+    vx, vy, vz = ned_to_nwu((pos.vx, pos.vy, pos.vz))
+    return VehicleState(x, y, z, vx, vy, vz, phi, theta, psi, phi_d, theta_d, psi_d), (p, q, r)
+
+
+class FlightControllerApp:
+    """One flight-controller process. Build, then :meth:`run` (returns the exit code)."""
+
+    def __init__(
+        self,
+        config: FcConfig,
+        vehicle: VehicleParams,
+        *,
+        sim_url: str,
+        gcs_url: str | None,
+        lockstep: bool,
+        tlog_path: Path | None,
+        plan: tuple[PlanStep, ...] = (),
+        duration_s: float | None = None,
+        startup_timeout_s: float = 30.0,
+        out: TextIO = sys.stdout,
+        monotonic: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.cfg = config
+        self.vehicle = vehicle
+        self.lockstep = lockstep
+        self.duration_s = duration_s
+        self.startup_timeout_s = startup_timeout_s
+        self.out = out
+        self._mono = monotonic
+        self.flight = FlightControl(config, vehicle)
+        self.stats = FcStats()
+        self.clock: SimClock | WallClock = SimClock() if lockstep else WallClock(1.0, monotonic)
+        self.tlog = TlogWriter(tlog_path) if tlog_path is not None else None
+        clock_us = self.clock.now_us
+        sysid = config.system_id
+        try:
+            self.sim = MavlinkUdp(
+                sim_url, source_system=sysid, source_component=FC_COMPONENT, accept_system=sysid, tlog=self.tlog, clock_us=clock_us
+            )
+            self.gcs = (
+                MavlinkUdp(gcs_url, source_system=sysid, source_component=FC_COMPONENT, tlog=self.tlog, clock_us=clock_us)
+                if gcs_url
+                else None
+            )
+        except Exception:
+            if self.tlog is not None:
+                self.tlog.close()
+            raise
+        self._logmav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=FC_COMPONENT)
+        self.gcs_handler = GcsHandler(self)
+        self.plan = list(plan)
+        self._plan_i = 0
+        self._att: mavlink.MAVLink_attitude_message | None = None
+        self.state: VehicleState | None = None
+        self.body_rates: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self._state_ms = -1
+        self._state_wall_s = -math.inf
+        self._last_tick_ms = -1
+        self._last_actuator: mavlink.MAVLink_message | None = None
+        self._last_out: TickOutput | None = None
+        self._telemetry_every = max(1, int(round(config.rate_hz / config.telemetry_rate_hz)))
+        self._second_every = max(1, int(round(config.rate_hz)))
+        self.failsafe = False
+        self._stop = False
+        self._exit_code = EXIT_OK
+        self.t0_us = 0
+
+    # -- lifecycle -----------------------------------------------------------------------------
+    def say(self, line: str) -> None:
+        print(line, file=self.out, flush=True)
+
+    def request_stop(self, *_: object) -> None:
+        self._stop = True
+
+    def close(self) -> None:
+        for link in (self.sim, self.gcs):
+            if link is not None:
+                link.close()
+        if self.tlog is not None:
+            self.tlog.close()
+
+    def run(self) -> int:
+        sim_addr = "%s:%d" % self.sim.local_address
+        gcs_addr = "%s:%d" % self.gcs.local_address if self.gcs else "-"
+        self.say(f"FC_LISTENING sim={sim_addr} gcs={gcs_addr} pid={os.getpid()}")
+        try:
+            if self.lockstep:
+                self._run_lockstep()
+            else:
+                self._run_realtime()
+        except WatchdogError as exc:
+            self.say(f"fc: error: {exc}")
+            self._exit_code = EXIT_WATCHDOG
+        finally:
+            summary = self.stats.summary()
+            summary["sim_time_s"] = self.clock.now_s()
+            summary["links"] = {"sim": self.sim.counters.as_dict(), "gcs": self.gcs.counters.as_dict() if self.gcs else None}
+            summary["gcs_rejected"] = dict(self.gcs_handler.rejected)
+            summary["tlog"] = str(self.tlog.path) if self.tlog is not None else None
+            self.close()
+            self.say("FC_SUMMARY " + json.dumps(summary, sort_keys=True))
+        return self._exit_code
+
+    # -- loops ---------------------------------------------------------------------------------
+    def _fds(self) -> list[int]:
+        return [self.sim.fileno()] + ([self.gcs.fileno()] if self.gcs else [])
+
+    def _run_lockstep(self) -> None:
+        fds = self._fds()
+        sim_fd = fds[0]
+        mono = self._mono
+        start = mono()
+        last_rx = start
+        while not self._stop:
+            readable, _, _ = select.select(fds, (), (), 0.1)
+            now = mono()
+            if readable:
+                if sim_fd in readable:
+                    got = self._poll_sim()
+                    if got:
+                        last_rx = now
+                if len(readable) > 1 or readable[0] != sim_fd:
+                    self._poll_gcs()
+            limit = self.cfg.watchdog_s if self.stats.ticks else self.startup_timeout_s
+            if now - last_rx > limit:
+                what = "sent nothing" if not self.stats.ticks else f"has been silent for {now - last_rx:.1f} s"
+                raise WatchdogError(f"simulator {what} (lockstep watchdog {limit:g} s); stopping")
+
+    def _run_realtime(self) -> None:
+        fds = self._fds()
+        sim_fd = fds[0]
+        mono = self._mono
+        period = self.cfg.period_s
+        start = mono()
+        # Wait for the first state before starting the fixed-rate loop.
+        while not self._stop and self.state is None:
+            readable, _, _ = select.select(fds, (), (), 0.1)
+            if sim_fd in readable:
+                self._poll_sim()
+            if self.gcs is not None and self.gcs.fileno() in readable:
+                self._poll_gcs()
+            if mono() - start > self.startup_timeout_s:
+                raise WatchdogError(f"simulator sent nothing within {self.startup_timeout_s:g} s; stopping")
+        deadline = mono() + period
+        lateness = self.stats.lateness_s
+        while not self._stop:
+            now = mono()
+            wait = deadline - now
+            if wait > 0.0:
+                readable, _, _ = select.select(fds, (), (), wait)
+                if readable:
+                    if sim_fd in readable:
+                        self._poll_sim()
+                    if len(readable) > 1 or readable[0] != sim_fd:
+                        self._poll_gcs()
+                continue
+            late = -wait
+            lateness.append(late)
+            if late >= period:
+                missed = int(late / period)
+                self.stats.overruns += missed
+                deadline += missed * period
+            deadline += period
+            age = now - self._state_wall_s
+            if age > self.cfg.watchdog_s:
+                raise WatchdogError(f"simulator has been silent for {age:.1f} s (real-time watchdog); stopping")
+            self._tick(self.clock.now_us(), stale=age > self.cfg.failsafe_state_timeout_s)
+            if self.duration_s is not None and self.clock.now_s() >= self.duration_s:
+                break
+
+    # -- input ---------------------------------------------------------------------------------
+    def _poll_sim(self) -> bool:
+        """Handle simulator traffic; True if anything valid arrived."""
+        got = False
+        for msg, _addr in self.sim.recv(0.0):
+            mid = msg.id
+            if mid == mavlink.MAVLINK_MSG_ID_ATTITUDE:
+                self._att = msg
+            elif mid == mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED:
+                att = self._att
+                if att is None or att.time_boot_ms != msg.time_boot_ms:
+                    continue
+                got = True
+                conv = state_from_mavlink(att, msg)
+                if conv is None:
+                    self.stats.rx_invalid_state += 1
+                    continue
+                t_ms = msg.time_boot_ms
+                if self.lockstep:
+                    if t_ms == self._last_tick_ms and self._last_actuator is not None:
+                        self.stats.duplicate_states += 1  # the simulator re-sent: answer again
+                        self.sim.send(self._last_actuator)
+                        continue
+                    if t_ms < self._last_tick_ms:
+                        self.stats.duplicate_states += 1
+                        continue
+                self.state, self.body_rates = conv
+                self._state_ms = t_ms
+                self._state_wall_s = self._mono()
+                if self.lockstep:
+                    self.clock.set_us(t_ms * 1000)  # type: ignore[union-attr]
+                    self._tick(t_ms * 1000, stale=False)
+                    if self.duration_s is not None and t_ms * 1e-3 >= self.duration_s:
+                        self._stop = True
+        return got
+
+    def _poll_gcs(self) -> None:
+        if self.gcs is None:
+            return
+        for msg, addr in self.gcs.recv(0.0):
+            self.gcs_handler.handle(msg, addr)
+
+    # -- the tick ------------------------------------------------------------------------------
+    def _tick(self, t_us: int, *, stale: bool) -> None:
+        stats = self.stats
+        if stats.ticks == 0:
+            self.t0_us = t_us
+            self.say(f"FC_READY t={t_us * 1e-6:.3f}s controller={self.cfg.controller} lockstep={self.lockstep}")
+        stats.ticks += 1
+        self._run_plan(t_us)
+        st = self.state
+        flight = self.flight
+        if stale or st is None:
+            if not self.failsafe:
+                self.failsafe = True
+                stats.failsafe_events += 1
+                self.event(mavlink.MAV_SEVERITY_CRITICAL, "FAILSAFE: state lost, level and descend")
+            out = flight.failsafe_step()
+        else:
+            if self.failsafe:
+                # State is back: stay in failsafe, now closed loop: land where we are.
+                self.event(mavlink.MAV_SEVERITY_WARNING, "State back: failsafe landing")
+                self.failsafe = False
+                if flight.armed:
+                    flight.set_target(st.x_m, st.y_m, st.z_m)
+                    flight.land()
+            was_armed = flight.armed
+            out = flight.step(st, self.cfg.period_s)
+            if was_armed and not flight.armed:
+                self.event(mavlink.MAV_SEVERITY_INFO, "Landed: disarmed")
+        self._last_out = out
+        sysid_mode = mavlink.MAV_MODE_FLAG_SAFETY_ARMED if flight.armed else 0
+        controls = [out.motors[0], out.motors[1], out.motors[2], out.motors[3]] + [0.0] * 12
+        act = self.sim.mav.hil_actuator_controls_encode(t_us, controls, sysid_mode, 1 if self.lockstep else 0)
+        self.sim.send(act)
+        self._last_actuator = act
+        self._last_tick_ms = self._state_ms
+        if self.tlog is not None:
+            tx, ty, tz = flight.target
+            self.tlog.write(t_us, telemetry.smc_array(self._logmav, t_us, out, (tx, ty, tz), flight.yaw_target_rad).pack(self._logmav))
+        k = stats.ticks - 1
+        if self.gcs is not None:
+            if k % self._telemetry_every == 0:
+                self._send_telemetry(t_us, out)
+            if k % self._second_every == 0:
+                self._send_status(t_us)
+        self.gcs_handler.on_tick(t_us)
+
+    def _run_plan(self, t_us: int) -> None:
+        plan = self.plan
+        t_s = (t_us - self.t0_us) * 1e-6
+        while self._plan_i < len(plan) and plan[self._plan_i].t_s <= t_s + 1e-9:
+            step = plan[self._plan_i]
+            self._plan_i += 1
+            self.execute(step)
+
+    def execute(self, step: PlanStep) -> None:
+        """Carry out one plan action now."""
+        from smcpilot.frames import euler_frd_to_flu
+
+        flight = self.flight
+        st = self.state
+        yaw = None
+        if step.yaw_deg is not None:
+            yaw = euler_frd_to_flu(0.0, 0.0, math.radians(step.yaw_deg))[2]
+        if step.action == "takeoff":
+            if st is None:
+                return
+            if not flight.armed:
+                flight.arm(st)
+                self.event(mavlink.MAV_SEVERITY_INFO, "Armed")
+            flight.set_target(flight.target[0], flight.target[1], float(step.alt_m or 0.0), yaw)
+            self.event(mavlink.MAV_SEVERITY_INFO, f"Takeoff to {step.alt_m:.1f} m")
+        elif step.action == "goto":
+            x, y, z = ned_to_nwu((float(step.north_m or 0.0), float(step.east_m or 0.0), -float(step.alt_m or 0.0)))
+            flight.set_target(x, y, z, yaw)
+        elif step.action == "land":
+            flight.land()
+            self.event(mavlink.MAV_SEVERITY_INFO, "Landing")
+        elif step.action == "disarm":
+            flight.disarm()
+            self.event(mavlink.MAV_SEVERITY_INFO, "Disarmed")
+
+    # -- output --------------------------------------------------------------------------------
+    def custom_mode(self) -> int:
+        return MODE_LAND if (self.flight.landing or self.failsafe) else MODE_GUIDED
+
+    def _send_telemetry(self, t_us: int, out: TickOutput) -> None:
+        st = self.state
+        if st is None or self.gcs is None:
+            return
+        mav = self.gcs.mav
+        t_ms = t_us // 1000
+        msgs = [telemetry.attitude(mav, t_ms, st, self.body_rates), telemetry.local_position(mav, t_ms, st)]
+        msgs += telemetry.named_values(mav, t_ms, out)
+        self.gcs.send_many(msgs)
+
+    def _send_status(self, t_us: int) -> None:
+        if self.gcs is None:
+            return
+        mav = self.gcs.mav
+        armed = self.flight.armed
+        status = (
+            mavlink.MAV_STATE_CRITICAL if self.failsafe else mavlink.MAV_STATE_ACTIVE if armed else mavlink.MAV_STATE_STANDBY
+        )
+        self.gcs.send_many(
+            [
+                telemetry.heartbeat(mav, armed, self.custom_mode(), status),
+                telemetry.sys_status(mav, 0, not self.failsafe),
+                mav.named_value_int_encode((t_us // 1000) & 0xFFFFFFFF, b"OVERRUN", self.stats.overruns),
+            ]
+        )
+
+    def event(self, severity: int, text: str) -> None:
+        """A STATUSTEXT to ground stations (and the log), and a line on stdout."""
+        self.say(f"fc: {text}")
+        if self.gcs is not None:
+            self.gcs.send(telemetry.statustext(self.gcs.mav, severity, text))
+        elif self.tlog is not None:
+            self.tlog.write(self.clock.now_us(), telemetry.statustext(self._logmav, severity, text).pack(self._logmav))
+
+
+def install_signal_handlers(app: FlightControllerApp) -> None:
+    """SIGTERM and SIGINT end the loop cleanly (the tlog is closed, the summary printed)."""
+    signal.signal(signal.SIGTERM, app.request_stop)
+    signal.signal(signal.SIGINT, app.request_stop)

@@ -1,0 +1,83 @@
+"""Command line of the flight-controller process (``python -m fc``)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Sequence
+
+from fc.app import EXIT_CONFIG, FlightControllerApp, install_signal_handlers
+from fc.config import FC_CONTROLLERS, FcConfig
+from fc.plan import load_plan
+from smcpilot.errors import SmcpilotError
+from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
+
+
+def build_parser() -> argparse.ArgumentParser:
+    d = FcConfig()
+    p = argparse.ArgumentParser(
+        prog="python -m fc",
+        description="Flight-controller process: runs the adaptive PID-SMC at a fixed rate on MAVLink state from"
+        " the simulator bridge, sends HIL_ACTUATOR_CONTROLS back, and serves ground stations.",
+    )
+    p.add_argument("--sim", default="udpin:127.0.0.1:14560", metavar="URL",
+                   help="simulator link (default udpin:127.0.0.1:14560; udpin:HOST:0 picks a free port)")
+    p.add_argument("--gcs", default="udp:127.0.0.1:14550", metavar="URL",
+                   help="ground link: udp:HOST:PORT sends telemetry there and answers whoever writes to our"
+                   " port; udpin:HOST:PORT listens there (default udp:127.0.0.1:14550; 'none' for no ground link)")
+    p.add_argument("--controller", choices=FC_CONTROLLERS, default=d.controller, help=f"control law (default {d.controller})")
+    p.add_argument("--rate-hz", type=float, default=d.rate_hz, metavar="HZ", help=f"control rate (default {d.rate_hz:g})")
+    p.add_argument("--lockstep", action="store_true", help="one tick per simulator state message (simulated time)")
+    p.add_argument("--vehicle", type=Path, metavar="FILE", help="vehicle TOML (default: the spec's parameters)")
+    p.add_argument("--plan", type=Path, metavar="FILE", help="timed set-point plan (TOML) executed in simulated time")
+    p.add_argument("--duration", type=float, metavar="SIM_S", help="stop after this many simulated seconds")
+    p.add_argument("--log-dir", type=Path, default=Path("logs"), metavar="DIR", help="where the .tlog goes (default logs/)")
+    p.add_argument("--tlog", type=Path, metavar="PATH", help="exact .tlog path (overrides --log-dir)")
+    p.add_argument("--telemetry-rate-hz", type=float, default=d.telemetry_rate_hz, metavar="HZ",
+                   help=f"ground telemetry rate incl. CHI_*/SIG_* (default {d.telemetry_rate_hz:g})")
+    p.add_argument("--watchdog-s", type=float, default=d.watchdog_s, metavar="S",
+                   help=f"exit if the simulator is silent this long, wall seconds (default {d.watchdog_s:g})")
+    p.add_argument("--startup-timeout-s", type=float, default=30.0, metavar="S",
+                   help="exit if no simulator state arrives within this many wall seconds (default 30)")
+    p.add_argument("--sysid", type=int, default=d.system_id, metavar="N", help=f"MAVLink system id (default {d.system_id})")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        cfg = FcConfig(
+            rate_hz=args.rate_hz,
+            controller=args.controller,
+            telemetry_rate_hz=args.telemetry_rate_hz,
+            watchdog_s=args.watchdog_s,
+            system_id=args.sysid,
+        )
+        vehicle = VehicleParams.from_toml(args.vehicle) if args.vehicle else DEFAULT_VEHICLE
+        plan = load_plan(args.plan) if args.plan else ()
+        if args.duration is not None and not args.duration > 0:
+            raise SmcpilotError(f"--duration must be > 0 simulated seconds, got {args.duration}")
+        tlog = args.tlog
+        if tlog is None:
+            args.log_dir.mkdir(parents=True, exist_ok=True)
+            tlog = args.log_dir / time.strftime("fc-%Y%m%d-%H%M%S.tlog")
+        else:
+            tlog.parent.mkdir(parents=True, exist_ok=True)
+        app = FlightControllerApp(
+            cfg,
+            vehicle,
+            sim_url=args.sim,
+            gcs_url=None if args.gcs == "none" else args.gcs,
+            lockstep=args.lockstep,
+            tlog_path=tlog,
+            plan=plan,
+            duration_s=args.duration,
+            startup_timeout_s=args.startup_timeout_s,
+        )
+    except (SmcpilotError, OSError) as exc:
+        print(f"fc: error: {exc}", file=sys.stderr)
+        return EXIT_CONFIG
+    install_signal_handlers(app)
+    return app.run()

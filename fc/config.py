@@ -1,0 +1,107 @@
+"""Flight-controller configuration: one frozen dataclass, units in the names, defaults here only.
+
+The control-law gains live in :mod:`fc.control.gains` (the paper's values by default); the
+position loop's in :class:`fc.position.PositionGains`. What a real flight controller adds to the
+paper (spec §6) is configured here: reference prefilters, the bounded adaptive law, landing and
+failsafe behaviour, telemetry rates.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+
+from fc.control.gains import PAPER_GAINS, Gains4
+from fc.control.pid_smc import AdaptationBounds
+from fc.position import PositionGains
+from smcpilot.errors import ConfigError
+
+FC_CONTROLLERS = ("adaptive_pid_smc", "pid_smc", "cascade_pid")
+
+
+@dataclass(frozen=True)
+class FcConfig:
+    """Everything that configures the flight controller besides the vehicle."""
+
+    #: control loop rate, Hz (in lockstep: the simulator's state rate).
+    rate_hz: float = 500.0
+    #: attitude/altitude law: adaptive_pid_smc (default), pid_smc or cascade_pid.
+    controller: str = "adaptive_pid_smc"
+    gains: Gains4 = PAPER_GAINS
+    #: keeps chi_hat bounded under noise (spec §4): dead zone on |sigma| and projection.
+    adaptation: AdaptationBounds = field(
+        default_factory=lambda: AdaptationBounds(dead_zone=0.02, leakage_per_s=0.0, chi_hat_min=0.0, chi_hat_max=5.0)
+    )
+    #: chi_hat(0) of the adaptive law, every channel.
+    chi_hat0: float = 0.5
+    position: PositionGains = field(default_factory=PositionGains)
+    #: bandwidth of the position and altitude reference prefilters, rad/s.
+    pos_filter_omega_radps: float = 1.8
+    #: largest horizontal reference speed, m/s.
+    speed_max_xy_mps: float = 3.0
+    #: largest vertical reference speed (climb and descent), m/s.
+    speed_max_z_mps: float = 1.5
+    #: largest reference acceleration (each axis), m/s^2.
+    accel_ref_max_mps2: float = 3.0
+    #: bandwidth of the roll/pitch reference prefilters (outer loop -> law), rad/s.
+    att_filter_omega_radps: float = 25.0
+    #: bandwidth of the yaw reference prefilter, rad/s.
+    yaw_filter_omega_radps: float = 2.0
+    #: largest yaw reference rate, rad/s.
+    yaw_rate_max_radps: float = 1.5
+    #: descent speed when landing, m/s.
+    land_speed_mps: float = 0.7
+    #: height below which, slow and settled for ``land_detect_s``, the vehicle counts as landed, m.
+    land_detect_height_m: float = 0.08
+    land_detect_s: float = 0.5
+    #: real time: state older than this puts the FC in failsafe (level, descend), s.
+    failsafe_state_timeout_s: float = 0.1
+    #: open-loop thrust during a state-loss failsafe, as a fraction of hover thrust.
+    failsafe_thrust_fraction: float = 0.85
+    #: a silent simulator for this long (wall seconds) ends the FC with an error.
+    watchdog_s: float = 5.0
+    #: rate of telemetry to ground stations (ATTITUDE, LOCAL_POSITION_NED, CHI_*, SIG_*), Hz.
+    telemetry_rate_hz: float = 10.0
+    #: MAVLink system id of this vehicle.
+    system_id: int = 1
+
+    def __post_init__(self) -> None:
+        if self.controller not in FC_CONTROLLERS:
+            raise ConfigError(f"unknown controller {self.controller!r}; choose from: {', '.join(FC_CONTROLLERS)}")
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, (int, float)) and not isinstance(v, bool):
+                if not math.isfinite(v) or v < 0.0:
+                    raise ConfigError(f"FC setting {f.name} must be a finite number >= 0, got {v!r}")
+        for name in (
+            "rate_hz",
+            "pos_filter_omega_radps",
+            "att_filter_omega_radps",
+            "yaw_filter_omega_radps",
+            "speed_max_xy_mps",
+            "speed_max_z_mps",
+            "accel_ref_max_mps2",
+            "yaw_rate_max_radps",
+            "land_speed_mps",
+            "failsafe_state_timeout_s",
+            "watchdog_s",
+            "telemetry_rate_hz",
+        ):
+            if getattr(self, name) <= 0.0:
+                raise ConfigError(f"FC setting {name} must be > 0, got {getattr(self, name)!r}")
+        if not 1.0 <= self.rate_hz <= 1000.0:
+            raise ConfigError(f"rate_hz must lie in [1, 1000] Hz, got {self.rate_hz}")
+        if self.telemetry_rate_hz > self.rate_hz:
+            raise ConfigError("telemetry_rate_hz cannot exceed the control rate")
+        if not 0.0 < self.failsafe_thrust_fraction < 1.0:
+            raise ConfigError(f"failsafe_thrust_fraction must lie in (0, 1), got {self.failsafe_thrust_fraction}")
+        if not 1 <= self.system_id <= 255:
+            raise ConfigError(f"system_id must lie in 1..255, got {self.system_id}")
+
+    @property
+    def period_s(self) -> float:
+        return 1.0 / self.rate_hz
+
+    @property
+    def period_us(self) -> int:
+        return int(round(1e6 / self.rate_hz))

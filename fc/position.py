@@ -1,0 +1,118 @@
+"""Outer position loop (not in the paper; spec §6): position set-point -> (phi_d, theta_d).
+
+Paper frame (x north, y west, z up). Horizontal acceleration demand::
+
+    a = a_ref + kp (p_ref - p) + kd (v_ref - v) + ki int (p_ref - p) dt
+
+limited to ``accel_max_mps2`` in norm, then turned into the attitude that points the thrust
+along ``A = (a_x, a_y, g + z_ref'')``::
+
+    phi_d   = asin((a_x sin psi - a_y cos psi) / |A|)
+    theta_d = atan2(a_x cos psi + a_y sin psi, g + z_ref'')
+
+both limited to ``tilt_max_rad``. The integrator is clamped and does not integrate while the
+demand is saturated (anti-windup). Altitude is flown by the PID-SMC z channel directly.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from smcpilot.errors import ConfigError
+
+_sin = math.sin
+_cos = math.cos
+_asin = math.asin
+_atan2 = math.atan2
+_sqrt = math.sqrt
+
+
+@dataclass(frozen=True)
+class PositionGains:
+    """Gains and limits of the horizontal position loop."""
+
+    #: proportional gain on position error, 1/s^2.
+    kp_1ps2: float = 1.6
+    #: gain on velocity error, 1/s.
+    kd_1ps: float = 2.6
+    #: integral gain on position error, 1/s^3.
+    ki_1ps3: float = 0.4
+    #: largest |integral contribution|, m/s^2.
+    int_limit_mps2: float = 2.0
+    #: largest horizontal acceleration demand, m/s^2.
+    accel_max_mps2: float = 5.0
+    #: largest commanded roll or pitch, rad.
+    tilt_max_rad: float = 0.6
+
+    def __post_init__(self) -> None:
+        for name in ("kp_1ps2", "kd_1ps", "ki_1ps3", "int_limit_mps2", "accel_max_mps2", "tilt_max_rad"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0.0:
+                raise ConfigError(f"position gain {name} must be a finite number >= 0, got {v!r}")
+        if not 0.0 < self.tilt_max_rad < 1.4:
+            raise ConfigError(f"tilt_max_rad must lie in (0, 1.4) rad, got {self.tilt_max_rad}")
+
+
+def position_step(
+    g: PositionGains,
+    gravity_mps2: float,
+    x: float,
+    y: float,
+    vx: float,
+    vy: float,
+    x_ref: float,
+    y_ref: float,
+    vx_ref: float,
+    vy_ref: float,
+    ax_ref: float,
+    ay_ref: float,
+    az_ref: float,
+    psi: float,
+    int_x: float,
+    int_y: float,
+    dt_s: float,
+) -> tuple[float, float, float, float]:
+    """One step of the loop; returns (phi_d [rad], theta_d [rad], new int_x, new int_y)."""
+    ex = x_ref - x
+    ey = y_ref - y
+    ax = ax_ref + g.kp_1ps2 * ex + g.kd_1ps * (vx_ref - vx) + g.ki_1ps3 * int_x
+    ay = ay_ref + g.kp_1ps2 * ey + g.kd_1ps * (vy_ref - vy) + g.ki_1ps3 * int_y
+    norm = _sqrt(ax * ax + ay * ay)
+    amax = g.accel_max_mps2
+    saturated = norm > amax
+    if saturated:
+        k = amax / norm
+        ax *= k
+        ay *= k
+    else:
+        lim = g.int_limit_mps2 / g.ki_1ps3 if g.ki_1ps3 > 0.0 else 0.0
+        int_x += ex * dt_s
+        int_y += ey * dt_s
+        if int_x > lim:
+            int_x = lim
+        elif int_x < -lim:
+            int_x = -lim
+        if int_y > lim:
+            int_y = lim
+        elif int_y < -lim:
+            int_y = -lim
+    az = gravity_mps2 + az_ref
+    if az < 0.1 * gravity_mps2:
+        az = 0.1 * gravity_mps2
+    sp = _sin(psi)
+    cp = _cos(psi)
+    a_norm = _sqrt(ax * ax + ay * ay + az * az)
+    s = (ax * sp - ay * cp) / a_norm
+    phi_d = _asin(s if -1.0 < s < 1.0 else (1.0 if s > 0 else -1.0))
+    theta_d = _atan2(ax * cp + ay * sp, az)
+    tmax = g.tilt_max_rad
+    if phi_d > tmax:
+        phi_d = tmax
+    elif phi_d < -tmax:
+        phi_d = -tmax
+    if theta_d > tmax:
+        theta_d = tmax
+    elif theta_d < -tmax:
+        theta_d = -tmax
+    return phi_d, theta_d, int_x, int_y

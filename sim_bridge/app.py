@@ -1,0 +1,262 @@
+"""The simulator-bridge process: integrates a plant and talks MAVLink to the flight controller.
+
+Each control tick it sends the vehicle state as one datagram holding ``ATTITUDE`` and
+``LOCAL_POSITION_NED`` (NED/FRD, ``time_boot_ms`` = simulated time) and applies the motor
+commands of ``HIL_ACTUATOR_CONTROLS``: controls[0..3] in [0, 1] are rotors 1..4 (1 right,
+2 front, 3 left, 4 rear), thrust-linear above idle (``w^2 = w_idle^2 + c (w_max^2 - w_idle^2)``,
+:mod:`smcpilot.actuators`); ``mode`` with MAV_MODE_FLAG_SAFETY_ARMED spins the rotors, without it
+they stop; ``flags`` bit 0 marks a lockstep FC.
+
+- **lockstep**: send the state at t, wait for the actuator message stamped t (re-sending the
+  state if it does not come), integrate one control period, repeat. As fast as possible, or at
+  most ``speed`` times real time. A flight controller silent for ``watchdog_s`` wall seconds
+  ends the bridge with an error (exit 3).
+- **real time**: physics at ``physics_hz`` on the wall clock (times ``speed``), state out at
+  ``rate_hz``, the latest motor commands held between messages.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import sys
+import time
+from dataclasses import dataclass
+from typing import Callable, Protocol, TextIO
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from sim_bridge.sensors import VehicleObservation
+from smcpilot.frames import euler_flu_to_frd, nwu_to_ned, rates_flu_to_frd
+from smcpilot.link import MavlinkUdp
+
+#: Component id the bridge sends from (a sensor-ish component of the vehicle's system).
+SIM_COMPONENT = 200
+EXIT_OK = 0
+EXIT_WATCHDOG = 3
+EXIT_DIVERGED = 4
+_ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+
+
+class Plant(Protocol):
+    def step(self, t_s: float, dt_s: float, motor_commands, armed: bool) -> None: ...
+
+    def observe(self) -> VehicleObservation: ...
+
+
+@dataclass(frozen=True)
+class BridgeTiming:
+    """Rates and limits of the bridge."""
+
+    physics_hz: float = 1000.0
+    rate_hz: float = 500.0
+    lockstep: bool = False
+    #: at most this many times real time (lockstep), or the real-time clock's speed; None = unlimited (lockstep).
+    speed: float | None = None
+    duration_s: float | None = None
+    watchdog_s: float = 5.0
+    startup_timeout_s: float = 30.0
+    #: lockstep: re-send the state if no answer came for this long (wall seconds).
+    resend_s: float = 0.25
+
+    @property
+    def substeps(self) -> int:
+        return int(round(self.physics_hz / self.rate_hz))
+
+    @property
+    def period_us(self) -> int:
+        return int(round(1e6 / self.rate_hz))
+
+
+class WatchdogError(RuntimeError):
+    pass
+
+
+class SimBridgeApp:
+    def __init__(
+        self,
+        plant: Plant,
+        *,
+        fc_url: str,
+        timing: BridgeTiming,
+        system_id: int = 1,
+        out: TextIO = sys.stdout,
+        monotonic: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], None] = time.sleep,
+    ) -> None:
+        self.plant = plant
+        self.timing = timing
+        self.out = out
+        self._mono = monotonic
+        self._sleep = sleep
+        self._t_us = 0
+        self.link = MavlinkUdp(
+            fc_url, source_system=system_id, source_component=SIM_COMPONENT, accept_system=system_id,
+            clock_us=lambda: self._t_us,
+        )  # fmt: skip
+        self.commands = (0.0, 0.0, 0.0, 0.0)
+        self.armed = False
+        self.resends = 0
+        self.actuator_msgs = 0
+        self.stale_actuator_msgs = 0
+        self._stop = False
+        self._exit = EXIT_OK
+        self._wall_start = 0.0
+
+    def say(self, line: str) -> None:
+        print(line, file=self.out, flush=True)
+
+    def request_stop(self, *_: object) -> None:
+        self._stop = True
+
+    # -- wire ------------------------------------------------------------------------------------
+    def _send_state(self) -> None:
+        obs = self.plant.observe()
+        mav = self.link.mav
+        t_ms = (self._t_us // 1000) & 0xFFFFFFFF
+        roll, pitch, yaw = euler_flu_to_frd(*obs.euler_rad)
+        p, q, r = rates_flu_to_frd(*obs.body_rates_radps)
+        x, y, z = nwu_to_ned(obs.position_m)
+        vx, vy, vz = nwu_to_ned(obs.velocity_mps)
+        self.link.send_many(
+            (
+                mav.attitude_encode(t_ms, roll, pitch, yaw, p, q, r),
+                mav.local_position_ned_encode(t_ms, x, y, z, vx, vy, vz),
+            )
+        )
+
+    def _apply(self, msg: mavlink.MAVLink_hil_actuator_controls_message) -> None:
+        c = msg.controls
+        self.commands = (c[0], c[1], c[2], c[3])
+        self.armed = bool(msg.mode & _ARMED)
+        self.actuator_msgs += 1
+
+    def _integrate(self, n_steps: int) -> None:
+        dt = 1.0 / self.timing.physics_hz
+        step = self.plant.step
+        cmds = self.commands
+        armed = self.armed
+        for _ in range(n_steps):
+            step(self._t_us * 1e-6, dt, cmds, armed)
+            self._t_us += int(round(dt * 1e6))
+
+    # -- loops -----------------------------------------------------------------------------------
+    def run(self) -> int:
+        tm = self.timing
+        self.say(
+            f"SIM_READY fc={self.link.endpoint.url} local={self.link.local_address[0]}:{self.link.local_address[1]}"
+            f" lockstep={tm.lockstep} physics_hz={tm.physics_hz:g} rate_hz={tm.rate_hz:g} pid={os.getpid()}"
+        )
+        self._wall_start = self._mono()
+        try:
+            if tm.lockstep:
+                self._run_lockstep()
+            else:
+                self._run_realtime()
+        except WatchdogError as exc:
+            self.say(f"sim_bridge: error: {exc}")
+            self._exit = EXIT_WATCHDOG
+        except ArithmeticError as exc:  # DivergenceError and friends
+            self.say(f"sim_bridge: error: the simulation diverged at t = {self._t_us * 1e-6:.3f} s: {exc}")
+            self._exit = EXIT_DIVERGED
+        finally:
+            wall = self._mono() - self._wall_start
+            summary = {
+                "sim_time_s": self._t_us * 1e-6,
+                "wall_s": wall,
+                "speed": (self._t_us * 1e-6 / wall) if wall > 0 else None,
+                "actuator_msgs": self.actuator_msgs,
+                "stale_actuator_msgs": self.stale_actuator_msgs,
+                "resends": self.resends,
+                "link": self.link.counters.as_dict(),
+            }
+            self.link.close()
+            self.say("SIM_SUMMARY " + json.dumps(summary, sort_keys=True))
+        return self._exit
+
+    def _run_lockstep(self) -> None:
+        tm = self.timing
+        period_us = tm.period_us
+        substeps = tm.substeps
+        duration_us = None if tm.duration_s is None else int(round(tm.duration_s * 1e6))
+        mono = self._mono
+        recv = self.link.recv
+        self._send_state()
+        sent_at = last_answer = mono()
+        answered = False
+        while not self._stop:
+            msgs = recv(0.05)
+            now = mono()
+            advanced = False
+            for msg, _addr in msgs:
+                if msg.id != mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS:
+                    continue
+                if msg.time_usec != self._t_us:
+                    self.stale_actuator_msgs += 1
+                    continue
+                self._apply(msg)
+                answered = True
+                self._integrate(substeps)
+                if duration_us is not None and self._t_us >= duration_us:
+                    self._send_state()  # the final state: a lockstep FC with the same duration stops on it
+                    return
+                if tm.speed is not None:
+                    ahead = self._t_us * 1e-6 / tm.speed - (mono() - self._wall_start)
+                    if ahead > 0.0:
+                        self._sleep(ahead)
+                self._send_state()
+                sent_at = last_answer = now
+                advanced = True
+                break
+            if advanced:
+                continue
+            limit = tm.watchdog_s if answered else tm.startup_timeout_s
+            if now - last_answer > limit:
+                what = "never answered" if not answered else f"has been silent for {now - last_answer:.1f} s"
+                raise WatchdogError(f"flight controller {what} (lockstep watchdog {limit:g} s); stopping")
+            if now - sent_at > tm.resend_s:
+                self.resends += 1
+                self._send_state()
+                sent_at = now
+
+    def _run_realtime(self) -> None:
+        tm = self.timing
+        speed = tm.speed or 1.0
+        dt_wall = 1.0 / (tm.physics_hz * speed)
+        substeps = tm.substeps
+        duration_us = None if tm.duration_s is None else int(round(tm.duration_s * 1e6))
+        mono = self._mono
+        recv = self.link.recv
+        last_answer = mono()
+        answered = False
+        deadline = mono()
+        k = 0
+        while not self._stop:
+            now = mono()
+            wait = deadline - now
+            if wait > 0.0:
+                for msg, _addr in recv(wait):
+                    if msg.id == mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS:
+                        self._apply(msg)
+                        answered = True
+                        last_answer = mono()
+                continue
+            if k % substeps == 0:
+                self._send_state()
+            self._integrate(1)
+            k += 1
+            deadline += dt_wall
+            if now - deadline > 1.0:  # hopelessly behind (machine stalled): do not try to catch up
+                deadline = now
+            if duration_us is not None and self._t_us >= duration_us:
+                return
+            limit = tm.watchdog_s if answered else tm.startup_timeout_s
+            if now - last_answer > limit:
+                what = "never answered" if not answered else f"has been silent for {now - last_answer:.1f} s"
+                raise WatchdogError(f"flight controller {what} (real-time watchdog {limit:g} s); stopping")
+
+
+def install_signal_handlers(app: SimBridgeApp) -> None:
+    signal.signal(signal.SIGTERM, app.request_stop)
+    signal.signal(signal.SIGINT, app.request_stop)

@@ -1,0 +1,120 @@
+"""Command line of the simulator-bridge process (``python -m sim_bridge``)."""
+
+from __future__ import annotations
+
+import argparse
+import random
+import sys
+from pathlib import Path
+from typing import Sequence
+
+from sim_bridge.app import BridgeTiming, SimBridgeApp, install_signal_handlers
+from sim_bridge.environment import Environment, EnvironmentParams
+from sim_bridge.plants.paper_vehicle import PaperVehiclePlant
+from sim_bridge.plants.rigid_body import RigidBodyPlant
+from sim_bridge.sensors import SensorNoiseParams
+from smcpilot.errors import ConfigError, SmcpilotError
+from smcpilot.frames import ned_to_nwu
+from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
+
+EXIT_CONFIG = 2
+PLANTS = ("rigid-body", "paper")
+
+#: ``--noise``: a small IMU/estimator-grade noise level (1-sigma per axis).
+DEFAULT_NOISE = SensorNoiseParams(
+    attitude_std_rad=0.002, body_rate_std_radps=0.01, position_std_m=0.01, velocity_std_mps=0.02
+)
+
+
+def _triple(text: str) -> tuple[float, float, float]:
+    try:
+        parts = tuple(float(p) for p in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected three numbers N,E,D, got {text!r}") from None
+    if len(parts) != 3:
+        raise argparse.ArgumentTypeError(f"expected three numbers N,E,D, got {text!r}")
+    return parts  # type: ignore[return-value]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    t = BridgeTiming()
+    p = argparse.ArgumentParser(
+        prog="python -m sim_bridge",
+        description="Simulator bridge: integrates the quadrotor and exchanges MAVLink with the flight controller"
+        " (state out as ATTITUDE + LOCAL_POSITION_NED, motor commands in as HIL_ACTUATOR_CONTROLS).",
+    )
+    p.add_argument("--fc", default="udp:127.0.0.1:14560", metavar="URL", help="flight controller's simulator port (default udp:127.0.0.1:14560)")
+    p.add_argument("--plant", choices=PLANTS, default="rigid-body",
+                   help="rigid-body (default: 6-DOF, motor lag and limits) or paper (the corrected eq. 10 model, ideal actuators)")
+    p.add_argument("--vehicle", type=Path, metavar="FILE", help="vehicle TOML (default: the spec's parameters)")
+    p.add_argument("--physics-hz", type=float, default=t.physics_hz, metavar="HZ", help=f"physics rate (default {t.physics_hz:g})")
+    p.add_argument("--rate-hz", type=float, default=t.rate_hz, metavar="HZ", help=f"state message rate = FC control rate (default {t.rate_hz:g})")
+    p.add_argument("--lockstep", action="store_true", help="advance only when the FC answers each state (deterministic)")
+    p.add_argument("--speed", type=float, metavar="FACTOR", help="lockstep: at most FACTOR x real time; real time: clock speed (default 1)")
+    p.add_argument("--duration", type=float, metavar="SIM_S", help="stop after this many simulated seconds")
+    p.add_argument("--seed", type=int, default=0, help="seed of the noise and gust random streams (default 0)")
+    p.add_argument("--noise", action="store_true", help="add sensor noise (0.002 rad, 0.01 rad/s, 0.01 m, 0.02 m/s 1-sigma)")
+    p.add_argument("--noise-scale", type=float, default=1.0, metavar="K", help="multiply the --noise levels by K")
+    p.add_argument("--wind-force", type=_triple, metavar="N,E,D", help="constant wind force on the vehicle, newtons, NED")
+    p.add_argument("--gust-std", type=float, default=0.0, metavar="N", help="horizontal gust force std, newtons (0: none)")
+    p.add_argument("--gust-tau", type=float, default=1.0, metavar="S", help="gust correlation time (default 1 s)")
+    p.add_argument("--paper-disturbance", action="store_true", help="add the paper's disturbances fs1..fs4")
+    p.add_argument("--watchdog-s", type=float, default=t.watchdog_s, metavar="S", help=f"exit if the FC is silent this long (default {t.watchdog_s:g})")
+    p.add_argument("--startup-timeout-s", type=float, default=t.startup_timeout_s, metavar="S", help="exit if the FC never answers within this many seconds (default 30)")
+    p.add_argument("--sysid", type=int, default=1, metavar="N", help="MAVLink system id of the vehicle (default 1)")
+    return p
+
+
+def build_plant(args: argparse.Namespace, vehicle: VehicleParams):
+    noise = SensorNoiseParams()
+    if args.noise:
+        if not args.noise_scale >= 0:
+            raise ConfigError("--noise-scale must be >= 0")
+        k = args.noise_scale
+        n = DEFAULT_NOISE
+        noise = SensorNoiseParams(n.attitude_std_rad * k, n.body_rate_std_radps * k, n.position_std_m * k, n.velocity_std_mps * k)
+    wind = ned_to_nwu(args.wind_force) if args.wind_force else (0.0, 0.0, 0.0)
+    env_params = EnvironmentParams(
+        wind_force_n=tuple(float(v) for v in wind),  # type: ignore[arg-type]
+        gust_force_std_xy_n=args.gust_std,
+        gust_time_constant_s=args.gust_tau,
+        paper_disturbance=args.paper_disturbance,
+        sensor_noise=noise,
+    )
+    env = Environment(env_params, random.Random(args.seed))
+    if args.plant == "paper":
+        return PaperVehiclePlant(vehicle, env)
+    return RigidBodyPlant(vehicle, env)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        vehicle = VehicleParams.from_toml(args.vehicle) if args.vehicle else DEFAULT_VEHICLE
+        if not (args.physics_hz > 0 and args.rate_hz > 0):
+            raise ConfigError("--physics-hz and --rate-hz must be > 0")
+        ratio = args.physics_hz / args.rate_hz
+        if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+            raise ConfigError(f"--physics-hz ({args.physics_hz:g}) must be a whole multiple of --rate-hz ({args.rate_hz:g})")
+        if args.rate_hz > 1000:
+            raise ConfigError("--rate-hz must be at most 1000 (state time stamps are in milliseconds)")
+        if args.speed is not None and not args.speed > 0:
+            raise ConfigError("--speed must be > 0")
+        if args.duration is not None and not args.duration > 0:
+            raise ConfigError("--duration must be > 0")
+        timing = BridgeTiming(
+            physics_hz=args.physics_hz,
+            rate_hz=args.rate_hz,
+            lockstep=args.lockstep,
+            speed=args.speed,
+            duration_s=args.duration,
+            watchdog_s=args.watchdog_s,
+            startup_timeout_s=args.startup_timeout_s,
+        )
+        plant = build_plant(args, vehicle)
+        app = SimBridgeApp(plant, fc_url=args.fc, timing=timing, system_id=args.sysid)
+    except (SmcpilotError, OSError) as exc:
+        print(f"sim_bridge: error: {exc}", file=sys.stderr)
+        return EXIT_CONFIG
+    install_signal_handlers(app)
+    return app.run()
