@@ -43,6 +43,7 @@ from fc.flight import FlightControl, TickOutput, VehicleState
 from fc.gcs import GcsHandler
 from fc.plan import PlanStep
 from smcpilot.clock import SimClock, WallClock
+from smcpilot.fastcodec import encode_debug_float_array
 from smcpilot.frames import body_rates_to_euler_rates, euler_frd_to_flu, ned_to_nwu, rates_frd_to_flu
 from smcpilot.link import MavlinkUdp
 from smcpilot.tlog import TlogWriter
@@ -126,6 +127,7 @@ class FlightControllerApp:
         plan: tuple[PlanStep, ...] = (),
         duration_s: float | None = None,
         startup_timeout_s: float = 30.0,
+        spin_s: float = 0.002,
         out: TextIO = sys.stdout,
         monotonic: Callable[[], float] = time.monotonic,
     ) -> None:
@@ -134,6 +136,8 @@ class FlightControllerApp:
         self.lockstep = lockstep
         self.duration_s = duration_s
         self.startup_timeout_s = startup_timeout_s
+        #: lockstep: busy-poll this long after each tick before blocking (0: always block).
+        self.spin_s = spin_s
         self.out = out
         self._mono = monotonic
         self.flight = FlightControl(config, vehicle)
@@ -155,6 +159,7 @@ class FlightControllerApp:
             if self.tlog is not None:
                 self.tlog.close()
             raise
+        # Log-only messages have their own sequence numbers: the links' numbering stays gap-free.
         self._logmav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=FC_COMPONENT)
         self.gcs_handler = GcsHandler(self)
         self.plan = list(plan)
@@ -215,25 +220,40 @@ class FlightControllerApp:
         return [self.sim.fileno()] + ([self.gcs.fileno()] if self.gcs else [])
 
     def _run_lockstep(self) -> None:
+        """Answer each state as soon as it arrives.
+
+        The simulator's next state comes a few tens of microseconds after our answer; waking a
+        blocked process costs about as much again, so the loop busy-polls for ``spin_s`` after
+        each tick before it falls back to a blocking ``select``.
+        """
         fds = self._fds()
-        sim_fd = fds[0]
         mono = self._mono
-        start = mono()
-        last_rx = start
+        poll_sim = self._poll_sim
+        poll_gcs = self._poll_gcs if self.gcs is not None else None
+        spin_s = self.spin_s
+        last_rx = mono()
+        spin_until = last_rx + spin_s
+        n = 0
         while not self._stop:
-            readable, _, _ = select.select(fds, (), (), 0.1)
+            if poll_sim():
+                last_rx = mono()
+                spin_until = last_rx + spin_s
+                n += 1
+                if poll_gcs is not None and n % 8 == 0:
+                    poll_gcs()
+                continue
             now = mono()
-            if readable:
-                if sim_fd in readable:
-                    got = self._poll_sim()
-                    if got:
-                        last_rx = now
-                if len(readable) > 1 or readable[0] != sim_fd:
-                    self._poll_gcs()
-            limit = self.cfg.watchdog_s if self.stats.ticks else self.startup_timeout_s
-            if now - last_rx > limit:
-                what = "sent nothing" if not self.stats.ticks else f"has been silent for {now - last_rx:.1f} s"
-                raise WatchdogError(f"simulator {what} (lockstep watchdog {limit:g} s); stopping")
+            if now < spin_until:
+                continue
+            readable, _, _ = select.select(fds, (), (), 0.1)
+            if readable and poll_gcs is not None:
+                poll_gcs()
+            if not readable:
+                now = mono()
+                limit = self.cfg.watchdog_s if self.stats.ticks else self.startup_timeout_s
+                if now - last_rx > limit:
+                    what = "sent nothing" if not self.stats.ticks else f"has been silent for {now - last_rx:.1f} s"
+                    raise WatchdogError(f"simulator {what} (lockstep watchdog {limit:g} s); stopping")
 
     def _run_realtime(self) -> None:
         fds = self._fds()
@@ -355,8 +375,10 @@ class FlightControllerApp:
         self._last_actuator = act
         self._last_tick_ms = self._state_ms
         if self.tlog is not None:
-            tx, ty, tz = flight.target
-            self.tlog.write(t_us, telemetry.smc_array(self._logmav, t_us, out, (tx, ty, tz), flight.yaw_target_rad).pack(self._logmav))
+            data = telemetry.smc_data(out, flight.target, flight.yaw_target_rad)
+            lm = self._logmav
+            self.tlog.write(t_us, encode_debug_float_array(lm.seq, lm.srcSystem, FC_COMPONENT, t_us, b"SMC", telemetry.SMC_ARRAY_ID, data))
+            lm.seq = (lm.seq + 1) & 0xFF
         k = stats.ticks - 1
         if self.gcs is not None:
             if k % self._telemetry_every == 0:

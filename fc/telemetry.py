@@ -17,7 +17,6 @@ the law's internals at full rate; :data:`SMC_FIELDS` names its entries.
 
 from __future__ import annotations
 
-import math
 from typing import Sequence
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -109,26 +108,24 @@ def statustext(mav: mavlink.MAVLink, severity: int, text: str) -> mavlink.MAVLin
     return mav.statustext_encode(severity, text[:50].encode("ascii", "replace"))
 
 
-def smc_array(
-    mav: mavlink.MAVLink, time_us: int, out: TickOutput, target: Sequence[float], yaw_target: float
-) -> mavlink.MAVLink_message:
+def smc_data(out: TickOutput, target: Sequence[float], yaw_target: float) -> list[float]:
+    """The 58 floats of the per-tick ``DEBUG_FLOAT_ARRAY`` "SMC" (see :data:`SMC_FIELDS`)."""
     d = out.diag
     # Unused slots stay 0.0 so MAVLink 2 trims them off the wire; unknown values are NaN.
     data = [_NAN] * 29 + [0.0] * 29
     if d is not None:
-        for i in range(4):
-            if d.chi_hat is not None:
-                data[i] = d.chi_hat[i]
-            if d.sigma is not None:
-                data[4 + i] = d.sigma[i]
-            if d.s is not None:
-                data[8 + i] = d.s[i]
-    for i in range(4):
-        data[12 + i] = out.u[i]
-        data[16 + i] = out.ref[i]
-        data[20 + i] = out.motors[i]
+        chi, sig, s = d.chi_hat, d.sigma, d.s
+        if chi is not None:
+            data[0:4] = chi
+        if sig is not None:
+            data[4:8] = sig
+        if s is not None:
+            data[8:12] = s
+    data[12:16] = out.u
+    data[16:20] = out.ref
+    data[20:24] = out.motors
     data[24], data[25], data[26] = target
     data[27] = yaw_target
-    data[28] = float(sum(1 << i for i, b in enumerate(out.limited) if b))
-    data = [v if math.isfinite(v) else _NAN for v in data]
-    return mav.debug_float_array_encode(time_us, b"SMC", SMC_ARRAY_ID, data)
+    lim = out.limited
+    data[28] = float(lim[0] + 2 * lim[1] + 4 * lim[2] + 8 * lim[3])
+    return data

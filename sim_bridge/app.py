@@ -59,6 +59,8 @@ class BridgeTiming:
     startup_timeout_s: float = 30.0
     #: lockstep: re-send the state if no answer came for this long (wall seconds).
     resend_s: float = 0.25
+    #: lockstep: busy-poll this long for the FC's answer before blocking, s (0: always block).
+    spin_s: float = 0.002
 
     @property
     def substeps(self) -> int:
@@ -176,18 +178,23 @@ class SimBridgeApp:
         return self._exit
 
     def _run_lockstep(self) -> None:
+        """State out, wait for the answer stamped with its time, integrate, repeat.
+
+        Busy-polls for ``spin_s`` after sending (the answer usually comes within tens of
+        microseconds; waking a blocked process costs as much again), then blocks.
+        """
         tm = self.timing
-        period_us = tm.period_us
         substeps = tm.substeps
         duration_us = None if tm.duration_s is None else int(round(tm.duration_s * 1e6))
         mono = self._mono
         recv = self.link.recv
+        spin_s = tm.spin_s
         self._send_state()
         sent_at = last_answer = mono()
         answered = False
         while not self._stop:
-            msgs = recv(0.05)
             now = mono()
+            msgs = recv(0.0 if now - sent_at < spin_s else 0.05)
             advanced = False
             for msg, _addr in msgs:
                 if msg.id != mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS:
@@ -206,11 +213,12 @@ class SimBridgeApp:
                     if ahead > 0.0:
                         self._sleep(ahead)
                 self._send_state()
-                sent_at = last_answer = now
+                sent_at = last_answer = mono()
                 advanced = True
                 break
-            if advanced:
+            if advanced or not now - sent_at >= spin_s:
                 continue
+            now = mono()
             limit = tm.watchdog_s if answered else tm.startup_timeout_s
             if now - last_answer > limit:
                 what = "never answered" if not answered else f"has been silent for {now - last_answer:.1f} s"

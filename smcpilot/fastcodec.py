@@ -38,6 +38,7 @@ __all__ = [
     "encode_attitude",
     "encode_local_position_ned",
     "encode_hil_actuator_controls",
+    "encode_debug_float_array",
     "pack_message",
     "decode_packet",
 ]
@@ -62,16 +63,18 @@ _CRC_BYTES = 2
 _ATTITUDE = mavlink.MAVLink_attitude_message
 _LOCAL_POSITION_NED = mavlink.MAVLink_local_position_ned_message
 _HIL_ACTUATOR_CONTROLS = mavlink.MAVLink_hil_actuator_controls_message
+_DEBUG_FLOAT_ARRAY = mavlink.MAVLink_debug_float_array_message
 _MAVLinkHeader = mavlink.MAVLink_header
 
 ID_ATTITUDE = _ATTITUDE.id
 ID_LOCAL_POSITION_NED = _LOCAL_POSITION_NED.id
 ID_HIL_ACTUATOR_CONTROLS = _HIL_ACTUATOR_CONTROLS.id
+ID_DEBUG_FLOAT_ARRAY = _DEBUG_FLOAT_ARRAY.id
 
 #: Message ids :func:`decode_packet` handles.
 FAST_MSG_IDS = frozenset({ID_ATTITUDE, ID_LOCAL_POSITION_NED, ID_HIL_ACTUATOR_CONTROLS})
 #: pymavlink message classes :func:`pack_message` handles.
-FAST_MESSAGE_TYPES = frozenset({_ATTITUDE, _LOCAL_POSITION_NED, _HIL_ACTUATOR_CONTROLS})
+FAST_MESSAGE_TYPES = frozenset({_ATTITUDE, _LOCAL_POSITION_NED, _HIL_ACTUATOR_CONTROLS, _DEBUG_FLOAT_ARRAY})
 
 # Payload layouts and CRC_EXTRA bytes come from pymavlink's generated classes, so a dialect
 # update that changed them would change both paths alike (and the byte-for-byte tests would say).
@@ -81,11 +84,15 @@ _HIL_PAYLOAD = _HIL_ACTUATOR_CONTROLS.unpacker
 _ATTITUDE_EXTRA = bytes([_ATTITUDE.crc_extra])
 _LOCAL_POSITION_NED_EXTRA = bytes([_LOCAL_POSITION_NED.crc_extra])
 _HIL_EXTRA = bytes([_HIL_ACTUATOR_CONTROLS.crc_extra])
+_DFA_PAYLOAD = _DEBUG_FLOAT_ARRAY.unpacker
+_DFA_EXTRA = bytes([_DEBUG_FLOAT_ARRAY.crc_extra])
 assert _ATTITUDE_PAYLOAD.format == _LOCAL_POSITION_NED_PAYLOAD.format == "<Iffffff"
 assert _HIL_PAYLOAD.format == "<QQ16fB"
 assert _ATTITUDE.ordered_fieldnames == _ATTITUDE.fieldnames
 assert _LOCAL_POSITION_NED.ordered_fieldnames == _LOCAL_POSITION_NED.fieldnames
 assert _HIL_ACTUATOR_CONTROLS.ordered_fieldnames == ["time_usec", "flags", "controls", "mode"]
+assert _DFA_PAYLOAD.format == "<QH10s58f"
+assert _DEBUG_FLOAT_ARRAY.ordered_fieldnames == ["time_usec", "array_id", "name", "data"]
 
 
 def _frame(payload: bytes, seq: int, src_system: int, src_component: int, msg_id: int, crc_extra: bytes) -> bytes:
@@ -150,6 +157,29 @@ def encode_hil_actuator_controls(
     return _frame(payload, seq, src_system, src_component, ID_HIL_ACTUATOR_CONTROLS, _HIL_EXTRA)
 
 
+def encode_debug_float_array(
+    seq: int,
+    src_system: int,
+    src_component: int,
+    time_usec: int,
+    name: bytes | str,
+    array_id: int,
+    data: Sequence[float],
+) -> bytes:
+    """DEBUG_FLOAT_ARRAY packet (encode only: the flight controller logs one per control tick).
+
+    ``data`` holds 58 floats; ``name`` at most 10 bytes (NUL-padded, as pymavlink does).
+    """
+    if isinstance(name, str):  # pymavlink keeps str names on messages it built
+        name = name.encode("utf-8")
+    payload = _DFA_PAYLOAD.pack(time_usec, array_id, name, *data)
+    return _frame(payload, seq, src_system, src_component, ID_DEBUG_FLOAT_ARRAY, _DFA_EXTRA)
+
+
+def _pack_debug_float_array(m: mavlink.MAVLink_message, seq: int, src_system: int, src_component: int) -> bytes:
+    return encode_debug_float_array(seq, src_system, src_component, m.time_usec, m.name, m.array_id, m.data)
+
+
 def _pack_attitude(m: mavlink.MAVLink_message, seq: int, src_system: int, src_component: int) -> bytes:
     payload = _ATTITUDE_PAYLOAD.pack(m.time_boot_ms, m.roll, m.pitch, m.yaw, m.rollspeed, m.pitchspeed, m.yawspeed)
     return _frame(payload, seq, src_system, src_component, ID_ATTITUDE, _ATTITUDE_EXTRA)
@@ -168,6 +198,7 @@ _PACKERS: dict[type, Callable[[mavlink.MAVLink_message, int, int, int], bytes]] 
     _ATTITUDE: _pack_attitude,
     _LOCAL_POSITION_NED: _pack_local_position_ned,
     _HIL_ACTUATOR_CONTROLS: _pack_hil_actuator_controls,
+    _DEBUG_FLOAT_ARRAY: _pack_debug_float_array,
 }
 
 #: ``type(msg) -> packer(msg, seq, src_system, src_component) -> bytes`` for the fast types.
