@@ -41,7 +41,7 @@ from fc import telemetry
 from fc.config import FcConfig
 from fc.flight import FlightControl, TickOutput, VehicleState
 from fc.gcs import GcsHandler
-from fc.plan import PlanStep
+from fc.plan import PlanRunner, PlanStep, apply_step
 from smcpilot.clock import SimClock, WallClock
 from smcpilot.fastcodec import encode_debug_float_array
 from smcpilot.frames import body_rates_to_euler_rates, euler_frd_to_flu, ned_to_nwu, rates_frd_to_flu
@@ -60,6 +60,7 @@ EXIT_CONFIG = 2
 EXIT_WATCHDOG = 3
 
 _isfinite = math.isfinite
+_yield = getattr(os, "sched_yield", lambda: None)
 
 
 class WatchdogError(RuntimeError):
@@ -162,8 +163,7 @@ class FlightControllerApp:
         # Log-only messages have their own sequence numbers: the links' numbering stays gap-free.
         self._logmav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=FC_COMPONENT)
         self.gcs_handler = GcsHandler(self)
-        self.plan = list(plan)
-        self._plan_i = 0
+        self.plan = PlanRunner(plan)
         self._att: mavlink.MAVLink_attitude_message | None = None
         self.state: VehicleState | None = None
         self.body_rates: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -244,6 +244,7 @@ class FlightControllerApp:
                 continue
             now = mono()
             if now < spin_until:
+                _yield()  # let the simulator have this core if the machine is oversubscribed
                 continue
             readable, _, _ = select.select(fds, (), (), 0.1)
             if readable and poll_gcs is not None:
@@ -388,39 +389,10 @@ class FlightControllerApp:
         self.gcs_handler.on_tick(t_us)
 
     def _run_plan(self, t_us: int) -> None:
-        plan = self.plan
-        t_s = (t_us - self.t0_us) * 1e-6
-        while self._plan_i < len(plan) and plan[self._plan_i].t_s <= t_s + 1e-9:
-            step = plan[self._plan_i]
-            self._plan_i += 1
-            self.execute(step)
-
-    def execute(self, step: PlanStep) -> None:
-        """Carry out one plan action now."""
-        from smcpilot.frames import euler_frd_to_flu
-
-        flight = self.flight
-        st = self.state
-        yaw = None
-        if step.yaw_deg is not None:
-            yaw = euler_frd_to_flu(0.0, 0.0, math.radians(step.yaw_deg))[2]
-        if step.action == "takeoff":
-            if st is None:
-                return
-            if not flight.armed:
-                flight.arm(st)
-                self.event(mavlink.MAV_SEVERITY_INFO, "Armed")
-            flight.set_target(flight.target[0], flight.target[1], float(step.alt_m or 0.0), yaw)
-            self.event(mavlink.MAV_SEVERITY_INFO, f"Takeoff to {step.alt_m:.1f} m")
-        elif step.action == "goto":
-            x, y, z = ned_to_nwu((float(step.north_m or 0.0), float(step.east_m or 0.0), -float(step.alt_m or 0.0)))
-            flight.set_target(x, y, z, yaw)
-        elif step.action == "land":
-            flight.land()
-            self.event(mavlink.MAV_SEVERITY_INFO, "Landing")
-        elif step.action == "disarm":
-            flight.disarm()
-            self.event(mavlink.MAV_SEVERITY_INFO, "Disarmed")
+        for step in self.plan.due((t_us - self.t0_us) * 1e-6):
+            event = apply_step(self.flight, self.state, step)
+            if event:
+                self.event(mavlink.MAV_SEVERITY_INFO, event)
 
     # -- output --------------------------------------------------------------------------------
     def custom_mode(self) -> int:

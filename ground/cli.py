@@ -37,7 +37,33 @@ def _bench(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=bench.main)
 
 
-SUBCOMMANDS = (_paper, _bench)
+def _sitl(sub: argparse._SubParsersAction) -> None:
+    from ground import sitl_cmd
+
+    p = sub.add_parser(
+        "sitl",
+        help="launch SITL: the flight controller and the simulator bridge, talking MAVLink over UDP",
+        description="Start both processes on loopback (the FC on a free port), wait until the vehicle is ready,"
+        " print where to connect, and stop both on Ctrl-C/SIGTERM (or when a child dies, with its last output).",
+    )
+    sitl_cmd.add_sitl_arguments(p)
+    p.set_defaults(handler=sitl_cmd.sitl_main)
+
+
+def _demo(sub: argparse._SubParsersAction) -> None:
+    from ground import sitl_cmd
+
+    p = sub.add_parser(
+        "demo",
+        help="fly the demo mission in lockstep SITL: take-off to 3 m, set-points, a yaw change across ±180°, landing",
+        description="Launch lockstep SITL with the built-in demo plan, then print a summary, write plots and"
+        " (with --json) the results.",
+    )
+    sitl_cmd.add_demo_arguments(p)
+    p.set_defaults(handler=sitl_cmd.demo_main)
+
+
+SUBCOMMANDS = (_paper, _sitl, _demo, _bench)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -37,6 +37,7 @@ EXIT_OK = 0
 EXIT_WATCHDOG = 3
 EXIT_DIVERGED = 4
 _ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+_yield = getattr(os, "sched_yield", lambda: None)
 
 
 class Plant(Protocol):
@@ -216,7 +217,10 @@ class SimBridgeApp:
                 sent_at = last_answer = mono()
                 advanced = True
                 break
-            if advanced or not now - sent_at >= spin_s:
+            if advanced:
+                continue
+            if now - sent_at < spin_s:
+                _yield()  # let the FC have this core if the machine is oversubscribed
                 continue
             now = mono()
             limit = tm.watchdog_s if answered else tm.startup_timeout_s

@@ -29,6 +29,11 @@ def _grid(title: str, nrows: int = 2, ncols: int = 2, height: float = 6.5):
     return fig, axes
 
 
+def _legend(ax, **kw) -> None:
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(**kw)
+
+
 def _save(fig, out: Path, name: str) -> Path:
     fig.tight_layout()
     path = out / name
@@ -62,7 +67,7 @@ def write_figures(run: PaperRun, out_dir: str | Path) -> list[Path]:
         ax.plot(first.t_s, first.x_ref[:, i], "k--", lw=1, label="reference")
         ax.set_ylabel(f"{SYMBOLS[c]} [{STATE_UNITS[i]}]")
         ax.grid(alpha=0.3)
-    axes[0, 0].legend(fontsize=8)
+    _legend(axes[0, 0], fontsize=8)
     for ax in axes[-1]:
         ax.set_xlabel("t [s]")
     paths.append(_save(fig, out, "states.png"))
@@ -77,7 +82,7 @@ def write_figures(run: PaperRun, out_dir: str | Path) -> list[Path]:
         ax.set_yscale("symlog", linthresh=1e-3)
         ax.set_ylabel(f"e_{SYMBOLS[c]} [{STATE_UNITS[i]}]")
         ax.grid(alpha=0.3)
-    axes[0, 0].legend(fontsize=8)
+    _legend(axes[0, 0], fontsize=8)
     for ax in axes[-1]:
         ax.set_xlabel("t [s]")
     paths.append(_save(fig, out, "errors.png"))
@@ -96,7 +101,7 @@ def write_figures(run: PaperRun, out_dir: str | Path) -> list[Path]:
             for ax in axes[i]:
                 ax.set_yscale("symlog", linthresh=1e-3)
                 ax.grid(alpha=0.3)
-        axes[0, 0].legend(fontsize=8)
+        _legend(axes[0, 0], fontsize=8)
         axes[-1, 0].set_xlabel("t [s]")
         axes[-1, 1].set_xlabel("t [s]")
         paths.append(_save(fig, out, "sliding.png"))
@@ -113,7 +118,7 @@ def write_figures(run: PaperRun, out_dir: str | Path) -> list[Path]:
         lim = np.nanpercentile(np.abs(finite), 99.5) if finite.size else 1.0
         if np.isfinite(lim) and lim > 0:
             ax.set_ylim(-1.3 * lim if np.nanmin(finite) < 0 else 0.0, 1.3 * lim)
-    axes[0, 0].legend(fontsize=8)
+    _legend(axes[0, 0], fontsize=8)
     for ax in axes[-1]:
         ax.set_xlabel("t [s]")
     paths.append(_save(fig, out, "inputs.png"))
@@ -131,7 +136,7 @@ def write_figures(run: PaperRun, out_dir: str | Path) -> list[Path]:
                 ax.plot(known.t_s, known.chi_hat[:, i], "--", color=COLORS["pid_smc"], label="χ (known bound)")
             ax.set_ylabel(f"χ_{SYMBOLS[c]}")
             ax.grid(alpha=0.3)
-        axes[0, 0].legend(fontsize=8)
+        _legend(axes[0, 0], fontsize=8)
         for ax in axes[-1]:
             ax.set_xlabel("t [s]")
         paths.append(_save(fig, out, "chi_hat.png"))
@@ -152,7 +157,7 @@ def write_figures(run: PaperRun, out_dir: str | Path) -> list[Path]:
         lim = np.nanpercentile(np.abs(w), 99.5)
         if np.isfinite(lim) and lim > 0:
             ax.set_ylim(min(-0.05 * lim, np.nanmin(w)) if np.nanmin(w) < 0 else 0.0, 1.2 * lim)
-    axes[0, 0].legend(fontsize=7, ncol=5)
+    _legend(axes[0, 0], fontsize=7, ncol=5)
     axes[-1, 0].set_xlabel("t [s]")
     paths.append(_save(fig, out, "rotor_speeds.png"))
 
@@ -169,11 +174,16 @@ def write_figures(run: PaperRun, out_dir: str | Path) -> list[Path]:
         ax.grid(alpha=0.3)
         ax2 = axes[1, i]
         names = list(trs)
-        tv = [float(np.nansum(np.abs(np.diff(trs[nm].u[:, i])))) for nm in names]
-        ax2.bar(range(len(names)), tv, color=[COLORS[nm] for nm in names])
+        tv = [float(np.sum(np.abs(np.diff(trs[nm].u[:, i])))) for nm in names]
+        tv = [v if np.isfinite(v) and v > 0 else np.nan for v in tv]
+        ax2.bar(range(len(names)), np.nan_to_num(tv, nan=0.0), color=[COLORS[nm] for nm in names])
+        for k, v in enumerate(tv):
+            if trs[names[k]].diverged:
+                ax2.annotate("diverged", (k, 0), xytext=(0, 3), textcoords="offset points", ha="center", fontsize=6, rotation=90)
         ax2.set_xticks(range(len(names)), [LABELS[nm].replace(" ", "\n", 1) for nm in names], fontsize=7)
-        ax2.set_yscale("log")
+        if any(np.isfinite(v) for v in tv):
+            ax2.set_yscale("log")
         ax2.grid(alpha=0.3, axis="y")
-    axes[0, 0].legend(fontsize=7)
+    _legend(axes[0, 0], fontsize=7)
     paths.append(_save(fig, out, "chattering.png"))
     return paths

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from fc.control import CONTROLLER_NAMES
+from fc.control.gains import PAPER_GAINS, gains_with_overrides
 from ground.paper.run import PaperRunOptions, run_paper
 from smcpilot.errors import ConfigError
 from smcpilot.model import CHANNELS
@@ -54,6 +55,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="reproduce the paper's printed typos literally: comma-separated names or 'all' ("
         + ", ".join(sorted(TYPOS))
         + "); see docs/paper-reproduction.md",
+    )
+    p.add_argument(
+        "--gain",
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="change a PID-SMC gain (both flavours), e.g. kd=2 (every channel) or psi.nu=0.2; names: c1, c2,"
+        " kp, ki, kd, kappa, delta, nu, chi, adapt_rate (repeatable)",
     )
     p.add_argument("--no-disturbance", action="store_true", help="fly without the paper's disturbances fs1..fs4")
     p.add_argument("--duration", type=float, default=15.0, metavar="S", help="simulated seconds (default 15)")
@@ -108,7 +117,17 @@ def main(args: argparse.Namespace) -> int:
 
     if not (args.duration > 0 and math.isfinite(args.duration)):
         raise ConfigError(f"--duration must be a positive number of seconds, got {args.duration}")
+    overrides: dict[str, float] = {}
+    for item in args.gain:
+        key, sep, value = item.partition("=")
+        try:
+            overrides[key.strip()] = float(value)
+        except ValueError:
+            raise ConfigError(f"--gain expects NAME=VALUE with a number, got {item!r}") from None
+        if not sep:
+            raise ConfigError(f"--gain expects NAME=VALUE, got {item!r}")
     options = PaperRunOptions(
+        gains=gains_with_overrides(PAPER_GAINS, overrides),
         controllers=tuple(args.controller) if args.controller else CONTROLLER_NAMES,
         rate_hz=args.rate_hz,
         sigma_source=args.sigma,
@@ -130,13 +149,13 @@ def main(args: argparse.Namespace) -> int:
     metrics = run.metrics()
     print()
     print_table(metrics, run.wall_seconds, options.scenario.duration_s)
+    if args.json:  # before the figures: a plotting problem must not lose the numbers
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(metrics, indent=2, allow_nan=False) + "\n", encoding="utf-8")
+        print(f"metrics: {args.json}")
     if not args.no_figures:
         from ground.paper.figures import write_figures
 
         paths = write_figures(run, args.out)
         print(f"figures: {len(paths)} PNG files in {args.out}/ ({', '.join(p.name for p in paths)})")
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(metrics, indent=2, allow_nan=False) + "\n", encoding="utf-8")
-        print(f"metrics: {args.json}")
     return 0

@@ -3,16 +3,17 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any, Callable, Literal
 
 from fc.control import CONTROLLER_NAMES, make_controller
+from fc.control.gains import PAPER_GAINS, Gains4
 from ground.closed_loop import Trajectory, simulate
 from ground.paper.metrics import metrics_document, trajectory_metrics
 from ground.paper.scenario import PaperScenario
 from sim_bridge.plants.paper import PaperPlant
 from smcpilot.errors import ConfigError
-from smcpilot.model import PaperModel
+from smcpilot.model import CHANNELS, PaperModel
 from smcpilot.typos import CONTROLLER_TYPOS, MODEL_TYPOS, parse_typos
 from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
 
@@ -34,6 +35,8 @@ class PaperRunOptions:
     #: names of the paper's typos to reproduce literally (see smcpilot.typos).
     typos: frozenset[str] = frozenset()
     disturbance: bool = True
+    #: PID-SMC gains (both flavours); the paper's by default.
+    gains: Gains4 = PAPER_GAINS
     vehicle: VehicleParams = DEFAULT_VEHICLE
     scenario: PaperScenario = field(default_factory=PaperScenario)
 
@@ -56,6 +59,12 @@ class PaperRunOptions:
             "chi_hat0": self.chi_hat0,
             "literal_typos": sorted(self.typos),
             "disturbance": self.disturbance,
+            "gains_changed": {
+                f"{c}.{f.name}": getattr(g, f.name)
+                for c, g, p in zip(CHANNELS, self.gains, PAPER_GAINS)
+                for f in fields(g)
+                if getattr(g, f.name) != getattr(p, f.name)
+            },
             "duration_s": self.scenario.duration_s,
             "vehicle": self.vehicle.name,
         }
@@ -78,6 +87,7 @@ def build_controller(name: str, model: PaperModel, options: PaperRunOptions):
     if name in SMC_FLAVOURS:
         kwargs["sigma_source"] = options.sigma_source
         kwargs["typos"] = options.typos & CONTROLLER_TYPOS
+        kwargs["gains"] = options.gains
         if name == "adaptive_pid_smc":
             kwargs["chi_hat0"] = (options.chi_hat0,) * 4
     return make_controller(name, model, **kwargs)

@@ -1,0 +1,203 @@
+"""``smcpilot sitl`` and ``smcpilot demo``: launch the two SITL processes from the command line."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import signal
+import sys
+import time
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from fc.config import FC_CONTROLLERS
+from ground.sitl import Sitl, SitlError, SitlOptions, print_connect_help
+from smcpilot.errors import ConfigError
+
+
+def _ned_triple(text: str) -> tuple[float, float, float]:
+    try:
+        vals = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected N,E,D numbers, got {text!r}") from None
+    if len(vals) != 3 or not all(math.isfinite(v) for v in vals):
+        raise argparse.ArgumentTypeError(f"expected three finite numbers N,E,D, got {text!r}")
+    return vals  # type: ignore[return-value]
+
+
+def add_common(p: argparse.ArgumentParser, *, lockstep_flag: bool) -> None:
+    if lockstep_flag:
+        p.add_argument("--lockstep", action="store_true",
+                       help="deterministic lockstep (as fast as possible unless --speed caps it); default: real time")  # fmt: skip
+    p.add_argument("--speed", type=float, metavar="FACTOR",
+                   help="lockstep: at most FACTOR x real time (a ground station needs 1); real time: clock speed")  # fmt: skip
+    p.add_argument("--vehicle", type=Path, metavar="FILE", help="vehicle TOML (default: the spec's parameters)")
+    p.add_argument("--controller", choices=FC_CONTROLLERS, default="adaptive_pid_smc", help="control law (default adaptive_pid_smc)")
+    p.add_argument("--seed", type=int, default=0, metavar="N", help="seed of sensor noise and gusts (default 0)")
+    p.add_argument("--log-dir", type=Path, default=Path("logs"), metavar="DIR", help="where the .tlog goes (default logs/)")
+    p.add_argument("--plant", choices=("rigid-body", "paper"), default="rigid-body", help="simulated vehicle model (default rigid-body)")
+    p.add_argument("--noise", action="store_true", help="sensor noise on the simulated state")
+    p.add_argument("--wind-force", type=_ned_triple, metavar="N,E,D", help="constant wind force, newtons, NED")
+    p.add_argument("--gust-std", type=float, default=0.0, metavar="N", help="horizontal gust force std, newtons")
+
+
+def add_sitl_arguments(p: argparse.ArgumentParser) -> None:
+    add_common(p, lockstep_flag=True)
+    p.add_argument("--duration", type=float, metavar="SIM_S", help="stop after this many simulated seconds (default: until Ctrl-C)")
+    p.add_argument("--gcs", default="udp:127.0.0.1:14550", metavar="URL",
+                   help="ground link of the FC: udp:HOST:PORT sends telemetry there (default udp:127.0.0.1:14550,"
+                   " where QGroundControl and MAVProxy listen), udpin:HOST:PORT listens, none: no ground link")  # fmt: skip
+    p.add_argument("--plan", type=Path, metavar="FILE", help="timed set-point plan (TOML) the FC flies in simulated time")
+    p.add_argument("--paper-disturbance", action="store_true", help="add the paper's disturbances fs1..fs4")
+
+
+def _options(args: argparse.Namespace, **extra: Any) -> SitlOptions:
+    if args.speed is not None and not args.speed > 0:
+        raise ConfigError("--speed must be > 0")
+    if getattr(args, "duration", None) is not None and not args.duration > 0:
+        raise ConfigError("--duration must be > 0 simulated seconds")
+    if args.gust_std < 0:
+        raise ConfigError("--gust-std must be >= 0")
+    if args.vehicle is not None and not args.vehicle.is_file():
+        raise ConfigError(f"vehicle file not found: {args.vehicle}")
+    kw: dict[str, Any] = dict(
+        speed=args.speed,
+        vehicle=args.vehicle,
+        controller=args.controller,
+        seed=args.seed,
+        log_dir=args.log_dir,
+        plant=args.plant,
+        noise=args.noise,
+        wind_force_ned_n=args.wind_force,
+        gust_std_n=args.gust_std,
+    )
+    kw.update(extra)
+    return SitlOptions(**kw)
+
+
+class _Terminated(Exception):
+    pass
+
+
+def _raise_terminated(*_: object) -> None:
+    raise _Terminated()
+
+
+def sitl_main(args: argparse.Namespace) -> int:
+    if args.plan is not None and not args.plan.is_file():
+        raise ConfigError(f"plan file not found: {args.plan}")
+    opts = _options(
+        args,
+        lockstep=args.lockstep,
+        duration_s=args.duration,
+        gcs=None if args.gcs == "none" else args.gcs,
+        plan=args.plan,
+        paper_disturbance=args.paper_disturbance,
+    )
+    old = signal.signal(signal.SIGTERM, _raise_terminated)
+    t0 = time.monotonic()
+    sitl = Sitl(opts, echo=lambda line: print(line, flush=True))
+    try:
+        with sitl:
+            print_connect_help(sitl)
+            print("  stop with Ctrl-C" + (f"; runs {args.duration:g} simulated seconds" if args.duration else ""), flush=True)
+            sitl.wait()
+    except (KeyboardInterrupt, _Terminated):
+        print("smcpilot sitl: stopped", file=sys.stderr)
+        return 130
+    except SitlError as exc:
+        print(f"smcpilot sitl: error: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        signal.signal(signal.SIGTERM, old)
+    wall = time.monotonic() - t0
+    fcs = sitl.fc_summary or {}
+    sim_s = fcs.get("sim_time_s")
+    print(
+        f"SITL ended: {sim_s if sim_s is not None else float('nan'):.2f} simulated s in {wall:.2f} wall s,"
+        f" {fcs.get('ticks', 0)} control ticks, {fcs.get('overruns', 0)} overruns; log {sitl.tlog}"
+    )
+    return 0
+
+
+# -- demo ---------------------------------------------------------------------------------------
+DEMO_DURATION_S = 55.0
+
+
+def demo_plan_path() -> Path:
+    return Path(str(resources.files("ground") / "data" / "demo-plan.toml"))
+
+
+def add_demo_arguments(p: argparse.ArgumentParser) -> None:
+    add_common(p, lockstep_flag=False)
+    p.add_argument("--json", type=Path, metavar="PATH", help="write the demo's results as JSON")
+    p.add_argument("--out", type=Path, default=Path("out/demo"), metavar="DIR", help="plot directory (default out/demo)")
+    p.add_argument("--no-plots", action="store_true", help="skip the plots")
+
+
+def demo_main(args: argparse.Namespace) -> int:
+    from ground import logtools
+
+    plan = demo_plan_path()
+    opts = _options(args, lockstep=True, duration_s=DEMO_DURATION_S, gcs=None, plan=plan)
+    print(f"demo: lockstep SITL, {DEMO_DURATION_S:g} s of flight ({plan.name}): take-off to 3 m, set-points,"
+          " a heading change across ±180°, landing", flush=True)  # fmt: skip
+    t0 = time.monotonic()
+    sitl = Sitl(opts, echo=lambda line: print(line, flush=True))
+    old = signal.signal(signal.SIGTERM, _raise_terminated)
+    try:
+        with sitl:
+            sitl.wait()
+    except (KeyboardInterrupt, _Terminated):
+        print("smcpilot demo: stopped", file=sys.stderr)
+        return 130
+    except SitlError as exc:
+        print(f"smcpilot demo: error: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        signal.signal(signal.SIGTERM, old)
+    wall = time.monotonic() - t0
+    fcs = sitl.fc_summary or {}
+    assert sitl.tlog is not None
+    log = logtools.load_log(sitl.tlog)
+    summary = logtools.summarize(log)
+    result = demo_result(summary, fcs, wall, sitl.tlog)
+    print()
+    logtools.print_summary(summary, sys.stdout)
+    print(
+        f"\ndemo: {result['sim_seconds']:.1f} simulated s in {wall:.2f} wall s ({result['speed']:.1f}× real time),"
+        f" final position error {_fmt(result['position_error_final_m'])} m, max tilt {_fmt(result['max_tilt_deg'])}°,"
+        f" χ̂ = {result['chi_hat_final']}, {result['overruns']} overruns"
+    )
+    if not args.no_plots:
+        paths = logtools.plot_log(log, args.out)
+        print(f"plots: {len(paths)} PNG files in {args.out}/")
+        result["plots"] = [str(p) for p in paths]
+    print(f"log: {sitl.tlog}")
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(result, indent=2, allow_nan=False) + "\n", encoding="utf-8")
+        print(f"results: {args.json}")
+    return 0
+
+
+def _fmt(v: Any) -> str:
+    return "n/a" if v is None else f"{v:.3f}"
+
+
+def demo_result(summary: dict[str, Any], fc_summary: dict[str, Any], wall_s: float, tlog: Path) -> dict[str, Any]:
+    sim_s = float(fc_summary.get("sim_time_s") or summary.get("duration_s") or 0.0)
+    chi = summary.get("chi_hat_final")
+    return {
+        "sim_seconds": sim_s,
+        "wall_seconds": wall_s,
+        "speed": sim_s / wall_s if wall_s > 0 else None,
+        "position_error_final_m": summary.get("position_error_final_m"),
+        "max_tilt_deg": summary.get("max_tilt_deg"),
+        "chi_hat_final": list(chi) if chi is not None else None,
+        "overruns": int(fc_summary.get("overruns", 0)),
+        "tlog": str(tlog),
+        "events": summary.get("events"),
+    }
