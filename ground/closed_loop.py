@@ -176,6 +176,8 @@ def simulate(
                 why = _bad(yy, u)
                 if why:
                     diverged_at, reason = t, why
+                    if i == 0:  # keep one sample, so a run diverged at the start still has metrics
+                        record(t, yy[:nx], ref, u, w, diag)
                     break
                 record(t, yy[:nx], ref, u, w, diag)
                 if i == n_steps:
@@ -201,6 +203,8 @@ def simulate(
                 why = _bad(y, u)
                 if why:
                     diverged_at, reason = t, why
+                    if i == 0:  # keep one sample, so a run diverged at the start still has metrics
+                        record(t, y, ref, u, w, diag)
                     break
                 record(t, y, ref, u, w, diag)
                 if i == n_steps:

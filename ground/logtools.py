@@ -492,6 +492,21 @@ def _rms(x: np.ndarray) -> float | None:
     return float(np.sqrt(np.mean(x * x))) if x.size else None
 
 
+def _sigma_window(log: FlightLog, window_s: float) -> np.ndarray:
+    """Mask over ``ctrl_t_s``: the last ``window_s`` seconds ending at the last tick with a finite
+    sigma while holding (armed, not landing); without "SMC" records, at the last finite sigma."""
+    t = log.ctrl_t_s
+    finite = np.any(np.isfinite(log.sigma), axis=1)
+    if log.has_smc and log.ctrl_t_s is log.smc_t_s:
+        holding, _ = _tracking_masks(log, 0.0)
+        if np.any(finite & holding):
+            finite = finite & holding
+    if not finite.any():
+        return np.zeros(t.size, dtype=bool)
+    t_end = t[np.flatnonzero(finite)[-1]]
+    return (t >= t_end - window_s) & (t <= t_end)
+
+
 def summarize(
     log: FlightLog, *, settle_s: float = DEFAULT_SETTLE_S, sigma_window_s: float = DEFAULT_SIGMA_WINDOW_S
 ) -> dict[str, Any]:
@@ -515,8 +530,8 @@ def summarize(
     Other entries: ``duration_s`` (simulated, see :attr:`FlightLog.duration_s`), ``armed_time_s``
     (sum of the actuator-message intervals that start armed), ``max_tilt_deg`` (largest
     acos(cos roll · cos pitch)), ``chi_hat_final`` (last finite value per channel phi, theta, psi,
-    z), ``sigma_rms_last_s`` (per channel, over the last ``sigma_window_s`` seconds of controller
-    data), ``overruns`` (last OVERRUN count), ``message_counts`` and ``events``.
+    z), ``sigma_rms_last_s`` (RMS of sigma per channel over the last ``sigma_window_s`` seconds of
+    flight while holding, i.e. before a final landing; NaN samples ignored), ``overruns`` (last OVERRUN count), ``message_counts`` and ``events``.
     """
     out: dict[str, Any] = {
         "log": log.name,
@@ -590,7 +605,7 @@ def summarize(
         for j in range(4):
             finite = log.chi_hat[:, j][np.isfinite(log.chi_hat[:, j])]
             chi_final.append(_num(finite[-1]) if finite.size else None)
-        window = log.ctrl_t_s >= log.ctrl_t_s[-1] - sigma_window_s
+        window = _sigma_window(log, sigma_window_s)
         sig_rms = [_num(_rms(log.sigma[window, j])) for j in range(4)]
         out["chi_hat_final"] = chi_final if any(v is not None for v in chi_final) else None
         out["sigma_rms_last_s"] = sig_rms if any(v is not None for v in sig_rms) else None
@@ -628,18 +643,21 @@ def print_summary(summary: dict[str, Any], file: TextIO | None = None) -> None:
     line("Controller data", s.get("controller_data") or "n/a")
     line("Max tilt", _fmt(s.get("max_tilt_deg"), ".1f", " deg"))
     settle = s.get("settle_s")
-    line("Tracking", f"settled = >= {settle:g} s after a set-point change; {_fmt(s.get('settled_time_s'), '.1f', ' s')} settled")
+    line(
+        "Tracking",
+        f"{_fmt(s.get('settled_time_s'), '.1f', ' s')} of settled flight (>= {settle:g} s after a set-point change)",
+    )
     line(
         "  position error",
-        f"final {_fmt(s.get('position_error_final_m'), '.3f', ' m')}, RMS {_fmt(s.get('position_error_rms_m'), '.3f', ' m')},"
-        f" max {_fmt(s.get('position_error_max_m'), '.3f', ' m')}",
+        f"final {_fmt(s.get('position_error_final_m'), '.3g', ' m')}, RMS {_fmt(s.get('position_error_rms_m'), '.3g', ' m')},"
+        f" max {_fmt(s.get('position_error_max_m'), '.3g', ' m')}",
     )
     ned = s.get("position_error_final_ned_m")
     if ned:
-        line("    final N/E/alt", "  ".join(_fmt(ned[k], "+.3f", " m") for k in ("north", "east", "alt")))
+        line("    final N/E/alt", "  ".join(_fmt(ned[k], "+.3g", " m") for k in ("north", "east", "alt")))
     line(
         "  yaw error",
-        f"final {_fmt(s.get('yaw_error_final_deg'), '+.2f', ' deg')}, RMS {_fmt(s.get('yaw_error_rms_deg'), '.2f', ' deg')}",
+        f"final {_fmt(s.get('yaw_error_final_deg'), '+.3g', ' deg')}, RMS {_fmt(s.get('yaw_error_rms_deg'), '.3g', ' deg')}",
     )
     chans = s.get("channels", list(CHANNELS))
     chi = s.get("chi_hat_final")
@@ -668,15 +686,15 @@ def _pyplot():  # type: ignore[no-untyped-def]
     return plt
 
 
-def _default_chi_bounds() -> tuple[float, float] | None:
-    """The FC's default projection bounds of chi_hat (None if the config cannot be read)."""
+def _fc_adaptation_defaults() -> tuple[tuple[float, float] | None, float | None]:
+    """The FC's default chi_hat projection bounds (min, max) and sigma dead zone (None if unknown)."""
     try:
         from fc.config import FcConfig
 
         a = FcConfig().adaptation
-        return (float(a.chi_hat_min), float(a.chi_hat_max))
+        return (float(a.chi_hat_min), float(a.chi_hat_max)), float(a.dead_zone)
     except Exception:  # noqa: BLE001 - a plotting nicety must never break plotting
-        return None
+        return None, None
 
 
 def _armed_spans(t: np.ndarray, armed: np.ndarray) -> list[tuple[float, float]]:
@@ -708,18 +726,65 @@ def _align_turns(a: np.ndarray, like: np.ndarray) -> np.ndarray:
     return a - 360.0 * np.round((fa[0] - fl[0]) / 360.0)
 
 
+def _draw_bounds(ax, chi: np.ndarray, bounds: tuple[float, float], source: str) -> None:  # type: ignore[no-untyped-def]
+    """chi_hat's projection bounds: lines if they lie near the data, else a note (so growth stays visible)."""
+    lo, hi = bounds
+    finite = chi[np.isfinite(chi)]
+    if not finite.size:
+        return
+    c_min, c_max = float(finite.min()), float(finite.max())
+    pad = max(c_max - c_min, 0.05 * max(abs(c_max), 1.0))
+    view = (c_min - pad, c_max + pad)
+    far = []
+    label: str | None = f"bounds ({source})"
+    for b in (lo, hi):
+        if not math.isfinite(b):
+            continue
+        if view[0] - 2 * pad <= b <= view[1] + 2 * pad:
+            ax.axhline(b, color="tab:red", ls="--", lw=0.8, label=label)
+            label = None
+            view = (min(view[0], b - 0.1 * pad), max(view[1], b + 0.1 * pad))
+        else:
+            far.append(b)
+    ax.set_ylim(*view)
+    if far:
+        ax.text(
+            0.01, 0.04, f"bounds [{lo:g}, {hi:g}] ({source}) off-scale", transform=ax.transAxes, fontsize=7, color="tab:red",
+        )  # fmt: skip
+
+
 def _finite(*arrays: np.ndarray) -> bool:
     return any(a.size and np.isfinite(a).any() for a in arrays)
 
 
 def _mark_events(ax, log: FlightLog, label: bool) -> None:  # type: ignore[no-untyped-def]
+    """Dotted vertical lines at the STATUSTEXT events; with ``label``, their texts (same-time ones joined)."""
+    merged: dict[float, list[str]] = {}
     for e in log.events:
-        ax.axvline(e.t_s, color="0.4", ls=":", lw=0.8)
+        merged.setdefault(round(e.t_s, 3), []).append(e.text)
+    for t_s, texts in merged.items():
+        ax.axvline(t_s, color="0.4", ls=":", lw=0.8)
         if label:
             ax.annotate(
-                e.text, (e.t_s, 1.0), xycoords=("data", "axes fraction"), xytext=(2, -2), textcoords="offset points",
+                "; ".join(texts), (t_s, 1.0), xycoords=("data", "axes fraction"), xytext=(2, -2), textcoords="offset points",
                 fontsize=7, color="0.3", rotation=90, va="top", ha="left",
             )  # fmt: skip
+
+
+def _distinct_poses(east_m: np.ndarray, north_m: np.ndarray, yaw_rad: np.ndarray, min_move_m: float, min_turn_rad: float) -> np.ndarray:
+    """Indices of poses that moved or turned enough since the last kept one (hover spots keep one arrow)."""
+    keep: list[int] = []
+    for k in range(east_m.size):
+        if not (math.isfinite(east_m[k]) and math.isfinite(north_m[k]) and math.isfinite(yaw_rad[k])):
+            continue
+        if keep:
+            j = keep[-1]
+            moved = math.hypot(east_m[k] - east_m[j], north_m[k] - north_m[j])
+            turned = abs(math.remainder(yaw_rad[k] - yaw_rad[j], 2 * math.pi))
+            if moved < min_move_m and turned < min_turn_rad:
+                continue
+        keep.append(k)
+    return np.asarray(keep, dtype=int)
 
 
 def _shade_armed(ax, log: FlightLog, label: str | None = None) -> None:  # type: ignore[no-untyped-def]
@@ -741,8 +806,9 @@ def plot_log(
     with armed stretches shaded, and mixer saturation), ``controller.png`` (sigma and chi_hat per
     channel) and ``track.png`` (top-down north/east track with set-points and headings).
 
-    ``chi_bounds`` = (min, max) draws chi_hat's projection bounds; the default draws the FC's
-    default bounds (labelled so), None draws none.
+    ``chi_bounds`` = (min, max) names chi_hat's projection bounds (drawn when near the data, else
+    written in the panel); the default uses the FC's default bounds and also shades the FC's
+    default sigma dead zone (labelled so: the log does not record the configuration); None: neither.
     """
     plt = _pyplot()
     out = Path(out_dir)
@@ -750,10 +816,12 @@ def plot_log(
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise LogError(f"cannot create plot directory {out}: {exc.strerror}") from exc
+    fc_bounds, dead_zone = _fc_adaptation_defaults()
     if chi_bounds == "default":
-        bounds, bounds_label = _default_chi_bounds(), "bounds (FC defaults)"
+        bounds, bounds_label = fc_bounds, "FC default"
     else:
-        bounds, bounds_label = chi_bounds, "bounds"  # type: ignore[assignment]
+        bounds, bounds_label = chi_bounds, "given"  # type: ignore[assignment]
+        dead_zone = None
     title = log.name
     paths: list[Path] = []
 
@@ -795,13 +863,15 @@ def plot_log(
         for k, ax in enumerate(axes):
             _mark_events(ax, log, label=k == 0)
         axes[0].legend(fontsize=8, loc="best")
+        if _finite(log.ref_alt_m):
+            axes[2].legend(fontsize=8, loc="best")
         if rows == 4:
             ax = axes[3]
             pos = _hold(log.pos_t_s, np.column_stack([log.north_m, log.east_m, log.alt_m]), log.smc_t_s)
             target = np.column_stack([log.target_north_m, log.target_east_m, log.target_alt_m])
-            err = np.linalg.norm(pos - target, axis=1)
-            _, settled = _tracking_masks(log, DEFAULT_SETTLE_S)
-            ax.plot(log.smc_t_s, err, color="tab:red", lw=1.1, label="|position − set-point|")
+            holding, settled = _tracking_masks(log, DEFAULT_SETTLE_S)
+            err = np.where(holding, np.linalg.norm(pos - target, axis=1), np.nan)  # not while landing/disarmed
+            ax.plot(log.smc_t_s, err, color="tab:red", lw=1.1, label="|position − set-point| (armed, not landing)")
             ax.fill_between(
                 log.smc_t_s, 0, 1, where=settled, transform=ax.get_xaxis_transform(), color="tab:purple", alpha=0.1, lw=0,
                 label=f"settled (≥ {DEFAULT_SETTLE_S:g} s after a change)",
@@ -810,7 +880,7 @@ def plot_log(
                 ax.set_yscale("log")
             ax.set_ylabel("error [m]")
             ax.grid(alpha=0.3, which="both")
-            ax.legend(fontsize=8, loc="upper right")
+            ax.legend(fontsize=8, loc="lower right")
         axes[-1].set_xlabel("t [s]")
         save(fig, "position.png")
 
@@ -861,7 +931,7 @@ def plot_log(
         ax.set_ylabel("command [0–1]")
         ax.grid(alpha=0.3)
         _mark_events(ax, log, label=True)
-        ax.legend(fontsize=8, ncol=5, loc="lower right")
+        ax.legend(fontsize=8, ncol=5, loc="upper right")
         if limited:
             for j, tag in enumerate(CHANNEL_TAGS):
                 on = (log.limited_mask >> j) & 1 > 0
@@ -888,24 +958,22 @@ def plot_log(
                 ax = axes[i, k]
                 _shade_armed(ax, log)
                 if what == "sigma":
-                    ax.plot(log.ctrl_t_s, log.sigma[:, i], color="tab:purple", lw=0.9)
+                    ax.plot(log.ctrl_t_s, log.sigma[:, i], color="tab:purple", lw=0.9, label="σ")
+                    if dead_zone:
+                        ax.axhspan(
+                            -dead_zone, dead_zone, color="0.5", alpha=0.15, lw=0,
+                            label=f"dead zone ±{dead_zone:g} ({bounds_label}): χ̂ holds",
+                        )  # fmt: skip
                     ax.set_yscale("symlog", linthresh=1e-3)
                     ax.set_ylabel(f"σ_{symbols[c]}")
                 else:
                     ax.plot(log.ctrl_t_s, log.chi_hat[:, i], color="tab:green", lw=1.2, label="χ̂")
                     if bounds is not None:
-                        lo, hi = bounds
-                        finite_chi = log.chi_hat[:, i][np.isfinite(log.chi_hat[:, i])]
-                        top = max(float(finite_chi.max()) if finite_chi.size else 0.0, 0.0)
-                        ax.axhline(lo, color="tab:red", ls="--", lw=0.8, label=bounds_label)
-                        if math.isfinite(hi):
-                            ax.axhline(hi, color="tab:red", ls="--", lw=0.8)
-                            top = max(top, hi)
-                        ax.set_ylim(min(lo, 0.0) - 0.05 * top, 1.08 * top if top > 0 else 1.0)
+                        _draw_bounds(ax, log.chi_hat[:, i], bounds, bounds_label)
                     ax.set_ylabel(f"χ̂_{symbols[c]}")
                 ax.grid(alpha=0.3)
-        if "chi" in cols:
-            axes[0, cols.index("chi")].legend(fontsize=8, loc="best")
+        for k in range(len(cols)):
+            axes[0, k].legend(fontsize=8, loc="upper right")
         for ax in axes[-1]:
             ax.set_xlabel("t [s]")
         save(fig, "controller.png")
@@ -926,6 +994,8 @@ def plot_log(
                 n = _hold(log.pos_t_s, log.north_m, marks)
                 psi = np.radians(_hold(log.att_t_s, log.yaw_deg, marks))
                 span = max(np.ptp(log.east_m), np.ptp(log.north_m), 1.0)
+                keep = _distinct_poses(e, n, psi, span / 25.0, math.radians(15.0))
+                e, n, psi = e[keep], n[keep], psi[keep]
                 ax.quiver(
                     e, n, np.sin(psi), np.cos(psi), angles="xy", scale_units="xy", scale=8.0 / span, width=0.004,
                     color="tab:blue", alpha=0.6, label=f"heading every {step_s:g} s",
@@ -935,13 +1005,15 @@ def plot_log(
             change = np.ones(len(tgt), dtype=bool)
             change[1:] = np.any(np.abs(np.diff(tgt, axis=0)) > _SETPOINT_TOLERANCE, axis=1)
             shown: set[tuple[float, float]] = set()
+            stacked: dict[tuple[float, float], int] = {}
             for k in np.flatnonzero(change):
                 n_t, e_t, yaw_t = tgt[k]
                 if not (math.isfinite(n_t) and math.isfinite(e_t)):
                     continue
                 ax.plot(e_t, n_t, "x", color="tab:red", ms=10, mew=2, label="set-point" if not shown else None)
                 key = (round(e_t, 2), round(n_t, 2))
-                offset = 10 + 10 * sum(1 for s in shown if s == key)
+                offset = 8 + 13 * stacked.get(key, 0)
+                stacked[key] = stacked.get(key, 0) + 1
                 shown.add(key)
                 ax.annotate(
                     f"t={log.smc_t_s[k]:.1f} s, alt {log.target_alt_m[k]:.1f} m, yaw {yaw_t:.0f}°",
@@ -949,6 +1021,7 @@ def plot_log(
                 )  # fmt: skip
         ax.set_xlabel("east [m]")
         ax.set_ylabel("north [m]")
+        ax.margins(0.12)
         ax.set_aspect("equal", adjustable="datalim")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="best")

@@ -18,6 +18,7 @@ Keys left out take the default; an unknown key, a non-number or an out-of-range 
 
 from __future__ import annotations
 
+import json
 import math
 import tomllib
 from dataclasses import asdict, dataclass, fields, replace
@@ -153,7 +154,7 @@ class VehicleParams:
         lines = ["[vehicle]"]
         for f in fields(self):
             value = getattr(self, f.name)
-            lines.append(f"{f.name} = {value!r}" if f.name != "name" else f'name = "{value}"')
+            lines.append(f"{f.name} = {value!r}" if f.name != "name" else f"name = {json.dumps(value, ensure_ascii=False)}")
         return "\n".join(lines) + "\n"
 
 

@@ -199,13 +199,6 @@ def test_empty_name_rejected():
         VehicleParams(name="")
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="BUG smcpilot/vehicle.py VehicleParams.to_toml: the name is written as f'name = \"{value}\"'"
-    " without TOML escaping, so a name with a double quote, backslash or newline gives a file"
-    " from_toml rejects (fix: write the name with json.dumps(value, ensure_ascii=False), whose"
-    " escapes are valid in a TOML basic string)",
-)
 @pytest.mark.parametrize("name", ['my "quad"', "C:\\quads\\x", "two\nlines"], ids=["quote", "backslash", "newline"])
 def test_round_trip_names_needing_escapes(tmp_path, name):
     v = VehicleParams(name=name)

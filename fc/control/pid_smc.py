@@ -95,6 +95,8 @@ class PidSmcParams:
                 raise InvalidGainError(f"{name} needs 4 values (phi, theta, psi, z), got {len(v)}")
             if name != "u_min" and name != "u_max" and not all(math.isfinite(x) for x in v):
                 raise InvalidGainError(f"{name} must be finite, got {v!r}")
+            if any(math.isnan(x) for x in v):
+                raise InvalidGainError(f"{name} must not contain NaN, got {v!r}")
         if any(c < 0.0 for c in self.chi_hat0):
             raise InvalidGainError(f"chi_hat0 must be >= 0, got {self.chi_hat0!r}")
         if any(lo >= hi for lo, hi in zip(self.u_min, self.u_max)):
@@ -232,12 +234,16 @@ class PidSmc:
     ) -> tuple[tuple[float, ...], Diagnostics]:
         s, sg, chi, ud, rate = self._law(meas, ref, state, accel)
         if self._has_limits:
-            # Anti-windup in continuous time: no motion further into an input limit.
+            # Anti-windup in continuous time: no motion further into an input limit, and int S and
+            # chi_hat freeze on that channel (as in the sampled form).
             lo, hi = self._u_lo, self._u_hi
-            ud = tuple(
-                0.0 if (state[4 + i] >= hi[i] and ud[i] > 0.0) or (state[4 + i] <= lo[i] and ud[i] < 0.0) else ud[i]
-                for i in range(4)
-            )
+            at = [(state[4 + i] >= hi[i] and ud[i] > 0.0) or (state[4 + i] <= lo[i] and ud[i] < 0.0) for i in range(4)]
+            if any(at):
+                ud = tuple(0.0 if at[i] else ud[i] for i in range(4))
+                ds = tuple(0.0 if at[i] else s[i] for i in range(4))
+                rate = tuple(0.0 if at[i] else rate[i] for i in range(4))
+                u = (state[4], state[5], state[6], state[7])
+                return ds + ud + rate, Diagnostics(s, sg, chi, u, ud)
         u = (state[4], state[5], state[6], state[7])
         return s + ud + rate, Diagnostics(s, sg, chi, u, ud)
 

@@ -163,11 +163,13 @@ def write_figures(run: PaperRun, out_dir: str | Path) -> list[Path]:
 
     # 7. chattering comparison: a zoom on u near the end, and total variation per controller
     fig, axes = plt.subplots(2, 4, figsize=(13, 6))
-    fig.suptitle(f"Chattering: u over 0.1 s at t = 10 s (top) and total variation Σ|Δu| (bottom, log) ({sub})")
+    t_end = max(float(tr.t_s[-1]) for tr in trs.values())
+    z0 = min(10.0, max(0.0, t_end - 0.1))
+    fig.suptitle(f"Chattering: u over 0.1 s at t = {z0:g} s (top) and total variation Σ|Δu| (bottom, log) ({sub})")
     for i, c in enumerate(CHANNELS):
         ax = axes[0, i]
         for name, tr in trs.items():
-            sel = (tr.t_s >= 10.0) & (tr.t_s <= 10.1)
+            sel = (tr.t_s >= z0) & (tr.t_s <= z0 + 0.1)
             if sel.any():
                 ax.plot(tr.t_s[sel], tr.u[sel, i], color=COLORS[name], label=LABELS[name], lw=1)
         ax.set_title(f"u_{SYMBOLS[c]} [{INPUT_UNITS[i]}]", fontsize=9)

@@ -137,6 +137,12 @@ def main(args: argparse.Namespace) -> int:
         vehicle=vehicle,
         scenario=PaperScenario(duration_s=args.duration),
     )
+    if args.json is not None and args.json.is_dir():
+        raise ConfigError(f"--json {args.json} is a directory; give a file path")
+    if not args.no_figures and args.out.exists() and not args.out.is_dir():
+        raise ConfigError(f"--out {args.out} exists and is not a directory")
+    if options.rate_hz is not None and not (options.rate_hz > 0 and math.isfinite(options.rate_hz)):
+        raise ConfigError(f"--rate-hz must be a positive number of Hz, got {options.rate_hz:g}")
     mode = "continuous-time RK4 at 1 kHz" if options.rate_hz is None else f"sampled-data control at {options.rate_hz:g} Hz"
     print(f"paper scenario: {options.scenario.duration_s:g} s, {mode}, sigma from {options.sigma_source},"
           f" ideal (unlimited) actuators" + (f", literal typos: {', '.join(sorted(options.typos))}" if options.typos else ""))
@@ -149,13 +155,17 @@ def main(args: argparse.Namespace) -> int:
     metrics = run.metrics()
     print()
     print_table(metrics, run.wall_seconds, options.scenario.duration_s)
-    if args.json:  # before the figures: a plotting problem must not lose the numbers
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(metrics, indent=2, allow_nan=False) + "\n", encoding="utf-8")
-        print(f"metrics: {args.json}")
-    if not args.no_figures:
-        from ground.paper.figures import write_figures
+    try:
+        if args.json:  # before the figures: a plotting problem must not lose the numbers
+            args.json.parent.mkdir(parents=True, exist_ok=True)
+            args.json.write_text(json.dumps(metrics, indent=2, allow_nan=False) + "\n", encoding="utf-8")
+            print(f"metrics: {args.json}")
+        if not args.no_figures:
+            from ground.paper.figures import write_figures
 
-        paths = write_figures(run, args.out)
+            paths = write_figures(run, args.out)
+    except OSError as exc:
+        raise ConfigError(f"cannot write results: {exc}") from None
+    if not args.no_figures:
         print(f"figures: {len(paths)} PNG files in {args.out}/ ({', '.join(p.name for p in paths)})")
     return 0
