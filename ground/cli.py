@@ -63,7 +63,28 @@ def _demo(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=sitl_cmd.demo_main)
 
 
-SUBCOMMANDS = (_paper, _sitl, _demo, _bench)
+def _plot(sub: argparse._SubParsersAction) -> None:
+    from ground import logtools
+
+    p = sub.add_parser(
+        "plot",
+        help="PNG figures of a flight log (position, attitude, motors, sigma/chi_hat, track)",
+        description="Read a flight-controller .tlog and write PNG figures into DIR"
+        " (default: <log stem>-plots/ next to the log).",
+    )
+    logtools.add_plot_arguments(p)
+    p.set_defaults(handler=logtools.plot_main)
+
+
+def _log(sub: argparse._SubParsersAction) -> None:
+    from ground import logtools
+
+    p = sub.add_parser("log", help="inspect flight logs (.tlog): summary", description="Inspect flight-controller .tlog files.")
+    logtools.add_log_arguments(p)
+    p.set_defaults(handler=logtools.log_main)
+
+
+SUBCOMMANDS = (_paper, _sitl, _demo, _bench, _plot, _log)
 
 
 def build_parser() -> argparse.ArgumentParser:

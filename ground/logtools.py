@@ -77,7 +77,7 @@ __all__ = [
 CHANNELS: tuple[str, ...] = ("phi", "theta", "psi", "z")
 #: Seconds a set-point change is given before the tracking error counts (see :func:`summarize`).
 DEFAULT_SETTLE_S = 8.0
-#: Length of the window at the end of the log over which sigma's RMS is taken.
+#: Length of the window over which sigma's RMS is taken: the last seconds of flight before landing.
 DEFAULT_SIGMA_WINDOW_S = 5.0
 
 #: Source component of the simulator bridge (sim_bridge.app.SIM_COMPONENT).
@@ -446,6 +446,19 @@ def _hold(t_src: np.ndarray, values: np.ndarray, t_query: np.ndarray) -> np.ndar
     return out
 
 
+def _setpoint_changes(log: FlightLog) -> np.ndarray:
+    """Mask over ``smc_t_s``: the first tick and every tick whose north/east/altitude/heading
+    set-point differs from the previous tick's."""
+    n = log.smc_t_s.size
+    changed = np.zeros(n, dtype=bool)
+    if n:
+        target = np.column_stack([log.target_north_m, log.target_east_m, log.target_alt_m])
+        changed[0] = True
+        changed[1:] |= np.any(np.abs(np.diff(target, axis=0)) > _SETPOINT_TOLERANCE, axis=1)
+        changed[1:] |= np.abs(_wrap_deg(np.diff(log.target_yaw_deg))) > math.degrees(_SETPOINT_TOLERANCE)
+    return changed
+
+
 def _tracking_masks(log: FlightLog, settle_s: float) -> tuple[np.ndarray, np.ndarray]:
     """(holding, settled) masks over ``smc_t_s``; see :func:`summarize`."""
     t = log.smc_t_s
@@ -454,12 +467,8 @@ def _tracking_masks(log: FlightLog, settle_s: float) -> tuple[np.ndarray, np.nda
         armed = _hold(log.act_t_s, log.armed.astype(float), t) > 0.5
     else:
         armed = np.isfinite(log.ref_alt_m)
-    target = np.column_stack([log.target_north_m, log.target_east_m, log.target_alt_m])
-    changed = np.zeros(n, dtype=bool)
+    changed = _setpoint_changes(log)
     if n:
-        changed[0] = True
-        changed[1:] |= np.any(np.abs(np.diff(target, axis=0)) > _SETPOINT_TOLERANCE, axis=1)
-        changed[1:] |= np.abs(_wrap_deg(np.diff(log.target_yaw_deg))) > math.degrees(_SETPOINT_TOLERANCE)
         changed[1:] |= armed[1:] & ~armed[:-1]
     change_idx = np.flatnonzero(changed)
     last_change_t = t[change_idx[np.searchsorted(change_idx, np.arange(n), side="right") - 1]] if n else t
@@ -637,16 +646,16 @@ def print_summary(summary: dict[str, Any], file: TextIO | None = None) -> None:
     for note in s.get("warnings", []):
         if not (s.get("truncated") and note.startswith("reading stopped")):
             line("  note", note)
-    line("Duration", f"{_fmt(s.get('duration_s'), '.2f', ' s')} simulated, armed {_fmt(s.get('armed_time_s'), '.2f', ' s')}")
+    line("Duration", f"{_fmt(s.get('duration_s'), '.2f', ' s simulated')}, armed {_fmt(s.get('armed_time_s'), '.2f', ' s')}")
     line("Overruns", "n/a (no OVERRUN telemetry)" if s.get("overruns") is None else str(s["overruns"]))
     line("State from", s.get("state_source") or "n/a")
     line("Controller data", s.get("controller_data") or "n/a")
     line("Max tilt", _fmt(s.get("max_tilt_deg"), ".1f", " deg"))
     settle = s.get("settle_s")
-    line(
-        "Tracking",
-        f"{_fmt(s.get('settled_time_s'), '.1f', ' s')} of settled flight (>= {settle:g} s after a set-point change)",
-    )
+    if s.get("settled_time_s") is None:
+        line("Tracking", f"no settled flight (needs SMC set-points held >= {settle:g} s while armed)")
+    else:
+        line("Tracking", f"{s['settled_time_s']:.1f} s of settled flight (>= {settle:g} s after a set-point change)")
     line(
         "  position error",
         f"final {_fmt(s.get('position_error_final_m'), '.3g', ' m')}, RMS {_fmt(s.get('position_error_rms_m'), '.3g', ' m')},"
@@ -804,7 +813,8 @@ def plot_log(
     altitude vs set-point and altitude reference, and the position error), ``attitude.png`` (roll,
     pitch, yaw vs the law's references and the heading set-point), ``motors.png`` (motor commands
     with armed stretches shaded, and mixer saturation), ``controller.png`` (sigma and chi_hat per
-    channel) and ``track.png`` (top-down north/east track with set-points and headings).
+    channel) and ``track.png`` (top-down north/east track with set-points and headings). Each is
+    titled with the log's file name.
 
     ``chi_bounds`` = (min, max) names chi_hat's projection bounds (drawn when near the data, else
     written in the panel); the default uses the FC's default bounds and also shades the FC's
@@ -818,215 +828,239 @@ def plot_log(
         raise LogError(f"cannot create plot directory {out}: {exc.strerror}") from exc
     fc_bounds, dead_zone = _fc_adaptation_defaults()
     if chi_bounds == "default":
-        bounds, bounds_label = fc_bounds, "FC default"
+        bounds, bounds_source = fc_bounds, "FC default"
     else:
-        bounds, bounds_label = chi_bounds, "given"  # type: ignore[assignment]
-        dead_zone = None
-    title = log.name
-    paths: list[Path] = []
+        bounds, bounds_source, dead_zone = chi_bounds, "given", None  # type: ignore[assignment]
 
-    def save(fig, name: str) -> None:  # type: ignore[no-untyped-def]
-        fig.tight_layout()
+    figures: list[tuple[str, Any]] = [
+        ("position.png", _figure_position(plt, log)),
+        ("attitude.png", _figure_attitude(plt, log)),
+        ("motors.png", _figure_motors(plt, log)),
+        ("controller.png", _figure_controller(plt, log, bounds, dead_zone, bounds_source)),
+        ("track.png", _figure_track(plt, log)),
+    ]
+    paths: list[Path] = []
+    for i, (name, fig) in enumerate(figures):
+        if fig is None:
+            continue
         path = out / name
         try:
+            fig.tight_layout()
             fig.savefig(path, dpi=110)
         except OSError as exc:
+            for _, other in figures[i:]:
+                if other is not None:
+                    plt.close(other)
             raise LogError(f"cannot write {path}: {exc.strerror}") from exc
-        finally:
-            plt.close(fig)
+        plt.close(fig)
         paths.append(path)
+    return paths
 
+
+def _target_ne_alt(log: FlightLog) -> np.ndarray:
+    return np.column_stack([log.target_north_m, log.target_east_m, log.target_alt_m])
+
+
+def _figure_position(plt, log: FlightLog):  # type: ignore[no-untyped-def]
+    """(a) north, east, altitude vs set-point (and the shaped altitude reference); position error."""
     has_pos = log.pos_t_s.size > 0
-    has_att = log.att_t_s.size > 0
     has_target = log.has_smc and _finite(log.target_north_m)
-
-    # (a) position vs set-points.
-    if has_pos or has_target:
-        rows = 4 if (has_pos and has_target) else 3
-        fig, axes = plt.subplots(rows, 1, figsize=(11, 2.1 * rows + 0.9), sharex=True, squeeze=False)
-        axes = axes[:, 0]
-        fig.suptitle(f"{title}: position vs set-point (north, east, altitude up)")
-        series = [
-            ("north [m]", log.north_m, log.target_north_m, None),
-            ("east [m]", log.east_m, log.target_east_m, None),
-            ("altitude [m]", log.alt_m, log.target_alt_m, log.ref_alt_m),
-        ]
-        for ax, (ylabel, actual, target, ref) in zip(axes, series):
-            if has_pos:
-                ax.plot(log.pos_t_s, actual, color="tab:blue", lw=1.3, label="vehicle")
-            if has_target:
-                ax.plot(log.smc_t_s, target, color="k", ls="--", lw=1.0, drawstyle="steps-post", label="set-point")
-            if ref is not None and _finite(ref):
-                ax.plot(log.smc_t_s, ref, color="tab:orange", lw=0.9, alpha=0.8, label="reference (shaped)")
-            ax.set_ylabel(ylabel)
-            ax.grid(alpha=0.3)
-        for k, ax in enumerate(axes):
-            _mark_events(ax, log, label=k == 0)
-        axes[0].legend(fontsize=8, loc="best")
-        if _finite(log.ref_alt_m):
-            axes[2].legend(fontsize=8, loc="best")
-        if rows == 4:
-            ax = axes[3]
-            pos = _hold(log.pos_t_s, np.column_stack([log.north_m, log.east_m, log.alt_m]), log.smc_t_s)
-            target = np.column_stack([log.target_north_m, log.target_east_m, log.target_alt_m])
-            holding, settled = _tracking_masks(log, DEFAULT_SETTLE_S)
-            err = np.where(holding, np.linalg.norm(pos - target, axis=1), np.nan)  # not while landing/disarmed
-            ax.plot(log.smc_t_s, err, color="tab:red", lw=1.1, label="|position − set-point| (armed, not landing)")
-            ax.fill_between(
-                log.smc_t_s, 0, 1, where=settled, transform=ax.get_xaxis_transform(), color="tab:purple", alpha=0.1, lw=0,
-                label=f"settled (≥ {DEFAULT_SETTLE_S:g} s after a change)",
-            )  # fmt: skip
-            if np.nanmax(err, initial=0.0) > 0:
-                ax.set_yscale("log")
-            ax.set_ylabel("error [m]")
-            ax.grid(alpha=0.3, which="both")
-            ax.legend(fontsize=8, loc="lower right")
-        axes[-1].set_xlabel("t [s]")
-        save(fig, "position.png")
-
-    # (b) attitude vs references.
-    has_ref = log.has_smc and _finite(log.ref_roll_deg, log.ref_yaw_deg)
-    if has_att or has_ref:
-        fig, axes = plt.subplots(3, 1, figsize=(11, 7.2), sharex=True)
-        fig.suptitle(f"{title}: attitude vs reference (NED/FRD)")
-        yaw = _unwrap_deg(log.yaw_deg)
-        if _finite(yaw):
-            yaw = _align_turns(yaw, _wrap_deg(yaw[np.isfinite(yaw)][:1]))
-        ref_yaw = _align_turns(_unwrap_deg(log.ref_yaw_deg), yaw) if has_ref else log.ref_yaw_deg
-        target_yaw = _align_turns(_unwrap_deg(log.target_yaw_deg), yaw) if has_ref else log.target_yaw_deg
-        series = [
-            ("roll [deg]", log.roll_deg, log.ref_roll_deg),
-            ("pitch [deg]", log.pitch_deg, log.ref_pitch_deg),
-            ("yaw [deg] (unwrapped)", yaw, ref_yaw),
-        ]
-        for k, (ax, (ylabel, actual, ref)) in enumerate(zip(axes, series)):
-            if has_att:
-                ax.plot(log.att_t_s, actual, color="tab:blue", lw=1.2, label="vehicle")
-            if has_ref:
-                ax.plot(log.smc_t_s, ref, color="tab:orange", ls="--", lw=1.0, label="reference")
-            if k == 2 and has_ref and _finite(target_yaw):
-                ax.plot(log.smc_t_s, target_yaw, color="k", ls=":", lw=1.0, drawstyle="steps-post", label="heading set-point")
-            ax.set_ylabel(ylabel)
-            ax.grid(alpha=0.3)
-            _mark_events(ax, log, label=k == 0)
-        axes[2].legend(fontsize=8, loc="best")
-        axes[0].legend(fontsize=8, loc="best")
-        axes[-1].set_xlabel("t [s]")
-        save(fig, "attitude.png")
-
-    # (c) motor commands.
-    if log.act_t_s.size:
-        limited = log.has_smc and bool(np.any(log.limited_mask))
-        if limited:
-            fig, (ax, axl) = plt.subplots(
-                2, 1, figsize=(11, 5.6), sharex=True, gridspec_kw={"height_ratios": [4, 1]}
-            )
-        else:
-            fig, ax = plt.subplots(1, 1, figsize=(11, 4.6))
-        fig.suptitle(f"{title}: motor commands (HIL_ACTUATOR_CONTROLS)")
-        _shade_armed(ax, log, label="armed")
-        for j in range(4):
-            ax.plot(log.act_t_s, log.motors[:, j], lw=0.9, label=f"motor {j + 1}")
-        ax.set_ylim(-0.03, 1.03)
-        ax.set_ylabel("command [0–1]")
+    if not (has_pos or has_target):
+        return None
+    rows = 4 if (has_pos and has_target) else 3
+    fig, axes = plt.subplots(rows, 1, figsize=(11, 2.1 * rows + 0.9), sharex=True, squeeze=False)
+    axes = axes[:, 0]
+    fig.suptitle(f"{log.name}: position vs set-point (north, east, altitude up)")
+    series = [
+        ("north [m]", log.north_m, log.target_north_m, None),
+        ("east [m]", log.east_m, log.target_east_m, None),
+        ("altitude [m]", log.alt_m, log.target_alt_m, log.ref_alt_m),
+    ]
+    for k, (ax, (ylabel, actual, target, ref)) in enumerate(zip(axes, series)):
+        if has_pos:
+            ax.plot(log.pos_t_s, actual, color="tab:blue", lw=1.3, label="vehicle")
+        if has_target:
+            ax.plot(log.smc_t_s, target, color="k", ls="--", lw=1.0, drawstyle="steps-post", label="set-point")
+        if ref is not None and _finite(ref):
+            ax.plot(log.smc_t_s, ref, color="tab:orange", lw=0.9, alpha=0.8, label="reference (shaped)")
+        ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)
-        _mark_events(ax, log, label=True)
-        ax.legend(fontsize=8, ncol=5, loc="upper right")
-        if limited:
-            for j, tag in enumerate(CHANNEL_TAGS):
-                on = (log.limited_mask >> j) & 1 > 0
-                axl.fill_between(log.smc_t_s, j + 0.1, j + 0.9, where=on, color="tab:red", lw=0, step="post")
-            axl.set_yticks([0.5, 1.5, 2.5, 3.5], [c.lower() for c in CHANNEL_TAGS], fontsize=8)
-            axl.set_ylim(0, 4)
-            axl.set_ylabel("mixer\nlimited", fontsize=8)
-            axl.grid(alpha=0.3, axis="x")
-            axl.set_xlabel("t [s]")
-        else:
-            ax.set_xlabel("t [s]")
-        save(fig, "motors.png")
+        if k == 0 or (ref is not None and _finite(ref)):
+            ax.legend(fontsize=8, loc="best")
+    if rows == 4:
+        ax = axes[3]
+        pos = _hold(log.pos_t_s, np.column_stack([log.north_m, log.east_m, log.alt_m]), log.smc_t_s)
+        holding, settled = _tracking_masks(log, DEFAULT_SETTLE_S)
+        err = np.where(holding, np.linalg.norm(pos - _target_ne_alt(log), axis=1), np.nan)  # not landing/disarmed
+        ax.plot(log.smc_t_s, err, color="tab:red", lw=1.1, label="|position − set-point| (armed, not landing)")
+        ax.fill_between(
+            log.smc_t_s, 0, 1, where=settled, transform=ax.get_xaxis_transform(), color="tab:purple", alpha=0.1, lw=0,
+            label=f"settled (≥ {DEFAULT_SETTLE_S:g} s after a change)",
+        )  # fmt: skip
+        if np.any(err > 0):
+            ax.set_yscale("log")
+        ax.set_ylabel("error [m]")
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=8, loc="lower right")
+    for k, ax in enumerate(axes):
+        _mark_events(ax, log, label=k == 0)
+    axes[-1].set_xlabel("t [s]")
+    return fig
 
-    # (d) sigma and chi_hat per channel.
+
+def _figure_attitude(plt, log: FlightLog):  # type: ignore[no-untyped-def]
+    """(b) roll, pitch, yaw (unwrapped) vs the law's references and the heading set-point."""
+    has_att = log.att_t_s.size > 0
+    has_ref = log.has_smc and _finite(log.ref_roll_deg, log.ref_yaw_deg)
+    if not (has_att or has_ref):
+        return None
+    fig, axes = plt.subplots(3, 1, figsize=(11, 7.2), sharex=True)
+    fig.suptitle(f"{log.name}: attitude vs reference (NED/FRD)")
+    # Unwrap so a turn through ±180° reads as one curve; start the vehicle's yaw in [-180, 180).
+    yaw = _unwrap_deg(log.yaw_deg)
+    if _finite(yaw):
+        yaw = _align_turns(yaw, _wrap_deg(yaw[np.isfinite(yaw)][:1]))
+    ref_yaw = _align_turns(_unwrap_deg(log.ref_yaw_deg), yaw)
+    target_yaw = _align_turns(_unwrap_deg(log.target_yaw_deg), yaw)
+    series = [
+        ("roll [deg]", log.roll_deg, log.ref_roll_deg),
+        ("pitch [deg]", log.pitch_deg, log.ref_pitch_deg),
+        ("yaw [deg] (unwrapped)", yaw, ref_yaw),
+    ]
+    for k, (ax, (ylabel, actual, ref)) in enumerate(zip(axes, series)):
+        if has_att:
+            ax.plot(log.att_t_s, actual, color="tab:blue", lw=1.2, label="vehicle")
+        if has_ref:
+            ax.plot(log.smc_t_s, ref, color="tab:orange", ls="--", lw=1.0, label="reference")
+        if k == 2 and has_ref and _finite(target_yaw):
+            ax.plot(log.smc_t_s, target_yaw, color="k", ls=":", lw=1.0, drawstyle="steps-post", label="heading set-point")
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+        _mark_events(ax, log, label=k == 0)
+    axes[0].legend(fontsize=8, loc="best")
+    axes[2].legend(fontsize=8, loc="best")
+    axes[-1].set_xlabel("t [s]")
+    return fig
+
+
+def _figure_motors(plt, log: FlightLog):  # type: ignore[no-untyped-def]
+    """(c) motor commands with armed stretches shaded; mixer saturation per channel if any."""
+    if not log.act_t_s.size:
+        return None
+    limited = log.has_smc and bool(np.any(log.limited_mask))
+    if limited:
+        fig, (ax, axl) = plt.subplots(2, 1, figsize=(11, 5.6), sharex=True, gridspec_kw={"height_ratios": [4, 1]})
+    else:
+        fig, ax = plt.subplots(1, 1, figsize=(11, 4.6))
+    fig.suptitle(f"{log.name}: motor commands (HIL_ACTUATOR_CONTROLS)")
+    _shade_armed(ax, log, label="armed")
+    for j in range(4):
+        ax.plot(log.act_t_s, log.motors[:, j], lw=0.9, label=f"motor {j + 1}")
+    ax.set_ylim(-0.03, 1.03)
+    ax.set_ylabel("command [0–1]")
+    ax.grid(alpha=0.3)
+    _mark_events(ax, log, label=True)
+    ax.legend(fontsize=8, ncol=5, loc="lower center")
+    if limited:
+        for j, tag in enumerate(CHANNEL_TAGS):
+            on = (log.limited_mask >> j) & 1 > 0
+            axl.fill_between(log.smc_t_s, j + 0.1, j + 0.9, where=on, color="tab:red", lw=0, step="post")
+        axl.set_yticks([0.5, 1.5, 2.5, 3.5], [c.lower() for c in CHANNEL_TAGS], fontsize=8)
+        axl.set_ylim(0, 4)
+        axl.set_ylabel("mixer\nlimited", fontsize=8)
+        axl.grid(alpha=0.3, axis="x")
+        axl.set_xlabel("t [s]")
+    else:
+        ax.set_xlabel("t [s]")
+    return fig
+
+
+def _figure_controller(  # type: ignore[no-untyped-def]
+    plt, log: FlightLog, bounds: tuple[float, float] | None, dead_zone: float | None, bounds_source: str
+):
+    """(d) sigma (symlog, with chi_hat's dead zone) and chi_hat (with its bounds) per channel."""
     has_sigma = _finite(log.sigma)
     has_chi = _finite(log.chi_hat)
-    if has_sigma or has_chi:
-        cols = [c for c, present in (("sigma", has_sigma), ("chi", has_chi)) if present]
-        fig, axes = plt.subplots(4, len(cols), figsize=(11 if len(cols) == 2 else 8, 8.5), sharex=True, squeeze=False)
-        fig.suptitle(f"{title}: PID manifold σ and adaptive gain χ̂ per channel (from {log.ctrl_source})")
-        symbols = {"phi": "φ", "theta": "θ", "psi": "ψ", "z": "z"}
-        for i, c in enumerate(CHANNELS):
-            for k, what in enumerate(cols):
-                ax = axes[i, k]
-                _shade_armed(ax, log)
-                if what == "sigma":
-                    ax.plot(log.ctrl_t_s, log.sigma[:, i], color="tab:purple", lw=0.9, label="σ")
-                    if dead_zone:
-                        ax.axhspan(
-                            -dead_zone, dead_zone, color="0.5", alpha=0.15, lw=0,
-                            label=f"dead zone ±{dead_zone:g} ({bounds_label}): χ̂ holds",
-                        )  # fmt: skip
-                    ax.set_yscale("symlog", linthresh=1e-3)
-                    ax.set_ylabel(f"σ_{symbols[c]}")
-                else:
-                    ax.plot(log.ctrl_t_s, log.chi_hat[:, i], color="tab:green", lw=1.2, label="χ̂")
-                    if bounds is not None:
-                        _draw_bounds(ax, log.chi_hat[:, i], bounds, bounds_label)
-                    ax.set_ylabel(f"χ̂_{symbols[c]}")
-                ax.grid(alpha=0.3)
-        for k in range(len(cols)):
-            axes[0, k].legend(fontsize=8, loc="upper right")
-        for ax in axes[-1]:
-            ax.set_xlabel("t [s]")
-        save(fig, "controller.png")
+    if not (has_sigma or has_chi):
+        return None
+    cols = [c for c, present in (("sigma", has_sigma), ("chi", has_chi)) if present]
+    fig, axes = plt.subplots(4, len(cols), figsize=(11 if len(cols) == 2 else 8, 8.5), sharex=True, squeeze=False)
+    fig.suptitle(f"{log.name}: PID manifold σ and adaptive gain χ̂ per channel (from {log.ctrl_source})")
+    symbols = {"phi": "φ", "theta": "θ", "psi": "ψ", "z": "z"}
+    for i, c in enumerate(CHANNELS):
+        for k, what in enumerate(cols):
+            ax = axes[i, k]
+            _shade_armed(ax, log)
+            if what == "sigma":
+                ax.plot(log.ctrl_t_s, log.sigma[:, i], color="tab:purple", lw=0.9, label="σ")
+                if dead_zone:
+                    ax.axhspan(
+                        -dead_zone, dead_zone, color="0.5", alpha=0.15, lw=0,
+                        label=f"dead zone ±{dead_zone:g} ({bounds_source}): χ̂ holds",
+                    )  # fmt: skip
+                ax.set_yscale("symlog", linthresh=1e-3)
+                ax.set_ylabel(f"σ_{symbols[c]}")
+            else:
+                ax.plot(log.ctrl_t_s, log.chi_hat[:, i], color="tab:green", lw=1.2, label="χ̂")
+                if bounds is not None:
+                    _draw_bounds(ax, log.chi_hat[:, i], bounds, bounds_source)
+                ax.set_ylabel(f"χ̂_{symbols[c]}")
+            ax.grid(alpha=0.3)
+    for k in range(len(cols)):
+        axes[0, k].legend(fontsize=8, loc="upper right")
+    for ax in axes[-1]:
+        ax.set_xlabel("t [s]")
+    return fig
 
-    # (e) top-down track.
-    if has_pos or has_target:
-        fig, ax = plt.subplots(1, 1, figsize=(7.5, 7.5))
-        fig.suptitle(f"{title}: track seen from above")
-        if has_pos:
-            ax.plot(log.east_m, log.north_m, color="tab:blue", lw=1.3, label="vehicle")
-            ax.plot(log.east_m[0], log.north_m[0], "o", color="tab:green", ms=7, label="start")
-            ax.plot(log.east_m[-1], log.north_m[-1], "s", color="tab:blue", ms=6, label="end")
-            if has_att and log.att_t_s.size > 1:
-                # Heading arrows about every 2 s.
-                step_s = 2.0
-                marks = np.arange(log.pos_t_s[0], log.pos_t_s[-1] + 1e-9, step_s)
-                e = _hold(log.pos_t_s, log.east_m, marks)
-                n = _hold(log.pos_t_s, log.north_m, marks)
-                psi = np.radians(_hold(log.att_t_s, log.yaw_deg, marks))
-                span = max(np.ptp(log.east_m), np.ptp(log.north_m), 1.0)
-                keep = _distinct_poses(e, n, psi, span / 25.0, math.radians(15.0))
-                e, n, psi = e[keep], n[keep], psi[keep]
+
+def _figure_track(plt, log: FlightLog):  # type: ignore[no-untyped-def]
+    """(e) the north/east track seen from above, with headings and the set-points."""
+    has_pos = log.pos_t_s.size > 0
+    has_target = log.has_smc and _finite(log.target_north_m)
+    if not (has_pos or has_target):
+        return None
+    fig, ax = plt.subplots(1, 1, figsize=(7.5, 7.5))
+    fig.suptitle(f"{log.name}: track seen from above")
+    if has_pos:
+        ax.plot(log.east_m, log.north_m, color="tab:blue", lw=1.3, label="vehicle")
+        ax.plot(log.east_m[0], log.north_m[0], "o", color="tab:green", ms=7, label="start")
+        ax.plot(log.east_m[-1], log.north_m[-1], "s", color="tab:blue", ms=6, label="end")
+        if log.att_t_s.size > 1:
+            # Heading arrows every 2 s, only where the vehicle moved or turned since the last one.
+            step_s = 2.0
+            marks = np.arange(log.pos_t_s[0], log.pos_t_s[-1] + 1e-9, step_s)
+            e = _hold(log.pos_t_s, log.east_m, marks)
+            n = _hold(log.pos_t_s, log.north_m, marks)
+            psi = np.radians(_hold(log.att_t_s, log.yaw_deg, marks))
+            span = max(float(np.ptp(log.east_m)), float(np.ptp(log.north_m)), 1.0)
+            keep = _distinct_poses(e, n, psi, span / 25.0, math.radians(15.0))
+            if keep.size:
                 ax.quiver(
-                    e, n, np.sin(psi), np.cos(psi), angles="xy", scale_units="xy", scale=8.0 / span, width=0.004,
-                    color="tab:blue", alpha=0.6, label=f"heading every {step_s:g} s",
+                    e[keep], n[keep], np.sin(psi[keep]), np.cos(psi[keep]), angles="xy", scale_units="xy",
+                    scale=8.0 / span, width=0.004, color="tab:blue", alpha=0.6, label=f"heading (every {step_s:g} s)",
                 )  # fmt: skip
-        if has_target:
-            tgt = np.column_stack([log.target_north_m, log.target_east_m, log.target_yaw_deg])
-            change = np.ones(len(tgt), dtype=bool)
-            change[1:] = np.any(np.abs(np.diff(tgt, axis=0)) > _SETPOINT_TOLERANCE, axis=1)
-            shown: set[tuple[float, float]] = set()
-            stacked: dict[tuple[float, float], int] = {}
-            for k in np.flatnonzero(change):
-                n_t, e_t, yaw_t = tgt[k]
-                if not (math.isfinite(n_t) and math.isfinite(e_t)):
-                    continue
-                ax.plot(e_t, n_t, "x", color="tab:red", ms=10, mew=2, label="set-point" if not shown else None)
-                key = (round(e_t, 2), round(n_t, 2))
-                offset = 8 + 13 * stacked.get(key, 0)
-                stacked[key] = stacked.get(key, 0) + 1
-                shown.add(key)
-                ax.annotate(
-                    f"t={log.smc_t_s[k]:.1f} s, alt {log.target_alt_m[k]:.1f} m, yaw {yaw_t:.0f}°",
-                    (e_t, n_t), xytext=(8, offset), textcoords="offset points", fontsize=8, color="tab:red",
-                )  # fmt: skip
-        ax.set_xlabel("east [m]")
-        ax.set_ylabel("north [m]")
-        ax.margins(0.12)
-        ax.set_aspect("equal", adjustable="datalim")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="best")
-        save(fig, "track.png")
-    return paths
+    if has_target:
+        target = _target_ne_alt(log)
+        stacked: dict[tuple[float, float], int] = {}
+        for k in np.flatnonzero(_setpoint_changes(log)):
+            n_t, e_t, alt_t = target[k]
+            if not (math.isfinite(n_t) and math.isfinite(e_t)):
+                continue
+            ax.plot(e_t, n_t, "x", color="tab:red", ms=10, mew=2, label="set-point" if not stacked else None)
+            key = (round(e_t, 2), round(n_t, 2))
+            ax.annotate(
+                f"t={log.smc_t_s[k]:.1f} s, alt {alt_t:.1f} m, yaw {log.target_yaw_deg[k]:.0f}°",
+                (e_t, n_t), xytext=(8, 8 + 13 * stacked.get(key, 0)), textcoords="offset points", fontsize=8,
+                color="tab:red",
+            )  # fmt: skip
+            stacked[key] = stacked.get(key, 0) + 1
+    ax.set_xlabel("east [m]")
+    ax.set_ylabel("north [m]")
+    ax.margins(0.12)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="best")
+    return fig
 
 
 # -- command line ------------------------------------------------------------------------------------
