@@ -41,7 +41,11 @@ from fc import telemetry
 from fc.config import FcConfig
 from fc.flight import FlightControl, TickOutput, VehicleState
 from fc.gcs import GcsHandler
-from fc.plan import PlanRunner, PlanStep, apply_step
+from fc.commander import Commander
+from fc.params import ParamStore
+from fc.plan import PlanRunner, PlanStep
+from fc.streams import StreamScheduler
+from smcpilot.geo import Home
 from smcpilot.clock import SimClock, WallClock
 from smcpilot.fastcodec import encode_debug_float_array
 from smcpilot.frames import body_rates_to_euler_rates, euler_frd_to_flu, ned_to_nwu, rates_frd_to_flu
@@ -51,9 +55,6 @@ from smcpilot.vehicle import VehicleParams
 
 #: Component id of the flight controller (MAV_COMP_ID_AUTOPILOT1).
 FC_COMPONENT = 1
-#: ArduCopter custom mode numbers used so far (the GCS protocol adds the rest).
-MODE_GUIDED = 4
-MODE_LAND = 9
 
 EXIT_OK = 0
 EXIT_CONFIG = 2
@@ -126,14 +127,19 @@ class FlightControllerApp:
         lockstep: bool,
         tlog_path: Path | None,
         plan: tuple[PlanStep, ...] = (),
+        params: ParamStore | None = None,
+        home: Home = Home(),
         duration_s: float | None = None,
         startup_timeout_s: float = 30.0,
         spin_s: float = 0.002,
         out: TextIO = sys.stdout,
         monotonic: Callable[[], float] = time.monotonic,
     ) -> None:
+        self.params = params if params is not None else ParamStore(config)
+        config = self.params.config
         self.cfg = config
         self.vehicle = vehicle
+        self.home = home
         self.lockstep = lockstep
         self.duration_s = duration_s
         self.startup_timeout_s = startup_timeout_s
@@ -162,7 +168,16 @@ class FlightControllerApp:
             raise
         # Log-only messages have their own sequence numbers: the links' numbering stays gap-free.
         self._logmav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=FC_COMPONENT)
-        self.gcs_handler = GcsHandler(self)
+        self.gcs_handler = GcsHandler(self, monotonic)
+        gcs = self.gcs
+        self.commander = Commander(
+            self.flight, home, self.event,
+            mav=gcs.mav if gcs is not None else None,
+            send_to=gcs.send_to if gcs is not None else None,
+            broadcast=gcs.send if gcs is not None else None,
+        )  # fmt: skip
+        self.mission = self.commander.mission
+        self.streams = StreamScheduler(config.telemetry_rate_hz)
         self.plan = PlanRunner(plan)
         self._att: mavlink.MAVLink_attitude_message | None = None
         self.state: VehicleState | None = None
@@ -171,9 +186,7 @@ class FlightControllerApp:
         self._state_wall_s = -math.inf
         self._last_tick_ms = -1
         self._last_actuator: mavlink.MAVLink_message | None = None
-        self._last_out: TickOutput | None = None
-        self._telemetry_every = max(1, int(round(config.rate_hz / config.telemetry_rate_hz)))
-        self._second_every = max(1, int(round(config.rate_hz)))
+        self.last_out: TickOutput | None = None
         self.failsafe = False
         self._stop = False
         self._exit_code = EXIT_OK
@@ -341,88 +354,68 @@ class FlightControllerApp:
             self.gcs_handler.handle(msg, addr)
 
     # -- the tick ------------------------------------------------------------------------------
+    def apply_config(self, cfg: FcConfig) -> None:
+        """Live parameter change: takes effect from the next control step."""
+        self.cfg = cfg
+        self.flight.reconfigure(cfg)
+        self.streams.set_telemetry_rate(cfg.telemetry_rate_hz)
+
     def _tick(self, t_us: int, *, stale: bool) -> None:
         stats = self.stats
         if stats.ticks == 0:
             self.t0_us = t_us
             self.say(f"FC_READY t={t_us * 1e-6:.3f}s controller={self.cfg.controller} lockstep={self.lockstep}")
         stats.ticks += 1
-        self._run_plan(t_us)
         st = self.state
         flight = self.flight
+        commander = self.commander
+        commander.state = st
+        commander.state_fresh = not stale and st is not None
+        commander.failsafe_active = self.failsafe
+        self._run_plan(t_us)
+        dt = self.cfg.period_s
         if stale or st is None:
-            if not self.failsafe:
+            if not self.failsafe and flight.armed:
                 self.failsafe = True
                 stats.failsafe_events += 1
                 self.event(mavlink.MAV_SEVERITY_CRITICAL, "FAILSAFE: state lost, level and descend")
             out = flight.failsafe_step()
         else:
             if self.failsafe:
-                # State is back: stay in failsafe, now closed loop: land where we are.
+                # The state is back: stay in failsafe, now closed loop: land where we are.
                 self.event(mavlink.MAV_SEVERITY_WARNING, "State back: failsafe landing")
                 self.failsafe = False
                 if flight.armed:
-                    flight.set_target(st.x_m, st.y_m, st.z_m)
-                    flight.land()
+                    commander.land()
+            commander.on_tick((t_us - self.t0_us) * 1e-6, dt)
             was_armed = flight.armed
-            out = flight.step(st, self.cfg.period_s)
+            out = flight.step(st, dt)
             if was_armed and not flight.armed:
+                commander.on_disarmed()
                 self.event(mavlink.MAV_SEVERITY_INFO, "Landed: disarmed")
-        self._last_out = out
-        sysid_mode = mavlink.MAV_MODE_FLAG_SAFETY_ARMED if flight.armed else 0
+        self.last_out = out
+        armed_flag = mavlink.MAV_MODE_FLAG_SAFETY_ARMED if flight.armed else 0
         controls = [out.motors[0], out.motors[1], out.motors[2], out.motors[3]] + [0.0] * 12
-        act = self.sim.mav.hil_actuator_controls_encode(t_us, controls, sysid_mode, 1 if self.lockstep else 0)
+        act = self.sim.mav.hil_actuator_controls_encode(t_us, controls, armed_flag, 1 if self.lockstep else 0)
         self.sim.send(act)
         self._last_actuator = act
         self._last_tick_ms = self._state_ms
         if self.tlog is not None:
-            data = telemetry.smc_data(out, flight.target, flight.yaw_target_rad)
+            flags = (
+                (telemetry.FLAG_ARMED if flight.armed else 0)
+                | (telemetry.FLAG_LANDING if flight.landing else 0)
+                | (telemetry.FLAG_FAILSAFE if self.failsafe else 0)
+                | (telemetry.FLAG_POSITION_HOLD if flight.position_hold else 0)
+            )
+            data = telemetry.smc_data(out, flight.target, flight.yaw_target_rad, flags, int(commander.mode))
             lm = self._logmav
             self.tlog.write(t_us, encode_debug_float_array(lm.seq, lm.srcSystem, FC_COMPONENT, t_us, b"SMC", telemetry.SMC_ARRAY_ID, data))
             lm.seq = (lm.seq + 1) & 0xFF
-        k = stats.ticks - 1
-        if self.gcs is not None:
-            if k % self._telemetry_every == 0:
-                self._send_telemetry(t_us, out)
-            if k % self._second_every == 0:
-                self._send_status(t_us)
         self.gcs_handler.on_tick(t_us)
 
     def _run_plan(self, t_us: int) -> None:
         for step in self.plan.due((t_us - self.t0_us) * 1e-6):
-            event = apply_step(self.flight, self.state, step)
-            if event:
-                self.event(mavlink.MAV_SEVERITY_INFO, event)
-
-    # -- output --------------------------------------------------------------------------------
-    def custom_mode(self) -> int:
-        return MODE_LAND if (self.flight.landing or self.failsafe) else MODE_GUIDED
-
-    def _send_telemetry(self, t_us: int, out: TickOutput) -> None:
-        st = self.state
-        if st is None or self.gcs is None:
-            return
-        mav = self.gcs.mav
-        t_ms = t_us // 1000
-        msgs = [telemetry.attitude(mav, t_ms, st, self.body_rates), telemetry.local_position(mav, t_ms, st)]
-        msgs += telemetry.named_values(mav, t_ms, out)
-        self.gcs.send_many(msgs)
-
-    def _send_status(self, t_us: int) -> None:
-        if self.gcs is None:
-            return
-        mav = self.gcs.mav
-        armed = self.flight.armed
-        status = (
-            mavlink.MAV_STATE_CRITICAL if self.failsafe else mavlink.MAV_STATE_ACTIVE if armed else mavlink.MAV_STATE_STANDBY
-        )
-        self.gcs.send_many(
-            [
-                telemetry.heartbeat(mav, armed, self.custom_mode(), status),
-                telemetry.sys_status(mav, 0, not self.failsafe),
-                mav.named_value_int_encode((t_us // 1000) & 0xFFFFFFFF, b"OVERRUN", self.stats.overruns),
-            ]
-        )
+            self.commander.apply_plan_step(step)
 
     def event(self, severity: int, text: str) -> None:
         """A STATUSTEXT to ground stations (and the log), and a line on stdout."""

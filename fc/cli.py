@@ -10,7 +10,9 @@ from typing import Sequence
 
 from fc.app import EXIT_CONFIG, FlightControllerApp, install_signal_handlers
 from fc.config import FC_CONTROLLERS, FcConfig
+from fc.params import ParamStore
 from fc.plan import load_plan
+from smcpilot.geo import Home
 from smcpilot.errors import SmcpilotError
 from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
 
@@ -41,6 +43,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"exit if the simulator is silent this long, wall seconds (default {d.watchdog_s:g})")
     p.add_argument("--startup-timeout-s", type=float, default=30.0, metavar="S",
                    help="exit if no simulator state arrives within this many wall seconds (default 30)")
+    p.add_argument("--param-file", type=Path, metavar="PATH",
+                   help="parameter file (NAME VALUE lines), loaded at start and rewritten atomically on every"
+                   " PARAM_SET (default: fc-params.parm in --log-dir)")
+    p.add_argument("--home", default=None, metavar="LAT,LON,ALT",
+                   help="home position for global coordinates (default -35.363261,149.165230,584: ArduPilot's SITL field)")
     p.add_argument("--sysid", type=int, default=d.system_id, metavar="N", help=f"MAVLink system id (default {d.system_id})")
     return p
 
@@ -55,6 +62,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             watchdog_s=args.watchdog_s,
             system_id=args.sysid,
         )
+        param_file = args.param_file if args.param_file is not None else args.log_dir / "fc-params.parm"
+        params = ParamStore(cfg, param_file)
+        for warning in params.load():
+            print(f"fc: warning: {warning}", file=sys.stderr)
+        home = Home.parse(args.home) if args.home else Home()
         vehicle = VehicleParams.from_toml(args.vehicle) if args.vehicle else DEFAULT_VEHICLE
         plan = load_plan(args.plan) if args.plan else ()
         if args.duration is not None and not args.duration > 0:
@@ -73,6 +85,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             lockstep=args.lockstep,
             tlog_path=tlog,
             plan=plan,
+            params=params,
+            home=home,
             duration_s=args.duration,
             startup_timeout_s=args.startup_timeout_s,
         )

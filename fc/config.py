@@ -28,9 +28,10 @@ class FcConfig:
     #: attitude/altitude law: adaptive_pid_smc (default), pid_smc or cascade_pid.
     controller: str = "adaptive_pid_smc"
     gains: Gains4 = PAPER_GAINS
-    #: keeps chi_hat bounded under noise (spec §4): dead zone on |sigma| and projection.
+    #: keeps chi_hat bounded under noise (spec §4): a dead zone on |sigma| above its noise floor
+    #: (|sigma| averages 0.07-0.21 with the simulator's --noise) and a projection onto [0, 5].
     adaptation: AdaptationBounds = field(
-        default_factory=lambda: AdaptationBounds(dead_zone=0.02, leakage_per_s=0.0, chi_hat_min=0.0, chi_hat_max=5.0)
+        default_factory=lambda: AdaptationBounds(dead_zone=0.5, leakage_per_s=0.0, chi_hat_min=0.0, chi_hat_max=5.0)
     )
     #: chi_hat(0) of the adaptive law, every channel.
     chi_hat0: float = 0.5
@@ -64,6 +65,18 @@ class FcConfig:
     telemetry_rate_hz: float = 10.0
     #: MAVLink system id of this vehicle.
     system_id: int = 1
+    #: pre-arm checks on (True) or skipped (False; the state must still be arriving).
+    arming_check: bool = True
+    #: disarm after this long armed on the ground without a take-off, s (0: never).
+    disarm_delay_s: float = 10.0
+    #: RTL climbs to at least this altitude above home before flying home, m.
+    rtl_alt_m: float = 5.0
+    #: a waypoint counts as reached within this distance, m.
+    wp_radius_m: float = 0.3
+    #: GCS-loss failsafe: 0 off, 1 RTL, 2 LAND.
+    fs_gcs_enable: int = 0
+    #: GCS-loss failsafe: no GCS heartbeat for this long (wall clock), s.
+    fs_gcs_timeout_s: float = 5.0
 
     def __post_init__(self) -> None:
         if self.controller not in FC_CONTROLLERS:
@@ -97,6 +110,10 @@ class FcConfig:
             raise ConfigError(f"failsafe_thrust_fraction must lie in (0, 1), got {self.failsafe_thrust_fraction}")
         if not 1 <= self.system_id <= 255:
             raise ConfigError(f"system_id must lie in 1..255, got {self.system_id}")
+        if self.fs_gcs_enable not in (0, 1, 2):
+            raise ConfigError(f"fs_gcs_enable must be 0 (off), 1 (RTL) or 2 (LAND), got {self.fs_gcs_enable}")
+        if self.fs_gcs_timeout_s <= 0.0 or self.wp_radius_m <= 0.0:
+            raise ConfigError("fs_gcs_timeout_s and wp_radius_m must be > 0")
 
     @property
     def period_s(self) -> float:

@@ -78,6 +78,10 @@ class FlightControl:
         self.armed = False
         self.landing = False
         self.landed_s = 0.0
+        #: False in ALT_HOLD: level attitude, no horizontal position control.
+        self.position_hold = True
+        #: horizontal speed limit override (DO_CHANGE_SPEED), m/s; None: the config's.
+        self.speed_xy_mps: float | None = None
         # Set-point (paper frame) and the unwrapped yaw target.
         self.target = (0.0, 0.0, 0.0)
         self._psi_target = 0.0
@@ -88,6 +92,18 @@ class FlightControl:
         self._int_xy = [0.0, 0.0]
         self._law_state: tuple[float, ...] = ()
         self._ref16 = [0.0] * 16
+
+    def reconfigure(self, config: FcConfig) -> None:
+        """Apply new settings between control steps; the law keeps its state (same layout)."""
+        old = self.config
+        self.config = config
+        if (config.gains, config.adaptation, config.controller) != (old.gains, old.adaptation, old.controller):
+            state = self._law_state
+            self.law = self._make_law(config)
+            if len(state) == len(self.law.state_names):
+                self._law_state = state
+            elif self.armed:  # another controller type: restart its state where we are
+                self._law_state = ()
 
     def _make_law(self, cfg: FcConfig):
         opts: dict = {}
@@ -113,6 +129,8 @@ class FlightControl:
     def disarm(self) -> None:
         self.armed = False
         self.landing = False
+        self.position_hold = True
+        self.speed_xy_mps = None
 
     def set_target(self, x_m: float, y_m: float, z_m: float, yaw_rad: float | None = None) -> None:
         """New position set-point (paper frame) and, optionally, heading (any angle; wrapped)."""
@@ -140,6 +158,8 @@ class FlightControl:
         """One control tick of ``dt_s`` seconds. Disarmed: motors stopped."""
         if not self.armed:
             return TickOutput((0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0), (False,) * 4, None, (_NAN,) * 4)
+        if not self._law_state:
+            self._law_state = tuple(self.law.initial_state((st.phi_rad, 0.0, st.theta_rad, 0.0, st.psi_rad, 0.0, st.z_m, 0.0)))
         cfg = self.config
         # 1. Position/altitude references.
         w = cfg.pos_filter_omega_radps
@@ -152,8 +172,14 @@ class FlightControl:
         px = self._pf[0]
         py = self._pf[1]
         pz = self._pf[2]
-        x_r, vx_r, ax_r, _ = prefilter_step(px[0], px[1], px[2], tx, w, dt_s, cfg.speed_max_xy_mps, amax)
-        y_r, vy_r, ay_r, _ = prefilter_step(py[0], py[1], py[2], ty, w, dt_s, cfg.speed_max_xy_mps, amax)
+        vxy = cfg.speed_max_xy_mps if self.speed_xy_mps is None else self.speed_xy_mps
+        if not self.position_hold:
+            # ALT_HOLD: the horizontal references follow the vehicle, so position hold can resume smoothly.
+            px[0], px[1], px[2] = st.x_m, st.vx_mps, 0.0
+            py[0], py[1], py[2] = st.y_m, st.vy_mps, 0.0
+            tx, ty = st.x_m, st.y_m
+        x_r, vx_r, ax_r, _ = prefilter_step(px[0], px[1], px[2], tx, w, dt_s, vxy, amax)
+        y_r, vy_r, ay_r, _ = prefilter_step(py[0], py[1], py[2], ty, w, dt_s, vxy, amax)
         z_r, vz_r, az_r, jz_r = prefilter_step(pz[0], pz[1], pz[2], tz, w, dt_s, vz_max, amax)
         self._pf[0] = [x_r, vx_r, ax_r]
         self._pf[1] = [y_r, vy_r, ay_r]
@@ -163,7 +189,10 @@ class FlightControl:
             cfg.position, self._g, st.x_m, st.y_m, st.vx_mps, st.vy_mps, x_r, y_r, vx_r, vy_r, ax_r, ay_r, az_r,
             st.psi_rad, self._int_xy[0], self._int_xy[1], dt_s,
         )  # fmt: skip
-        if st.z_m < cfg.land_detect_height_m and (self.landing or z_r < cfg.land_detect_height_m):
+        if not self.position_hold:
+            phi_d = theta_d = 0.0
+            self._int_xy = [0.0, 0.0]
+        elif st.z_m < cfg.land_detect_height_m and (self.landing or z_r < cfg.land_detect_height_m):
             # On (or at) the ground the horizontal loop has no authority: do not wind up or tilt.
             phi_d = theta_d = 0.0
         else:
@@ -192,6 +221,9 @@ class FlightControl:
         u, new, diag = self.law.step(meas, ref, prev, dt_s)
         # 4. Mixer with priorities, and the realised inputs fed back (anti-windup).
         motors, realised, limited = self.mixer.mix(u[0], u[1], u[2], u[3])
+        if self.landing and st.z_m < 3.0 * cfg.land_detect_height_m:
+            # Ground contact is not a disturbance to learn: freeze the z channel's integrators.
+            limited = (limited[0], limited[1], limited[2], True)
         if limited[0] or limited[1] or limited[2] or limited[3]:
             new = self.law.anti_windup(prev, new, realised, limited)
         self._law_state = new

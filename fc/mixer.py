@@ -20,7 +20,11 @@ mapping (:mod:`smcpilot.actuators`). Plain floats.
 
 from __future__ import annotations
 
+import math
+
 from smcpilot.vehicle import VehicleParams
+
+_isfinite = math.isfinite
 
 
 class Mixer:
@@ -46,6 +50,14 @@ class Mixer:
         kp = self._kp
         lo = self._lo
         hi = self._hi
+        if not (_isfinite(u_phi) and _isfinite(u_theta) and _isfinite(u_psi) and _isfinite(u_z)):
+            # Never pass NaN/inf to the motors: level moments, hover thrust, every channel flagged.
+            u_phi = 0.0 if not _isfinite(u_phi) else u_phi
+            u_theta = 0.0 if not _isfinite(u_theta) else u_theta
+            u_psi = 0.0 if not _isfinite(u_psi) else u_psi
+            u_z = 4.0 * kp * 0.5 * (lo + hi) if not _isfinite(u_z) else u_z
+            motors, realised, _ = self.mix(u_phi, u_theta, u_psi, u_z)
+            return motors, realised, (True, True, True, True)
         base = 0.25 * u_z / kp
         r = 0.5 * u_phi / kp
         p = 0.5 * u_theta / kp

@@ -31,13 +31,9 @@ import math
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Iterable
+from typing import Any, Iterable
 
 from smcpilot.errors import ConfigError
-from smcpilot.frames import euler_frd_to_flu, ned_to_nwu
-
-if TYPE_CHECKING:  # pragma: no cover
-    from fc.flight import FlightControl, VehicleState
 
 ACTIONS = ("takeoff", "goto", "land", "disarm")
 _KEYS = {
@@ -116,34 +112,6 @@ def load_plan(path: str | Path) -> tuple[PlanStep, ...]:
 
 def plan_duration_s(steps: Iterable[PlanStep]) -> float:
     return max((s.t_s for s in steps), default=0.0)
-
-
-def apply_step(flight: "FlightControl", state: "VehicleState | None", step: PlanStep) -> str | None:
-    """Carry out one plan action on ``flight`` now; return an event text for the log, if any.
-
-    A take-off needs a state (it arms where the vehicle is); without one it is skipped.
-    """
-    yaw = None
-    if step.yaw_deg is not None:
-        yaw = euler_frd_to_flu(0.0, 0.0, math.radians(step.yaw_deg))[2]
-    if step.action == "takeoff":
-        if state is None:
-            return None
-        event = None
-        if not flight.armed:
-            flight.arm(state)
-            event = "Armed; "
-        flight.set_target(flight.target[0], flight.target[1], float(step.alt_m or 0.0), yaw)
-        return (event or "") + f"Takeoff to {step.alt_m:.1f} m"
-    if step.action == "goto":
-        x, y, z = ned_to_nwu((float(step.north_m or 0.0), float(step.east_m or 0.0), -float(step.alt_m or 0.0)))
-        flight.set_target(x, y, z, yaw)
-        return None
-    if step.action == "land":
-        flight.land()
-        return "Landing"
-    flight.disarm()
-    return "Disarmed"
 
 
 class PlanRunner:

@@ -37,8 +37,13 @@ SMC_FIELDS: tuple[str, ...] = (
     + ("ref_phi", "ref_theta", "ref_psi", "ref_z")
     + ("motor1", "motor2", "motor3", "motor4")
     + ("target_x", "target_y", "target_z", "target_yaw")
-    + ("limited_mask",)
+    + ("limited_mask", "flags", "mode")
 )
+#: bits of the "flags" entry of the SMC array
+FLAG_ARMED = 1
+FLAG_LANDING = 2
+FLAG_FAILSAFE = 4
+FLAG_POSITION_HOLD = 8
 SMC_ARRAY_ID = 1
 
 # Health bits MAVSDK and MAVProxy look at (gcs-interop-notes.md).
@@ -108,11 +113,11 @@ def statustext(mav: mavlink.MAVLink, severity: int, text: str) -> mavlink.MAVLin
     return mav.statustext_encode(severity, text[:50].encode("ascii", "replace"))
 
 
-def smc_data(out: TickOutput, target: Sequence[float], yaw_target: float) -> list[float]:
+def smc_data(out: TickOutput, target: Sequence[float], yaw_target: float, flags: int = 0, mode: int = 0) -> list[float]:
     """The 58 floats of the per-tick ``DEBUG_FLOAT_ARRAY`` "SMC" (see :data:`SMC_FIELDS`)."""
     d = out.diag
     # Unused slots stay 0.0 so MAVLink 2 trims them off the wire; unknown values are NaN.
-    data = [_NAN] * 29 + [0.0] * 29
+    data = [_NAN] * 29 + [0.0] * 29  # (flags and mode, entries 29 and 30, are always set)
     if d is not None:
         chi, sig, s = d.chi_hat, d.sigma, d.s
         if chi is not None:
@@ -128,4 +133,6 @@ def smc_data(out: TickOutput, target: Sequence[float], yaw_target: float) -> lis
     data[27] = yaw_target
     lim = out.limited
     data[28] = float(lim[0] + 2 * lim[1] + 4 * lim[2] + 8 * lim[3])
+    data[29] = float(flags)
+    data[30] = float(mode)
     return data

@@ -84,7 +84,23 @@ def _log(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=logtools.log_main)
 
 
-SUBCOMMANDS = (_paper, _sitl, _demo, _bench, _plot, _log)
+def _gcs(sub: argparse._SubParsersAction) -> None:
+    from ground import gcs_cmd
+
+    p = sub.add_parser(
+        "gcs",
+        help="ground station: status, arm, take-off, go-to, land, modes, parameters, missions, live view",
+        description="Talk to a running flight controller over MAVLink (docs/gcs-protocol.md). Exit codes: 0 done,"
+        " 1 the vehicle refused or did not answer in time, 2 usage or configuration error.",
+        epilog="Mission files: [[item]] tables with type = takeoff (alt_m) | waypoint (north_m/east_m or lat/lon,"
+        " alt_m, hold_s, yaw_deg, radius_m) | loiter_time (hold_s, position, alt_m) | land (position) | rtl |"
+        " speed (speed_mps); north/east are metres from the vehicle's home.",
+    )
+    gcs_cmd.add_arguments(p)
+    p.set_defaults(handler=gcs_cmd.main)
+
+
+SUBCOMMANDS = (_paper, _sitl, _demo, _bench, _plot, _log, _gcs)
 
 
 def build_parser() -> argparse.ArgumentParser:

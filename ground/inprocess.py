@@ -15,7 +15,8 @@ from typing import Sequence
 
 from fc.config import FcConfig
 from fc.flight import FlightControl, TickOutput, VehicleState
-from fc.plan import PlanRunner, PlanStep, apply_step
+from fc.commander import Commander
+from fc.plan import PlanRunner, PlanStep
 from sim_bridge.sensors import VehicleObservation
 from smcpilot.frames import (
     body_rates_to_euler_rates,
@@ -26,6 +27,7 @@ from smcpilot.frames import (
     rates_flu_to_frd,
     rates_frd_to_flu,
 )
+from smcpilot.geo import Home
 from smcpilot.vehicle import VehicleParams
 
 _f32 = struct.Struct("<12f")
@@ -74,25 +76,30 @@ def fly(
     ``record_every`` = 0 records nothing (benchmarks).
     """
     flight = FlightControl(config, vehicle)
+    run = InProcessRun()
+    t_now = [0.0]
+    commander = Commander(flight, Home(), lambda severity, text: run.events.append((t_now[0], text)))
     runner = PlanRunner(plan)
     period = config.period_s
     substeps = int(round(physics_hz / config.rate_hz))
     dt_phys = 1.0 / physics_hz
     n_ticks = int(round(duration_s * config.rate_hz))
-    run = InProcessRun()
     motors: Sequence[float] = (0.0, 0.0, 0.0, 0.0)
     t_us = 0
     step_us = int(round(dt_phys * 1e6))
     for k in range(n_ticks):
         t_s = t_us * 1e-6
+        t_now[0] = t_s
         st = wire_state(plant.observe())
+        commander.state = st
+        commander.state_fresh = True
         for step in runner.due(t_s):
-            event = apply_step(flight, st, step)
-            if event:
-                run.events.append((t_s, event))
+            commander.apply_plan_step(step)
+        commander.on_tick(t_s, period)
         armed_before = flight.armed
         out = flight.step(st, period)
         if armed_before and not flight.armed:
+            commander.on_disarmed()
             run.events.append((t_s, "Landed: disarmed"))
         motors = out.motors
         armed = flight.armed

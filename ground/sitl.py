@@ -44,6 +44,10 @@ class SitlOptions:
     gcs: str | None = "udp:127.0.0.1:14550"
     log_dir: Path = Path("logs")
     tlog: Path | None = None
+    #: FC parameter file (default: fc-params.parm in log_dir).
+    param_file: Path | None = None
+    #: home for global coordinates "LAT,LON,ALT" (default: the FC's).
+    home: str | None = None
     plan: Path | None = None
     plant: str = "rigid-body"
     rate_hz: float = 500.0
@@ -170,6 +174,10 @@ class Sitl:
             fc_args += ["--vehicle", str(o.vehicle)]
         if o.plan is not None:
             fc_args += ["--plan", str(o.plan)]
+        param_file = o.param_file if o.param_file is not None else tlog.parent / "fc-params.parm"
+        fc_args += ["--param-file", str(param_file)]
+        if o.home is not None:
+            fc_args += ["--home", o.home]
         if o.duration_s is not None and o.lockstep:
             fc_args += ["--duration", f"{o.duration_s!r}"]
         fc_args += list(o.fc_args)

@@ -351,6 +351,17 @@ class MavlinkUdp:
         for datagram in self._datagrams(packets):
             self._send_datagram_to_peers(datagram)
 
+    def send_many_to(self, msgs: Iterable[mavlink.MAVLink_message], addr: Address) -> None:
+        """Like :meth:`send_many`, to ``addr`` only (e.g. a parameter list to the station that asked)."""
+        encode = self._encode
+        packets = [encode(msg) for msg in msgs]
+        if not packets:
+            return
+        if self._tlog is not None:
+            self._tlog.write_many(self._clock_us(), packets)
+        for datagram in self._datagrams(packets):
+            self._send_datagram(datagram, addr)
+
     def send_to(self, msg: mavlink.MAVLink_message, addr: Address) -> None:
         """Encode ``msg`` and send it to ``addr`` only (e.g. a COMMAND_ACK to the requester)."""
         packet = self._encode(msg)

@@ -1,0 +1,273 @@
+"""The mission: stored items, their validation, and the MAVLink mission protocol (vehicle side).
+
+Upload: ``MISSION_COUNT`` -> ``MISSION_REQUEST_INT`` (we ask for each item in turn, re-asking after
+``REQUEST_TIMEOUT_S`` up to ``MAX_RETRIES`` times) -> ``MISSION_ITEM_INT`` -> ... -> ``MISSION_ACK``.
+The new mission replaces the stored one only when the upload completes; a bad item ends the
+upload with the protocol's error code and leaves the stored mission (and the flight) unchanged.
+Download, clear and set-current are answered directly. Timeouts run on the wall clock.
+
+Item 0 is home, as in ArduPilot; AUTO flies from item 1.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Callable
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+Address = tuple[str, int]
+
+REQUEST_TIMEOUT_S = 1.0
+MAX_RETRIES = 5
+MAX_ITEMS = 500
+
+CMD_WAYPOINT = mavlink.MAV_CMD_NAV_WAYPOINT
+CMD_LOITER_TIME = mavlink.MAV_CMD_NAV_LOITER_TIME
+CMD_RTL = mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH
+CMD_LAND = mavlink.MAV_CMD_NAV_LAND
+CMD_TAKEOFF = mavlink.MAV_CMD_NAV_TAKEOFF
+CMD_CHANGE_SPEED = mavlink.MAV_CMD_DO_CHANGE_SPEED
+SUPPORTED_COMMANDS = frozenset({CMD_WAYPOINT, CMD_LOITER_TIME, CMD_RTL, CMD_LAND, CMD_TAKEOFF, CMD_CHANGE_SPEED})
+NAV_WITH_POSITION = frozenset({CMD_WAYPOINT, CMD_LOITER_TIME, CMD_LAND, CMD_TAKEOFF})
+GLOBAL_FRAMES = frozenset(
+    {
+        mavlink.MAV_FRAME_GLOBAL,
+        mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT,
+        mavlink.MAV_FRAME_GLOBAL_INT,
+        mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+    }
+)
+RELATIVE_FRAMES = frozenset({mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT})
+
+
+@dataclass(frozen=True)
+class MissionItem:
+    """One stored item, as ``MISSION_ITEM_INT`` carries it (x, y = lat, lon x 1e7; z = altitude m)."""
+
+    seq: int
+    frame: int
+    command: int
+    current: int
+    autocontinue: int
+    param1: float
+    param2: float
+    param3: float
+    param4: float
+    x: int
+    y: int
+    z: float
+
+    @classmethod
+    def from_msg(cls, m: mavlink.MAVLink_message) -> "MissionItem":
+        """From ``MISSION_ITEM_INT`` or ``MISSION_ITEM`` (float degrees become 1e7 integers)."""
+        if m.get_type() == "MISSION_ITEM":
+            x = int(round(m.x * 1e7)) if math.isfinite(m.x) else 2**31 - 1
+            y = int(round(m.y * 1e7)) if math.isfinite(m.y) else 2**31 - 1
+            frame = {mavlink.MAV_FRAME_GLOBAL: mavlink.MAV_FRAME_GLOBAL_INT,
+                     mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT: mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT}.get(m.frame, m.frame)  # fmt: skip
+        else:
+            x, y, frame = m.x, m.y, m.frame
+        return cls(m.seq, frame, m.command, m.current, m.autocontinue, m.param1, m.param2, m.param3, m.param4, x, y, m.z)
+
+    @property
+    def lat_deg(self) -> float:
+        return self.x * 1e-7
+
+    @property
+    def lon_deg(self) -> float:
+        return self.y * 1e-7
+
+
+def validate(item: MissionItem) -> int:
+    """``MAV_MISSION_ACCEPTED`` or the protocol's error code for this item."""
+    if item.command not in SUPPORTED_COMMANDS and item.seq != 0:
+        return mavlink.MAV_MISSION_UNSUPPORTED
+    if item.command in NAV_WITH_POSITION or item.seq == 0:
+        if item.frame not in GLOBAL_FRAMES:
+            return mavlink.MAV_MISSION_UNSUPPORTED_FRAME
+        if not -90 * 10**7 <= item.x <= 90 * 10**7:
+            return mavlink.MAV_MISSION_INVALID_PARAM5_X
+        if not -180 * 10**7 <= item.y <= 180 * 10**7:
+            return mavlink.MAV_MISSION_INVALID_PARAM6_Y
+        if not math.isfinite(item.z) or not -1000.0 <= item.z <= 10000.0:
+            return mavlink.MAV_MISSION_INVALID_PARAM7
+    if item.command in (CMD_WAYPOINT, CMD_LOITER_TIME):
+        if not math.isfinite(item.param1) or item.param1 < 0.0 or item.param1 > 3600.0:
+            return mavlink.MAV_MISSION_INVALID_PARAM1
+        if item.command == CMD_WAYPOINT and not (math.isfinite(item.param2) and item.param2 >= 0.0):
+            return mavlink.MAV_MISSION_INVALID_PARAM2
+    if item.command == CMD_CHANGE_SPEED:
+        if not math.isfinite(item.param2) or not (item.param2 == -1.0 or 0.0 < item.param2 <= 50.0):
+            return mavlink.MAV_MISSION_INVALID_PARAM2
+    if item.command == CMD_TAKEOFF and item.seq != 0 and not 0.5 <= item.z <= 500.0:
+        return mavlink.MAV_MISSION_INVALID_PARAM7
+    return mavlink.MAV_MISSION_ACCEPTED
+
+
+SendTo = Callable[[mavlink.MAVLink_message, Address], None]
+
+
+class MissionProtocol:
+    """Vehicle side of the mission protocol. ``send_to`` sends to one ground station."""
+
+    def __init__(
+        self, mav: mavlink.MAVLink, send_to: SendTo, on_change: Callable[[], None], on_set_current: Callable[[int], None]
+    ) -> None:
+        self.mav = mav
+        self._send_to = send_to
+        self._on_change = on_change
+        self._on_set_current = on_set_current
+        self.items: list[MissionItem] = []
+        self.current = 0
+        # Upload in progress
+        self._partner: Address | None = None
+        self._partner_sys = 0
+        self._partner_comp = 0
+        self._count = 0
+        self._incoming: list[MissionItem] = []
+        self._deadline = 0.0
+        self._retries = 0
+        self.uploads_completed = 0
+        self.uploads_failed = 0
+
+    @property
+    def uploading(self) -> bool:
+        return self._partner is not None
+
+    # -- helpers --------------------------------------------------------------------------------
+    def _ack(self, addr: Address, sysid: int, compid: int, result: int) -> None:
+        self._send_to(self.mav.mission_ack_encode(sysid, compid, result, mavlink.MAV_MISSION_TYPE_MISSION), addr)
+
+    def _request(self) -> None:
+        assert self._partner is not None
+        self._send_to(
+            self.mav.mission_request_int_encode(
+                self._partner_sys, self._partner_comp, len(self._incoming), mavlink.MAV_MISSION_TYPE_MISSION
+            ),
+            self._partner,
+        )
+
+    def _end_upload(self) -> None:
+        self._partner = None
+        self._incoming = []
+
+    # -- incoming -------------------------------------------------------------------------------
+    def on_count(self, m: mavlink.MAVLink_message, addr: Address, now_s: float) -> None:
+        if getattr(m, "mission_type", 0) != mavlink.MAV_MISSION_TYPE_MISSION:
+            self._ack(addr, m.get_srcSystem(), m.get_srcComponent(), mavlink.MAV_MISSION_UNSUPPORTED)
+            return
+        if self._partner is not None and self._partner != addr:
+            self._ack(addr, m.get_srcSystem(), m.get_srcComponent(), mavlink.MAV_MISSION_DENIED)
+            return
+        if m.count > MAX_ITEMS:
+            self._ack(addr, m.get_srcSystem(), m.get_srcComponent(), mavlink.MAV_MISSION_NO_SPACE)
+            return
+        if m.count == 0:
+            self._end_upload()
+            self.items = []
+            self.current = 0
+            self._on_change()
+            self._ack(addr, m.get_srcSystem(), m.get_srcComponent(), mavlink.MAV_MISSION_ACCEPTED)
+            return
+        self._partner = addr
+        self._partner_sys = m.get_srcSystem()
+        self._partner_comp = m.get_srcComponent()
+        self._count = m.count
+        self._incoming = []
+        self._retries = 0
+        self._deadline = now_s + REQUEST_TIMEOUT_S
+        self._request()
+
+    def on_item(self, m: mavlink.MAVLink_message, addr: Address, now_s: float) -> None:
+        if self._partner is None or addr != self._partner:
+            return  # not in an upload with this station: ignore, as ArduPilot does
+        if getattr(m, "mission_type", 0) != mavlink.MAV_MISSION_TYPE_MISSION:
+            return
+        expected = len(self._incoming)
+        if m.seq != expected:
+            if m.seq < expected:  # a late duplicate: ask for the one we need
+                self._request()
+                self._deadline = now_s + REQUEST_TIMEOUT_S
+            return
+        item = MissionItem.from_msg(m)
+        result = validate(item)
+        if result != mavlink.MAV_MISSION_ACCEPTED:
+            self.uploads_failed += 1
+            self._ack(addr, self._partner_sys, self._partner_comp, result)
+            self._end_upload()
+            return
+        self._incoming.append(item)
+        self._retries = 0
+        self._deadline = now_s + REQUEST_TIMEOUT_S
+        if len(self._incoming) < self._count:
+            self._request()
+            return
+        self.items = [replace(it, current=0) for it in self._incoming]
+        self.current = 1 if len(self.items) > 1 else 0
+        self.uploads_completed += 1
+        self._ack(addr, self._partner_sys, self._partner_comp, mavlink.MAV_MISSION_ACCEPTED)
+        self._end_upload()
+        self._on_change()
+
+    def on_request_list(self, m: mavlink.MAVLink_message, addr: Address) -> None:
+        if getattr(m, "mission_type", 0) != mavlink.MAV_MISSION_TYPE_MISSION:
+            self._ack(addr, m.get_srcSystem(), m.get_srcComponent(), mavlink.MAV_MISSION_UNSUPPORTED)
+            return
+        self._send_to(
+            self.mav.mission_count_encode(m.get_srcSystem(), m.get_srcComponent(), len(self.items), mavlink.MAV_MISSION_TYPE_MISSION),
+            addr,
+        )
+
+    def on_request(self, m: mavlink.MAVLink_message, addr: Address, as_int: bool) -> None:
+        if getattr(m, "mission_type", 0) != mavlink.MAV_MISSION_TYPE_MISSION:
+            return
+        if not 0 <= m.seq < len(self.items):
+            self._ack(addr, m.get_srcSystem(), m.get_srcComponent(), mavlink.MAV_MISSION_INVALID_SEQUENCE)
+            return
+        it = self.items[m.seq]
+        cur = 1 if m.seq == self.current else 0
+        sysid, compid = m.get_srcSystem(), m.get_srcComponent()
+        if as_int:
+            msg = self.mav.mission_item_int_encode(
+                sysid, compid, it.seq, it.frame, it.command, cur, it.autocontinue,
+                it.param1, it.param2, it.param3, it.param4, it.x, it.y, it.z, mavlink.MAV_MISSION_TYPE_MISSION,
+            )  # fmt: skip
+        else:
+            frame = {mavlink.MAV_FRAME_GLOBAL_INT: mavlink.MAV_FRAME_GLOBAL,
+                     mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT: mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT}.get(it.frame, it.frame)  # fmt: skip
+            msg = self.mav.mission_item_encode(
+                sysid, compid, it.seq, frame, it.command, cur, it.autocontinue,
+                it.param1, it.param2, it.param3, it.param4, it.x * 1e-7, it.y * 1e-7, it.z, mavlink.MAV_MISSION_TYPE_MISSION,
+            )  # fmt: skip
+        self._send_to(msg, addr)
+
+    def on_clear(self, m: mavlink.MAVLink_message, addr: Address) -> None:
+        if getattr(m, "mission_type", 0) not in (mavlink.MAV_MISSION_TYPE_MISSION, mavlink.MAV_MISSION_TYPE_ALL):
+            self._ack(addr, m.get_srcSystem(), m.get_srcComponent(), mavlink.MAV_MISSION_UNSUPPORTED)
+            return
+        self.items = []
+        self.current = 0
+        self._on_change()
+        self._ack(addr, m.get_srcSystem(), m.get_srcComponent(), mavlink.MAV_MISSION_ACCEPTED)
+
+    def set_current(self, seq: int) -> bool:
+        if not 0 <= seq < len(self.items):
+            return False
+        self.current = seq
+        self._on_set_current(seq)
+        return True
+
+    def tick(self, now_s: float) -> None:
+        """Re-request a missing item after the timeout; give up after ``MAX_RETRIES``."""
+        if self._partner is None or now_s < self._deadline:
+            return
+        if self._retries >= MAX_RETRIES:
+            self.uploads_failed += 1
+            self._ack(self._partner, self._partner_sys, self._partner_comp, mavlink.MAV_MISSION_OPERATION_CANCELLED)
+            self._end_upload()
+            return
+        self._retries += 1
+        self._deadline = now_s + REQUEST_TIMEOUT_S
+        self._request()

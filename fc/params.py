@@ -1,0 +1,268 @@
+"""The parameter table: every tunable of the flight controller, by MAVLink parameter name.
+
+Each :class:`ParamSpec` says the name (at most 16 characters), unit, range, default, whether it
+needs a restart, and how it reads from and writes into :class:`fc.config.FcConfig` — the one place
+the values live. :class:`ParamStore` applies a change by building a new (validated) config, and
+persists accepted changes atomically to a ``.parm`` file (``NAME VALUE`` per line, the format
+Mission Planner and MAVProxy read and write).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Callable
+
+from fc.config import FC_CONTROLLERS, FcConfig
+from smcpilot.errors import ConfigError, InvalidGainError
+
+
+class ParamError(ConfigError):
+    """A parameter name, value or file is invalid (the message says which and why)."""
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    name: str
+    unit: str
+    lo: float
+    hi: float
+    doc: str
+    get: Callable[[FcConfig], float]
+    set: Callable[[FcConfig, float], FcConfig]
+    is_int: bool = False
+    restart: bool = False
+
+
+_CHANNEL_TAGS = ("R", "P", "Y", "Z")
+_CHANNEL_NAMES = ("roll φ", "pitch θ", "yaw ψ", "altitude z")
+#: (param suffix, ChannelGains field, lo, hi, unit, description)
+_GAIN_PARAMS = (
+    ("C1", "c1", 0.0, 100.0, "1/s", "S = c1 e + c2 e': weight of the error"),
+    ("C2", "c2", 0.01, 100.0, "", "S = c1 e + c2 e': weight of the error rate"),
+    ("KP", "kp", 0.0, 100.0, "", "sigma = kp S + ki int S + kd S': proportional weight"),
+    ("KI", "ki", 0.0, 100.0, "1/s", "sigma: integral weight"),
+    ("KD", "kd", 0.01, 100.0, "s", "sigma: derivative weight"),
+    ("KAPPA", "kappa", 0.0, 1000.0, "", "reaching term kappa sign(sigma)|sigma|^delta"),
+    ("DELTA", "delta", 0.05, 0.95, "", "exponent of the reaching term, in (0, 1)"),
+    ("NU", "nu", 0.0, 100.0, "1/s", "linear reaching term nu sigma"),
+    ("CHI", "chi", 0.0, 100.0, "", "known disturbance bound chi (pid_smc controller)"),
+    ("THETA", "adapt_rate", 0.0, 10.0, "", "adaptation rate Theta: d chi_hat/dt = Theta |sigma|"),
+)
+
+
+def _gain_get(i: int, field: str) -> Callable[[FcConfig], float]:
+    return lambda c: float(getattr(c.gains[i], field))
+
+
+def _gain_set(i: int, field: str) -> Callable[[FcConfig, float], FcConfig]:
+    def setter(c: FcConfig, v: float) -> FcConfig:
+        g = list(c.gains)
+        g[i] = replace(g[i], **{field: v})
+        return replace(c, gains=tuple(g))  # type: ignore[arg-type]
+
+    return setter
+
+
+def _attr(path: str, scale: float = 1.0, cast: Callable[[float], object] = float):
+    """Getter/setter for ``field`` or ``sub.field`` of FcConfig, with a unit scale (param = value*scale)."""
+    parts = path.split(".")
+
+    def get(c: FcConfig) -> float:
+        obj: object = c
+        for p in parts:
+            obj = getattr(obj, p)
+        return float(obj) * scale  # type: ignore[arg-type]
+
+    def set_(c: FcConfig, v: float) -> FcConfig:
+        val = cast(v / scale)
+        if len(parts) == 1:
+            return replace(c, **{parts[0]: val})
+        sub = getattr(c, parts[0])
+        return replace(c, **{parts[0]: replace(sub, **{parts[1]: val})})
+
+    return get, set_
+
+
+def _controller_get(c: FcConfig) -> float:
+    return float(FC_CONTROLLERS.index(c.controller))
+
+
+def _controller_set(c: FcConfig, v: float) -> FcConfig:
+    return replace(c, controller=FC_CONTROLLERS[int(v)])
+
+
+def _build() -> tuple[ParamSpec, ...]:
+    specs: list[ParamSpec] = []
+    for i, (tag, cname) in enumerate(zip(_CHANNEL_TAGS, _CHANNEL_NAMES)):
+        for suffix, field, lo, hi, unit, doc in _GAIN_PARAMS:
+            specs.append(ParamSpec(f"SMC_{tag}_{suffix}", unit, lo, hi, f"{cname}: {doc}", _gain_get(i, field), _gain_set(i, field)))
+
+    def add(name: str, path: str, lo: float, hi: float, unit: str, doc: str, scale: float = 1.0, *, is_int: bool = False,
+            restart: bool = False, cast: Callable[[float], object] = float) -> None:  # fmt: skip
+        get, set_ = _attr(path, scale, cast)
+        specs.append(ParamSpec(name, unit, lo, hi, doc, get, set_, is_int=is_int, restart=restart))
+
+    add("SMC_CHI0", "chi_hat0", 0.0, 100.0, "", "adaptive chi_hat(0) on every channel (applies at the next arming)")
+    add("SMC_CHI_MIN", "adaptation.chi_hat_min", 0.0, 100.0, "", "chi_hat projection: lower bound")
+    add("SMC_CHI_MAX", "adaptation.chi_hat_max", 0.0, 1000.0, "", "chi_hat projection: upper bound")
+    add("SMC_CHI_DZ", "adaptation.dead_zone", 0.0, 10.0, "", "chi_hat grows only while |sigma| exceeds this dead zone")
+    add("SMC_CHI_LEAK", "adaptation.leakage_per_s", 0.0, 10.0, "1/s", "sigma-modification pulling chi_hat back to chi_hat(0)")
+    add("PSC_POS_KP", "position.kp_1ps2", 0.0, 20.0, "1/s^2", "position loop: gain on position error")
+    add("PSC_VEL_KD", "position.kd_1ps", 0.0, 20.0, "1/s", "position loop: gain on velocity error")
+    add("PSC_POS_KI", "position.ki_1ps3", 0.0, 5.0, "1/s^3", "position loop: integral gain")
+    add("PSC_INT_MAX", "position.int_limit_mps2", 0.0, 10.0, "m/s^2", "position loop: largest integral contribution")
+    add("PSC_ACC_MAX", "position.accel_max_mps2", 0.5, 20.0, "m/s^2", "position loop: largest horizontal acceleration demand")
+    add("PSC_TILT_MAX", "position.tilt_max_rad", 5.0, 70.0, "deg", "largest commanded roll or pitch", scale=180.0 / math.pi)
+    add("PSC_FILT_W", "pos_filter_omega_radps", 0.2, 10.0, "rad/s", "bandwidth of the position/altitude reference prefilters")
+    add("PSC_SPD_XY", "speed_max_xy_mps", 0.1, 20.0, "m/s", "largest horizontal reference speed (DO_CHANGE_SPEED sets it too)")
+    add("PSC_SPD_Z", "speed_max_z_mps", 0.1, 10.0, "m/s", "largest climb/descent reference speed")
+    add("PSC_ACC_REF", "accel_ref_max_mps2", 0.1, 20.0, "m/s^2", "largest reference acceleration")
+    add("ATT_FILT_W", "att_filter_omega_radps", 1.0, 100.0, "rad/s", "bandwidth of the roll/pitch reference prefilters")
+    add("YAW_FILT_W", "yaw_filter_omega_radps", 0.1, 20.0, "rad/s", "bandwidth of the yaw reference prefilter")
+    add("YAW_RATE_MAX", "yaw_rate_max_radps", 5.0, 360.0, "deg/s", "largest yaw reference rate", scale=180.0 / math.pi)
+    add("LAND_SPD", "land_speed_mps", 0.1, 5.0, "m/s", "descent speed when landing")
+    add("RTL_ALT_M", "rtl_alt_m", 0.5, 100.0, "m", "RTL climbs to at least this altitude above home first")
+    add("WP_RADIUS_M", "wp_radius_m", 0.05, 20.0, "m", "waypoint acceptance radius")
+    add("DISARM_DELAY", "disarm_delay_s", 0.0, 127.0, "s", "disarm after this long armed on the ground without take-off (0 off)")
+    add("ARMING_CHECK", "arming_check", 0.0, 1.0, "", "1: pre-arm checks on; 0: skipped", is_int=True, cast=bool)
+    add("FS_STATE_TMO", "failsafe_state_timeout_s", 0.02, 2.0, "s", "state older than this -> state-loss failsafe (real time)")
+    add("FS_THR_FRAC", "failsafe_thrust_fraction", 0.5, 0.99, "", "open-loop thrust in a state-loss failsafe, x hover")
+    add("FS_GCS_ENABLE", "fs_gcs_enable", 0.0, 2.0, "", "GCS-loss failsafe: 0 off, 1 RTL, 2 LAND", is_int=True, cast=int)
+    add("FS_GCS_TIMEOUT", "fs_gcs_timeout_s", 1.0, 120.0, "s", "GCS-loss failsafe after this long without a GCS heartbeat (wall)")
+    add("FS_WATCHDOG", "watchdog_s", 1.0, 600.0, "s", "stop when the simulator is silent this long (wall)")
+    add("TELEM_RATE_HZ", "telemetry_rate_hz", 1.0, 50.0, "Hz", "rate of ATTITUDE, position and CHI/SIG telemetry")
+    add("FC_RATE_HZ", "rate_hz", 50.0, 1000.0, "Hz", "control loop rate (must match the simulator's)", restart=True)
+    specs.append(
+        ParamSpec("FC_CONTROLLER", "", 0.0, float(len(FC_CONTROLLERS) - 1),
+                  "control law: " + ", ".join(f"{i} {n}" for i, n in enumerate(FC_CONTROLLERS)),
+                  _controller_get, _controller_set, is_int=True, restart=True)  # fmt: skip
+    )
+    add("SYSID_THISMAV", "system_id", 1.0, 255.0, "", "MAVLink system id", is_int=True, restart=True, cast=int)
+    names = [s.name for s in specs]
+    assert len(set(names)) == len(names) and all(len(n) <= 16 for n in names), names
+    return tuple(specs)
+
+
+PARAMS: tuple[ParamSpec, ...] = _build()
+PARAM_INDEX: dict[str, int] = {p.name: i for i, p in enumerate(PARAMS)}
+
+
+def spec(name: str) -> ParamSpec:
+    try:
+        return PARAMS[PARAM_INDEX[name]]
+    except KeyError:
+        raise ParamError(f"unknown parameter {name!r}") from None
+
+
+class ParamStore:
+    """The live configuration and its parameter view; persists to ``path`` if given.
+
+    ``config`` is what the FC runs; ``pending`` is what a restart would run (it differs only in
+    parameters marked restart).
+    """
+
+    def __init__(self, config: FcConfig, path: Path | None = None) -> None:
+        self.config = config
+        self.pending = config
+        self.path = path
+
+    def value(self, name: str) -> float:
+        """Current value (for restart parameters: the value the next start will use)."""
+        p = spec(name)
+        return p.get(self.pending if p.restart else self.config)
+
+    def check(self, name: str, value: float) -> ParamSpec:
+        p = spec(name)
+        if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+            raise ParamError(f"{name}: value must be a finite number, got {value!r}")
+        if not p.lo <= value <= p.hi:
+            raise ParamError(f"{name} out of range [{p.lo:g}, {p.hi:g}]: {value:g}")
+        if p.is_int and value != int(value):
+            raise ParamError(f"{name} must be a whole number, got {value:g}")
+        return p
+
+    def set(self, name: str, value: float, *, persist: bool = True) -> FcConfig:
+        """Validate and apply; return the new live config (unchanged for restart params)."""
+        p = self.check(name, value)
+        try:
+            if p.restart:
+                self.pending = p.set(self.pending, float(value))
+            else:
+                self.config = p.set(self.config, float(value))
+                self.pending = p.set(self.pending, float(value))
+        except (ConfigError, InvalidGainError, ValueError, IndexError) as exc:
+            raise ParamError(f"{name} = {value:g} refused: {exc}") from None
+        if persist and self.path is not None:
+            self.save()
+        return self.config
+
+    def save(self) -> None:
+        """Write every parameter to the file atomically (temporary file, fsync, rename)."""
+        assert self.path is not None
+        path = self.path
+        path.parent.mkdir(parents=True, exist_ok=True)
+        lines = ["# smcpilot flight-controller parameters (NAME VALUE); written by the FC on every change"]
+        for p in PARAMS:
+            v = p.get(self.pending)
+            lines.append(f"{p.name} {int(v) if p.is_int else repr(float(v))}")
+        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=str(path.parent))
+        try:
+            with os.fdopen(fd, "w", encoding="utf-8") as f:
+                f.write("\n".join(lines) + "\n")
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass
+            raise
+
+    def load(self) -> list[str]:
+        """Apply the file's values (no save); return warnings (unknown names). Errors name the line."""
+        assert self.path is not None
+        warnings: list[str] = []
+        try:
+            text = self.path.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            return warnings
+        except OSError as exc:
+            raise ParamError(f"cannot read parameter file {self.path}: {exc.strerror or exc}") from None
+        for lineno, raw in enumerate(text.splitlines(), start=1):
+            line = raw.split("#", 1)[0].strip()
+            if not line:
+                continue
+            parts = line.replace(",", " ").split()
+            if len(parts) != 2:
+                raise ParamError(f"{self.path}:{lineno}: expected 'NAME VALUE', got {raw!r}")
+            name, text_value = parts
+            try:
+                value = float(text_value)
+            except ValueError:
+                raise ParamError(f"{self.path}:{lineno}: {name}: not a number: {text_value!r}") from None
+            if name not in PARAM_INDEX:
+                warnings.append(f"{self.path}:{lineno}: unknown parameter {name} ignored")
+                continue
+            try:
+                self.set(name, value, persist=False)
+            except ParamError as exc:
+                raise ParamError(f"{self.path}:{lineno}: {exc}") from None
+        # Restart parameters from the file apply now: this is the start.
+        self.config = self.pending
+        return warnings
+
+
+def defaults_table() -> list[dict[str, object]]:
+    """Every parameter with its default, range, unit and description (docs, ``param list``)."""
+    d = FcConfig()
+    return [
+        {"name": p.name, "default": p.get(d), "min": p.lo, "max": p.hi, "unit": p.unit, "restart": p.restart,
+         "type": "int" if p.is_int else "float", "description": p.doc}  # fmt: skip
+        for p in PARAMS
+    ]
+

@@ -1,0 +1,99 @@
+"""Which telemetry messages go to ground stations, how often (simulated time), and when next.
+
+Defaults follow docs/gcs-protocol.md; ``SET_MESSAGE_INTERVAL`` and ``REQUEST_DATA_STREAM`` change
+them. Scheduling is pure: :meth:`StreamScheduler.due` returns the message ids due at a time.
+"""
+
+from __future__ import annotations
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+M = mavlink
+#: message id -> default rate in Hz (None: follows the telemetry rate parameter)
+DEFAULT_RATES_HZ: dict[int, float | None] = {
+    M.MAVLINK_MSG_ID_HEARTBEAT: 1.0,
+    M.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
+    M.MAVLINK_MSG_ID_SYSTEM_TIME: 1.0,
+    M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0,
+    M.MAVLINK_MSG_ID_ATTITUDE: None,
+    M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: None,
+    M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: None,
+    M.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT: None,
+    M.MAVLINK_MSG_ID_GPS_RAW_INT: 2.0,
+    M.MAVLINK_MSG_ID_VFR_HUD: 4.0,
+    M.MAVLINK_MSG_ID_MISSION_CURRENT: 1.0,
+    M.MAVLINK_MSG_ID_HOME_POSITION: 0.2,
+    M.MAVLINK_MSG_ID_NAMED_VALUE_INT: 1.0,
+}
+
+#: REQUEST_DATA_STREAM groups (ArduPilot's grouping, restricted to what we send).
+STREAM_GROUPS: dict[int, tuple[int, ...]] = {
+    M.MAV_DATA_STREAM_EXTENDED_STATUS: (
+        M.MAVLINK_MSG_ID_SYS_STATUS,
+        M.MAVLINK_MSG_ID_GPS_RAW_INT,
+        M.MAVLINK_MSG_ID_MISSION_CURRENT,
+        M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE,
+    ),
+    M.MAV_DATA_STREAM_POSITION: (M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, M.MAVLINK_MSG_ID_LOCAL_POSITION_NED),
+    M.MAV_DATA_STREAM_EXTRA1: (M.MAVLINK_MSG_ID_ATTITUDE,),
+    M.MAV_DATA_STREAM_EXTRA2: (M.MAVLINK_MSG_ID_VFR_HUD,),
+    M.MAV_DATA_STREAM_EXTRA3: (M.MAVLINK_MSG_ID_SYSTEM_TIME, M.MAVLINK_MSG_ID_HOME_POSITION),
+}
+
+
+class StreamScheduler:
+    """Intervals in microseconds of simulated time; 0 means off."""
+
+    def __init__(self, telemetry_rate_hz: float) -> None:
+        self._telemetry_rate_hz = telemetry_rate_hz
+        self._override: dict[int, int] = {}
+        self._next_us: dict[int, int] = {}
+        self.interval_us: dict[int, int] = {}
+        self._recompute()
+
+    def _default_us(self, msg_id: int) -> int:
+        rate = DEFAULT_RATES_HZ[msg_id]
+        return int(round(1e6 / (self._telemetry_rate_hz if rate is None else rate)))
+
+    def _recompute(self) -> None:
+        self.interval_us = {mid: self._override.get(mid, self._default_us(mid)) for mid in DEFAULT_RATES_HZ}
+
+    def set_telemetry_rate(self, rate_hz: float) -> None:
+        self._telemetry_rate_hz = rate_hz
+        self._recompute()
+
+    def set_interval(self, msg_id: int, interval_us: float) -> bool:
+        """MAV_CMD_SET_MESSAGE_INTERVAL semantics: -1 off, 0 default, else µs. False if unknown id."""
+        if msg_id not in DEFAULT_RATES_HZ:
+            return False
+        if interval_us == 0:
+            self._override.pop(msg_id, None)
+        elif interval_us < 0:
+            if msg_id == M.MAVLINK_MSG_ID_HEARTBEAT:
+                return False  # the heartbeat is never switched off
+            self._override[msg_id] = 0
+        else:
+            self._override[msg_id] = max(1000, int(interval_us))  # at most 1 kHz
+        self._recompute()
+        self._next_us.pop(msg_id, None)
+        return True
+
+    def request_stream(self, stream_id: int, rate_hz: int, start: bool) -> None:
+        """REQUEST_DATA_STREAM: set a group's rate (0 Hz or stop: off)."""
+        ids = [m for ids in STREAM_GROUPS.values() for m in ids] if stream_id == M.MAV_DATA_STREAM_ALL else STREAM_GROUPS.get(stream_id, ())
+        for mid in ids:
+            self.set_interval(mid, int(1e6 / rate_hz) if start and rate_hz > 0 else -1)
+
+    def due(self, t_us: int) -> list[int]:
+        out: list[int] = []
+        nxt = self._next_us
+        for mid, interval in self.interval_us.items():
+            if interval <= 0:
+                continue
+            when = nxt.get(mid)
+            if when is None or t_us >= when:
+                out.append(mid)
+                # keep the phase: next = previous due time + interval (but never in the past)
+                base = when if when is not None and t_us - when < interval else t_us
+                nxt[mid] = base + interval
+        return out

@@ -1,0 +1,617 @@
+"""``smcpilot gcs``: a command-line ground station for the flight controller.
+
+::
+
+    smcpilot gcs [--connect URL] status [--json]
+    smcpilot gcs arm [--force] | disarm [--force]
+    smcpilot gcs takeoff ALT [--wait] | goto N E D [--yaw DEG] [--wait] | land [--wait] | rtl
+    smcpilot gcs mode NAME
+    smcpilot gcs param get NAME [--json] | param set NAME VALUE | param list [--json]
+    smcpilot gcs mission upload FILE | mission download [FILE] [--json] | mission start | mission clear
+    smcpilot gcs watch [--once] [--rate-hz HZ]
+
+``--connect`` takes :mod:`smcpilot.link` URLs: ``udpin:HOST:PORT`` listens where the FC sends its
+telemetry (default ``udpin:127.0.0.1:14550``, where ``smcpilot sitl`` sends it; or set
+``SMCPILOT_CONNECT``), ``udpout:HOST:PORT`` writes to the FC's own ground port.
+
+Exit codes: 0 done; 1 the vehicle refused or did not answer in time (denied, timeout); 2 usage or
+configuration error (bad option, unreadable mission file). Errors are one line on stderr.
+
+Mission files (TOML) list the items to fly, in order (home is added by the client as item 0)::
+
+    [[item]]
+    type = "takeoff"        # alt_m
+    alt_m = 3.0
+
+    [[item]]
+    type = "waypoint"       # north_m/east_m (from home) or lat/lon (deg); alt_m above home;
+    north_m = 4.0           # optional hold_s, yaw_deg, radius_m
+    east_m = -3.0
+    alt_m = 3.0
+    hold_s = 2.0
+
+    [[item]]
+    type = "loiter_time"    # hold_s; optional position (north_m/east_m or lat/lon) and alt_m
+    hold_s = 5.0
+
+    [[item]]
+    type = "speed"          # speed_mps
+    speed_mps = 2.0
+
+    [[item]]
+    type = "land"           # optional position; or type = "rtl"
+
+North/east offsets become latitude/longitude through the vehicle's HOME_POSITION with
+:func:`smcpilot.geo.ned_to_global` (the one conversion the project uses).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+import tomllib
+from pathlib import Path
+from typing import Any, Callable, Iterable, Sequence, TextIO
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from ground.client import (
+    COPTER_MODES,
+    CommandDenied,
+    HomePosition,
+    MissionItem,
+    Telemetry,
+    UnknownModeError,
+    Vehicle,
+    VehicleError,
+    mode_name,
+)
+from smcpilot.errors import ConfigError
+
+DEFAULT_CONNECT = "udpin:127.0.0.1:14550"
+CONNECT_ENV = "SMCPILOT_CONNECT"
+
+EXIT_OK = 0
+EXIT_VEHICLE = 1
+EXIT_USAGE = 2
+
+
+class MissionFileError(ConfigError):
+    """A mission TOML file is unreadable or an item is invalid (the message names item and key)."""
+
+
+# ------------------------------------------------------------------------------------ mission files
+_TYPE_KEYS: dict[str, tuple[set[str], set[str]]] = {
+    # type: (required keys, optional keys) besides "type"; a position is north_m+east_m or lat+lon.
+    "takeoff": ({"alt_m"}, set()),
+    "waypoint": ({"alt_m"}, {"hold_s", "yaw_deg", "radius_m"}),
+    "loiter_time": ({"hold_s"}, {"alt_m"}),
+    "land": (set(), set()),
+    "rtl": (set(), set()),
+    "speed": ({"speed_mps"}, set()),
+}
+_POSITION_KEYS = {"north_m", "east_m", "lat", "lon"}
+_POSITIONED = {"waypoint", "loiter_time", "land"}
+
+
+def load_mission_file(path: Path) -> list[dict[str, Any]]:
+    """Read and validate a mission TOML file (``[[item]]`` tables, see the module docstring).
+
+    Returns the items as checked dicts (positions not yet resolved: :func:`mission_items` does
+    that with the vehicle's home). Raises :class:`MissionFileError` naming the item and key.
+    """
+    try:
+        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise MissionFileError(f"mission file not found: {path}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise MissionFileError(f"mission file {path}: cannot read: {exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise MissionFileError(f"mission file {path}: invalid TOML: {exc}") from None
+    extra = set(data) - {"item"}
+    if extra:
+        raise MissionFileError(f"mission file {path}: unknown top-level key(s) {', '.join(sorted(extra))}; items go in [[item]] tables")
+    raw = data.get("item")
+    if not isinstance(raw, list) or not raw:
+        raise MissionFileError(f"mission file {path}: no [[item]] tables")
+    items: list[dict[str, Any]] = []
+    for i, entry in enumerate(raw, start=1):
+        where = f"mission file {path}: item {i}"
+        if not isinstance(entry, dict):
+            raise MissionFileError(f"{where}: must be a table")
+        kind = entry.get("type")
+        if kind not in _TYPE_KEYS:
+            raise MissionFileError(f"{where}: type must be one of {', '.join(_TYPE_KEYS)}, got {kind!r}")
+        required, optional = _TYPE_KEYS[kind]
+        allowed = required | optional | {"type"} | (_POSITION_KEYS if kind in _POSITIONED else set())
+        unknown = set(entry) - allowed
+        if unknown:
+            raise MissionFileError(f"{where} ({kind}): unknown key(s) {', '.join(sorted(unknown))}; allowed: {', '.join(sorted(allowed - {'type'}))}")
+        missing = required - set(entry)
+        if missing:
+            raise MissionFileError(f"{where} ({kind}): missing key(s) {', '.join(sorted(missing))}")
+        for key, value in entry.items():
+            if key == "type":
+                continue
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise MissionFileError(f"{where} ({kind}): {key} must be a finite number, got {value!r}")
+        has_ne = {"north_m", "east_m"} & set(entry)
+        has_ll = {"lat", "lon"} & set(entry)
+        if has_ne and has_ll:
+            raise MissionFileError(f"{where} ({kind}): give north_m/east_m or lat/lon, not both")
+        if has_ne and has_ne != {"north_m", "east_m"}:
+            raise MissionFileError(f"{where} ({kind}): north_m and east_m go together")
+        if has_ll and has_ll != {"lat", "lon"}:
+            raise MissionFileError(f"{where} ({kind}): lat and lon go together")
+        if kind == "waypoint" and not (has_ne or has_ll):
+            raise MissionFileError(f"{where} (waypoint): needs a position: north_m/east_m or lat/lon")
+        if has_ll and not (-90.0 <= entry["lat"] <= 90.0 and -180.0 <= entry["lon"] <= 180.0):
+            raise MissionFileError(f"{where} ({kind}): lat/lon out of range")
+        for key in ("hold_s", "radius_m"):
+            if key in entry and entry[key] < 0:
+                raise MissionFileError(f"{where} ({kind}): {key} must be >= 0")
+        if kind == "takeoff" and not entry["alt_m"] > 0:
+            raise MissionFileError(f"{where} (takeoff): alt_m must be > 0")
+        if kind == "speed" and not (entry["speed_mps"] > 0 or entry["speed_mps"] == -1):
+            raise MissionFileError(f"{where} (speed): speed_mps must be > 0 (or -1: no change)")
+        items.append(dict(entry))
+    return items
+
+
+def mission_items(entries: Sequence[dict[str, Any]], home: HomePosition | None) -> list[MissionItem]:
+    """Checked mission-file entries -> :class:`MissionItem` list; north/east offsets become
+    latitude/longitude around ``home`` (needed only when some item uses them)."""
+    geo_home = None
+    items: list[MissionItem] = []
+    for i, e in enumerate(entries, start=1):
+        kind = e["type"]
+        lat = lon = 0.0
+        if "north_m" in e:
+            if home is None:
+                raise VehicleError(f"mission item {i}: north_m/east_m need the vehicle's HOME_POSITION, which it did not send")
+            if geo_home is None:
+                from smcpilot.geo import Home
+
+                geo_home = Home(home.lat_deg, home.lon_deg, home.alt_amsl_m)
+            lat, lon = _ned_to_latlon(geo_home, float(e["north_m"]), float(e["east_m"]))
+        elif "lat" in e:
+            lat, lon = float(e["lat"]), float(e["lon"])
+        if kind == "takeoff":
+            items.append(MissionItem.takeoff(e["alt_m"]))
+        elif kind == "waypoint":
+            items.append(
+                MissionItem.waypoint(
+                    lat, lon, e["alt_m"], hold_s=e.get("hold_s", 0.0), acceptance_radius_m=e.get("radius_m", 0.0), yaw_deg=e.get("yaw_deg")
+                )
+            )
+        elif kind == "loiter_time":
+            items.append(MissionItem.loiter_time(e["hold_s"], lat, lon, e.get("alt_m", 0.0)))
+        elif kind == "land":
+            items.append(MissionItem.land(lat, lon))
+        elif kind == "rtl":
+            items.append(MissionItem.rtl())
+        elif kind == "speed":
+            items.append(MissionItem.change_speed(e["speed_mps"]))
+        else:  # pragma: no cover - load_mission_file checked the type
+            raise MissionFileError(f"mission item {i}: unknown type {kind!r}")
+    return items
+
+
+def _ned_to_latlon(home: Any, north_m: float, east_m: float) -> tuple[float, float]:
+    from smcpilot.geo import ned_to_global
+
+    lat, lon, _alt = ned_to_global(home, north_m, east_m, 0.0)
+    return lat, lon
+
+
+_COMMAND_TYPES = {
+    mavlink.MAV_CMD_NAV_TAKEOFF: "takeoff",
+    mavlink.MAV_CMD_NAV_WAYPOINT: "waypoint",
+    mavlink.MAV_CMD_NAV_LOITER_TIME: "loiter_time",
+    mavlink.MAV_CMD_NAV_LAND: "land",
+    mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH: "rtl",
+    mavlink.MAV_CMD_DO_CHANGE_SPEED: "speed",
+}
+
+
+def item_to_entry(item: MissionItem) -> dict[str, Any]:
+    """A :class:`MissionItem` as a mission-file entry (lat/lon form; absent values left out).
+    Items the file format has no type for come back as ``{"type": "raw", ...}`` with every field."""
+    kind = _COMMAND_TYPES.get(item.command)
+    has_pos = item.lat_deg != 0.0 or item.lon_deg != 0.0
+    pos = {"lat": round(item.lat_deg, 7), "lon": round(item.lon_deg, 7)} if has_pos else {}
+    if kind == "takeoff":
+        return {"type": kind, "alt_m": item.alt_m}
+    if kind == "waypoint":
+        e: dict[str, Any] = {"type": kind, **pos, "alt_m": item.alt_m}
+        if item.param1:
+            e["hold_s"] = item.param1
+        if item.param2:
+            e["radius_m"] = item.param2
+        if math.isfinite(item.param4):
+            e["yaw_deg"] = item.param4
+        return e
+    if kind == "loiter_time":
+        e = {"type": kind, "hold_s": item.param1, **pos}
+        if item.alt_m:
+            e["alt_m"] = item.alt_m
+        return e
+    if kind == "land":
+        return {"type": kind, **pos}
+    if kind == "rtl":
+        return {"type": kind}
+    if kind == "speed":
+        return {"type": kind, "speed_mps": item.param2}
+    return {
+        "type": "raw",
+        "command": item.command,
+        "frame": item.frame,
+        "params": [item.param1, item.param2, item.param3, item.param4],
+        "lat": item.lat_deg,
+        "lon": item.lon_deg,
+        "alt_m": item.alt_m,
+    }
+
+
+def entries_to_toml(entries: Iterable[dict[str, Any]]) -> str:
+    """Mission-file TOML text of entries (``raw`` entries become comments: the format has no
+    type for them)."""
+    lines = ["# mission downloaded by smcpilot gcs (item 0, home, is not listed)", ""]
+    for e in entries:
+        if e["type"] == "raw":
+            lines.append(f"# unsupported item: {json.dumps(e)}")
+            lines.append("")
+            continue
+        lines.append("[[item]]")
+        for key, value in e.items():
+            lines.append(f"{key} = {json.dumps(value) if isinstance(value, str) else repr(float(value))}")
+        lines.append("")
+    return "\n".join(lines)
+
+
+# -------------------------------------------------------------------------------------- rendering
+def _num(v: float | None, fmt: str = "{:7.2f}") -> str:
+    return "-" if v is None else fmt.format(v)
+
+
+def _triple(v: Sequence[float] | None, fmt: str = "{:7.2f}") -> str:
+    return "-" if v is None else " ".join(fmt.format(x) for x in v)
+
+
+_CHANNELS = ("PHI", "THETA", "PSI", "Z")
+
+
+def render_frame(t: Telemetry, *, url: str = "") -> list[str]:
+    """The ``watch`` view of a telemetry snapshot, as lines without escapes (NED metres,
+    degrees)."""
+    att = None if t.attitude_rad is None else tuple(math.degrees(a) for a in t.attitude_rad)
+    last = t.last_statustext
+    sim = "-" if t.sim_time_s is None else f"{t.sim_time_s:9.2f} s"
+    chi = "  ".join(f"{c.lower()} {_num(t.chi.get(c), '{:.3f}')}" for c in _CHANNELS)
+    sig = "  ".join(f"{c.lower()} {_num(t.sigma.get(c), '{:+.3f}')}" for c in _CHANNELS)
+    return [
+        f"smcpilot vehicle {t.system_id if t.system_id is not None else '?'}  {url}  sim time {sim}",
+        f"  state    {'ARMED' if t.armed else 'disarmed':8s}  mode {t.mode_name or '-':9s}  landed {t.landed_state_name or '-':9s}"
+        f"  prearm {'ok' if t.prearm_ok else '-' if t.prearm_ok is None else 'FAIL'}",
+        f"  position N E D  {_triple(t.position_ned_m)} m   altitude {_num(t.altitude_m)} m",
+        f"  velocity N E D  {_triple(t.velocity_ned_mps)} m/s",
+        f"  attitude r p y  {_triple(att)} deg",
+        f"  set-point NED   {_triple(t.setpoint_ned_m)} m   mission item {t.mission_current if t.mission_current is not None else '-'}",
+        f"  chi_hat  {chi}",
+        f"  sigma    {sig}",
+        f"  last msg {last.text if last else '-'}",
+    ]
+
+
+def render_line(t: Telemetry) -> str:
+    """One-line form of the ``watch`` view (for logs and pipes)."""
+    last = t.last_statustext
+    chi = ",".join(_num(t.chi.get(c), "{:.3f}") for c in _CHANNELS)
+    sig = ",".join(_num(t.sigma.get(c), "{:+.3f}") for c in _CHANNELS)
+    return (
+        f"t={_num(t.sim_time_s, '{:.2f}')} {'ARMED' if t.armed else 'disarmed'} {t.mode_name or '-'}"
+        f" ned={_triple(t.position_ned_m, '{:.2f}').replace(' ', ',')} alt={_num(t.altitude_m, '{:.2f}')}"
+        f" sp={_triple(t.setpoint_ned_m, '{:.2f}').replace(' ', ',')} chi={chi} sigma={sig}"
+        f" msg={json.dumps(last.text) if last else '-'}"
+    )
+
+
+def render_status(t: Telemetry) -> str:
+    """Human-readable ``status``."""
+    lines = render_frame(t)[1:]
+    if t.home is not None:
+        h = t.home
+        lines.append(f"  home     {h.lat_deg:.7f} {h.lon_deg:.7f} {h.alt_amsl_m:.2f} m AMSL")
+    return "\n".join(line.strip() if i == 0 else line for i, line in enumerate(lines))
+
+
+# -------------------------------------------------------------------------------------- arguments
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """Options and sub-commands of ``smcpilot gcs``."""
+    p.add_argument(
+        "--connect",
+        metavar="URL",
+        default=os.environ.get(CONNECT_ENV, DEFAULT_CONNECT),
+        help=f"where the vehicle is: udpin:HOST:PORT listens where the FC sends telemetry, udpout:HOST:PORT writes"
+        f" to the FC's ground port (default ${CONNECT_ENV} or {DEFAULT_CONNECT})",
+    )
+    p.add_argument("--timeout", type=float, default=15.0, metavar="S", help="wall seconds to wait for the vehicle's heartbeat (default 15)")
+    p.add_argument("--sysid", type=int, metavar="N", help="talk to this MAVLink system id only (default: the first vehicle heard)")
+    sub = p.add_subparsers(dest="gcs_command", metavar="ACTION")
+    sub.required = True
+
+    s = sub.add_parser("status", help="print the vehicle's state once", description="Print mode, arming, position, attitude, χ̂, σ and home once.")
+    s.add_argument("--json", action="store_true", help="print JSON (one object)")
+    s.set_defaults(gcs_handler=_status)
+
+    s = sub.add_parser("arm", help="arm the motors (pre-arm checks unless --force)", description="COMPONENT_ARM_DISARM arm; waits until the heartbeat shows armed.")
+    s.add_argument("--force", action="store_true", help="skip the pre-arm checks (ArduPilot's force code 21196)")
+    s.set_defaults(gcs_handler=_arm)
+
+    s = sub.add_parser("disarm", help="disarm the motors (--force in the air)", description="COMPONENT_ARM_DISARM disarm; in the air it needs --force.")
+    s.add_argument("--force", action="store_true", help="disarm even in the air (the vehicle falls)")
+    s.set_defaults(gcs_handler=_disarm)
+
+    s = sub.add_parser("takeoff", help="climb to ALT metres above home (armed, GUIDED)", description="MAV_CMD_NAV_TAKEOFF: climb over the current position.")
+    s.add_argument("alt_m", type=float, metavar="ALT", help="altitude above home, m")
+    s.add_argument("--wait", action="store_true", help="wait until the altitude is reached")
+    s.add_argument("--tol", type=float, default=0.3, metavar="M", help="altitude tolerance for --wait, m (default 0.3)")
+    s.add_argument("--timeout-sim", type=float, default=60.0, metavar="S", help="--wait limit, simulated seconds (default 60)")
+    s.set_defaults(gcs_handler=_takeoff)
+
+    s = sub.add_parser("goto", help="fly to a local NED point (m from home; D negative is up)", description="SET_POSITION_TARGET_LOCAL_NED in GUIDED (switches to GUIDED first).")
+    s.add_argument("north_m", type=float, metavar="N", help="north of home, m")
+    s.add_argument("east_m", type=float, metavar="E", help="east of home, m")
+    s.add_argument("down_m", type=float, metavar="D", help="down from home, m (-3 = 3 m up)")
+    s.add_argument("--yaw", type=float, metavar="DEG", help="heading, degrees (0 north, 90 east); default: keep")
+    s.add_argument("--wait", action="store_true", help="wait until the point is reached")
+    s.add_argument("--tol", type=float, default=0.5, metavar="M", help="distance tolerance for --wait, m (default 0.5)")
+    s.add_argument("--timeout-sim", type=float, default=60.0, metavar="S", help="--wait limit, simulated seconds (default 60)")
+    s.set_defaults(gcs_handler=_goto)
+
+    s = sub.add_parser("land", help="land where the vehicle is (disarms on touchdown)", description="MAV_CMD_NAV_LAND: switches to LAND.")
+    s.add_argument("--wait", action="store_true", help="wait until landed and disarmed")
+    s.add_argument("--timeout-sim", type=float, default=120.0, metavar="S", help="--wait limit, simulated seconds (default 120)")
+    s.set_defaults(gcs_handler=_land)
+
+    s = sub.add_parser("rtl", help="return to launch and land", description="MAV_CMD_NAV_RETURN_TO_LAUNCH: switches to RTL.")
+    s.set_defaults(gcs_handler=_rtl)
+
+    s = sub.add_parser("mode", help="change flight mode", description=f"MAV_CMD_DO_SET_MODE. ArduCopter names: {', '.join(COPTER_MODES)} (this FC flies ALT_HOLD, AUTO, GUIDED, LOITER, RTL, LAND).")
+    s.add_argument("mode_name", metavar="NAME", help="mode name, e.g. GUIDED, LOITER, AUTO, LAND")
+    s.set_defaults(gcs_handler=_mode)
+
+    param = sub.add_parser("param", help="read and write parameters", description="The parameter protocol: get, set, list.")
+    psub = param.add_subparsers(dest="param_command", metavar="ACTION")
+    psub.required = True
+    s = psub.add_parser("get", help="print one parameter", description="PARAM_REQUEST_READ by name.")
+    s.add_argument("name", metavar="NAME", help="parameter name, e.g. SMC_Z_KP")
+    s.add_argument("--json", action="store_true", help='print {"name": ..., "value": ...}')
+    s.set_defaults(gcs_handler=_param_get)
+    s = psub.add_parser("set", help="set one parameter", description="PARAM_SET; prints the value now in force. Exit 1 if the vehicle refused it.")
+    s.add_argument("name", metavar="NAME", help="parameter name")
+    s.add_argument("value", type=float, metavar="VALUE", help="new value")
+    s.set_defaults(gcs_handler=_param_set)
+    s = psub.add_parser("list", help="print every parameter", description="PARAM_REQUEST_LIST: every parameter, NAME VALUE per line (.parm format).")
+    s.add_argument("--json", action="store_true", help="print a JSON object name -> value")
+    s.set_defaults(gcs_handler=_param_list)
+
+    mission = sub.add_parser("mission", help="upload, download, start or clear the mission", description="The mission protocol (item 0 is home and is handled by the client).")
+    msub = mission.add_subparsers(dest="mission_command", metavar="ACTION")
+    msub.required = True
+    s = msub.add_parser("upload", help="upload a mission TOML file", description="Upload the [[item]] list of FILE (see `smcpilot gcs --help` for the format); north_m/east_m are converted through the vehicle's home.")
+    s.add_argument("file", type=Path, metavar="FILE", help="mission TOML file")
+    s.set_defaults(gcs_handler=_mission_upload)
+    s = msub.add_parser("download", help="download the mission (TOML to FILE or stdout)", description="Download the mission; home (item 0) is left out.")
+    s.add_argument("file", type=Path, nargs="?", metavar="FILE", help="write the mission here (TOML); default: print it")
+    s.add_argument("--json", action="store_true", help="print the items as JSON instead of TOML")
+    s.set_defaults(gcs_handler=_mission_download)
+    s = msub.add_parser("start", help="fly the mission (AUTO)", description="MAV_CMD_MISSION_START: switches to AUTO (armed, with a mission).")
+    s.set_defaults(gcs_handler=_mission_start)
+    s = msub.add_parser("clear", help="delete the mission", description="MISSION_CLEAR_ALL.")
+    s.set_defaults(gcs_handler=_mission_clear)
+
+    s = sub.add_parser("watch", help="live view of the vehicle (Ctrl-C ends)", description="Redraws state, mode, position, set-point, χ̂, σ and the last STATUSTEXT in place a few times a second; one line per update when stdout is not a terminal.")
+    s.add_argument("--once", action="store_true", help="print one frame and exit")
+    s.add_argument("--rate-hz", type=float, default=4.0, metavar="HZ", help="updates per wall second (default 4)")
+    s.set_defaults(gcs_handler=_watch)
+
+
+# --------------------------------------------------------------------------------------- handlers
+def main(args: argparse.Namespace) -> int:
+    """Entry point of ``smcpilot gcs``: connect, run the action, map errors to exit codes."""
+    if args.timeout is None or not (math.isfinite(args.timeout) and args.timeout > 0):
+        raise ConfigError(f"--timeout must be > 0 seconds, got {args.timeout}")
+    handler: Callable[[Vehicle, argparse.Namespace, TextIO], int] = args.gcs_handler
+    try:
+        with Vehicle(args.connect, system_id=args.sysid, connect_timeout_s=args.timeout) as vehicle:
+            return handler(vehicle, args, sys.stdout)
+    except UnknownModeError:
+        raise  # a usage error: exit 2 through the CLI's handler
+    except VehicleError as exc:
+        print(f"smcpilot gcs: error: {exc}", file=sys.stderr)
+        return EXIT_VEHICLE
+
+
+def _settle(vehicle: Vehicle, wall_s: float = 2.0) -> Telemetry:
+    """Give the telemetry a moment to fill in (position and attitude), at most ``wall_s``."""
+    deadline = time.monotonic() + wall_s
+    while time.monotonic() < deadline:
+        t = vehicle.telemetry
+        if t.position_ned_m is not None and t.attitude_rad is not None:
+            return t
+        time.sleep(0.02)
+    return vehicle.telemetry
+
+
+def _status(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
+    _settle(vehicle)
+    try:
+        vehicle.get_home(timeout_s=1.0)
+    except VehicleError:
+        pass
+    t = vehicle.telemetry
+    if args.json:
+        out.write(json.dumps(t.as_dict()) + "\n")
+    else:
+        out.write(render_status(t) + "\n")
+    return EXIT_OK
+
+
+def _arm(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
+    vehicle.arm(force=args.force)
+    out.write("armed\n")
+    return EXIT_OK
+
+
+def _disarm(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
+    vehicle.disarm(force=args.force)
+    out.write("disarmed\n")
+    return EXIT_OK
+
+
+def _takeoff(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
+    if not math.isfinite(args.alt_m) or args.alt_m <= 0:
+        raise ConfigError(f"takeoff altitude must be > 0 m, got {args.alt_m}")
+    vehicle.takeoff(args.alt_m)
+    out.write(f"taking off to {args.alt_m:g} m\n")
+    if args.wait:
+        t = vehicle.wait_altitude(args.alt_m, args.tol, args.timeout_sim)
+        out.write(f"at {t.altitude_m:.2f} m (sim time {t.sim_time_s:.2f} s)\n")
+    return EXIT_OK
+
+
+def _goto(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
+    for name in ("north_m", "east_m", "down_m"):
+        if not math.isfinite(getattr(args, name)):
+            raise ConfigError(f"goto {name[0].upper()} must be a finite number")
+    vehicle.goto_ned(args.north_m, args.east_m, args.down_m, args.yaw)
+    out.write(f"going to NED ({args.north_m:g}, {args.east_m:g}, {args.down_m:g}) m\n")
+    if args.wait:
+        t = vehicle.wait_position_ned(args.north_m, args.east_m, args.down_m, args.tol, args.timeout_sim)
+        out.write(f"arrived (sim time {t.sim_time_s:.2f} s)\n")
+    return EXIT_OK
+
+
+def _land(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
+    vehicle.land()
+    out.write("landing\n")
+    if args.wait:
+        t = vehicle.wait_disarmed(args.timeout_sim)
+        out.write(f"landed and disarmed (sim time {t.sim_time_s:.2f} s)\n")
+    return EXIT_OK
+
+
+def _rtl(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
+    vehicle.rtl()
+    out.write("returning to launch\n")
+    return EXIT_OK
+
+
+def _mode(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
+    vehicle.set_mode(args.mode_name)
+    out.write(f"mode {vehicle.mode}\n")
+    return EXIT_OK
+
+
+def _param_get(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
+    value = vehicle.get_param(args.name)
+    name = args.name.strip().upper()
+    out.write((json.dumps({"name": name, "value": value}) if args.json else f"{name} {_param_text(value)}") + "\n")
+    return EXIT_OK
+
+
+def _param_set(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
+    if not math.isfinite(args.value):
+        raise ConfigError(f"parameter value must be finite, got {args.value}")
+    value = vehicle.set_param(args.name, args.value)
+    out.write(f"{args.name.strip().upper()} {_param_text(value)}\n")
+    return EXIT_OK
+
+
+def _param_list(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
+    params = vehicle.list_params()
+    if args.json:
+        out.write(json.dumps(params) + "\n")
+    else:
+        for name, value in params.items():
+            out.write(f"{name} {_param_text(value)}\n")
+    return EXIT_OK
+
+
+def _param_text(value: float) -> str:
+    return str(value) if isinstance(value, int) else f"{value:.9g}"
+
+
+def _mission_upload(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
+    entries = load_mission_file(args.file)
+    home = None
+    if any("north_m" in e for e in entries):
+        home = vehicle.get_home()
+    items = mission_items(entries, home)
+    vehicle.upload_mission(items)
+    out.write(f"uploaded {len(items)} items (+ home) from {args.file}\n")
+    return EXIT_OK
+
+
+def _mission_download(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
+    items = vehicle.download_mission()
+    entries = [item_to_entry(it) for it in items]
+    if args.json:
+        text = json.dumps(entries) + "\n"
+    else:
+        text = entries_to_toml(entries)
+    if args.file is not None:
+        try:
+            args.file.parent.mkdir(parents=True, exist_ok=True)
+            args.file.write_text(text, encoding="utf-8")
+        except OSError as exc:
+            raise ConfigError(f"cannot write {args.file}: {exc.strerror or exc}") from None
+        out.write(f"downloaded {len(items)} items to {args.file}\n")
+    else:
+        out.write(text)
+    return EXIT_OK
+
+
+def _mission_start(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
+    vehicle.start_mission()
+    out.write("mission started (AUTO)\n")
+    return EXIT_OK
+
+
+def _mission_clear(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
+    vehicle.clear_mission()
+    out.write("mission cleared\n")
+    return EXIT_OK
+
+
+def _watch(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
+    if not (math.isfinite(args.rate_hz) and 0 < args.rate_hz <= 50):
+        raise ConfigError(f"--rate-hz must lie in (0, 50], got {args.rate_hz}")
+    if args.once:
+        _settle(vehicle)
+        out.write("\n".join(render_frame(vehicle.telemetry, url=vehicle.url)) + "\n")
+        return EXIT_OK
+    tty = out.isatty()
+    period = 1.0 / args.rate_hz
+    if tty:
+        out.write("\x1b[?25l\x1b[2J")  # hide the cursor, clear the screen
+    try:
+        while True:
+            t = vehicle.telemetry
+            if tty:
+                out.write("\x1b[H" + "".join(line + "\x1b[K\n" for line in render_frame(t, url=vehicle.url)) + "\x1b[J")
+            else:
+                out.write(render_line(t) + "\n")
+            out.flush()
+            time.sleep(period)
+    except KeyboardInterrupt:
+        return EXIT_OK
+    finally:
+        if tty:
+            out.write("\x1b[?25h")
+            out.flush()

@@ -1,0 +1,192 @@
+"""pytest plugin: fly smcpilot SITL from your own tests.
+
+Installed with smcpilot (entry point ``pytest11`` ``smcpilot``), so it is active in any pytest
+run once the package is installed. It provides:
+
+- the ``sitl`` fixture: starts lockstep SITL (:class:`ground.sitl.Sitl`: the flight controller
+  and the simulator bridge) on free loopback ports with the FC's ground link pointing at a
+  :class:`ground.client.Vehicle` listening on a free port, and yields that connected vehicle.
+  Everything stops when the test ends;
+- ``sitl_process``: the running :class:`~ground.sitl.Sitl` of the test (its ``tlog`` path, the
+  FC's ground address ``gcs_address``), for tests that need it;
+- command-line options ``--sitl-vehicle FILE``, ``--sitl-controller NAME``, ``--sitl-seed N``,
+  ``--sitl-speed FACTOR`` (lockstep speed cap; default: as fast as possible),
+  ``--sitl-log-dir DIR`` (default: a ``sitl-logs`` folder in pytest's temporary directory),
+  ``--sitl-keep-logs``;
+- the marker ``@pytest.mark.sitl_options(...)``: per-test :class:`~ground.sitl.SitlOptions`
+  fields, e.g. ``controller="pid_smc"``, ``wind_force_ned_n=(2, 0, 0)``, ``noise=True``,
+  ``seed=3``, ``vehicle="heavy.toml"``, ``gust_std_n=0.5``, ``fc_args=("--home", "47,8,400")``.
+
+The telemetry log (``.tlog``) of a test is kept when the test fails — its path (and the last
+lines the FC and simulator printed) appear in the failure report, section "smcpilot sitl" — and
+deleted when it passes, unless ``--sitl-keep-logs``. Each test also gets its own FC parameter
+file next to the log, so a parameter one test sets never leaks into another.
+
+Example::
+
+    from ground.client import MissionItem
+
+    def test_square_mission(sitl):
+        sitl.arm()
+        sitl.takeoff(3.0)
+        sitl.wait_altitude(3.0, tol_m=0.3, timeout_sim_s=20)
+        sitl.goto_ned(5.0, 0.0, -3.0)
+        sitl.wait_position_ned(5.0, 0.0, -3.0, tol_m=0.5, timeout_sim_s=20)
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import os
+import re
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterator
+
+import pytest
+
+from ground.client import Vehicle
+from ground.sitl import Sitl, SitlOptions
+
+#: SitlOptions fields the marker may not set (the fixture owns them).
+_RESERVED = frozenset({"gcs", "tlog", "log_dir", "lockstep"})
+_MARKER = "sitl_options"
+#: Wall seconds to wait for the FC's first HEARTBEAT after SITL reported ready.
+CONNECT_TIMEOUT_S = 20.0
+
+
+@dataclass
+class _SitlRun:
+    """What the plugin knows about one test's SITL run."""
+
+    tlog: Path
+    param_file: Path
+    output: collections.deque[str] = field(default_factory=lambda: collections.deque(maxlen=40))
+    failed: bool = False
+    sitl: Sitl | None = None
+
+
+_RUN_KEY = pytest.StashKey[_SitlRun]()
+
+
+def pytest_addoption(parser: pytest.Parser) -> None:
+    group = parser.getgroup("smcpilot", "smcpilot SITL (the sitl fixture)")
+    group.addoption("--sitl-vehicle", type=Path, metavar="FILE", default=None, help="vehicle TOML for SITL (default: the spec's parameters)")
+    group.addoption("--sitl-controller", metavar="NAME", default=None, help="control law of the FC (default adaptive_pid_smc)")
+    group.addoption("--sitl-seed", type=int, metavar="N", default=None, help="seed of sensor noise and gusts (default 0)")
+    group.addoption("--sitl-speed", type=float, metavar="FACTOR", default=None, help="cap lockstep SITL at FACTOR x real time (default: as fast as possible)")
+    group.addoption("--sitl-log-dir", type=Path, metavar="DIR", default=None, help="where SITL .tlog files go (default: pytest's temporary directory)")
+    group.addoption("--sitl-keep-logs", action="store_true", default=False, help="keep every SITL .tlog, not only those of failed tests")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line(
+        "markers",
+        f"{_MARKER}(**options): SITL settings for the sitl fixture (ground.sitl.SitlOptions fields, e.g."
+        " controller='pid_smc', wind_force_ned_n=(2, 0, 0), noise=True, seed=1)",
+    )
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) -> Iterator[None]:
+    outcome = yield
+    report: pytest.TestReport = outcome.get_result()
+    run = item.stash.get(_RUN_KEY, None)
+    if run is None or not report.failed:
+        return
+    run.failed = True
+    lines = [f"tlog kept: {run.tlog}"]
+    if run.output:
+        lines.append("last output of the FC and the simulator:")
+        lines.extend(f"  {line}" for line in run.output)
+    report.sections.append(("smcpilot sitl", "\n".join(lines)))
+
+
+def _options(request: pytest.FixtureRequest, log_dir: Path, tlog: Path, param_file: Path, gcs_url: str) -> SitlOptions:
+    cfg = request.config
+    kw: dict[str, Any] = {}
+    if cfg.getoption("sitl_vehicle") is not None:
+        kw["vehicle"] = Path(cfg.getoption("sitl_vehicle"))
+    if cfg.getoption("sitl_controller") is not None:
+        kw["controller"] = cfg.getoption("sitl_controller")
+    if cfg.getoption("sitl_seed") is not None:
+        kw["seed"] = cfg.getoption("sitl_seed")
+    speed = cfg.getoption("sitl_speed")
+    if speed is not None:
+        if not speed > 0:
+            raise pytest.UsageError(f"--sitl-speed must be > 0, got {speed}")
+        kw["speed"] = speed
+    valid = {f.name for f in dataclasses.fields(SitlOptions)} - _RESERVED
+    # Markers closest to the test win (a test's marker over its class's over its module's).
+    for marker in reversed(list(request.node.iter_markers(_MARKER))):
+        if marker.args:
+            pytest.fail(f"@pytest.mark.{_MARKER} takes keyword arguments only, got {marker.args!r}", pytrace=False)
+        for key, value in marker.kwargs.items():
+            if key not in valid:
+                pytest.fail(
+                    f"@pytest.mark.{_MARKER}: unknown option {key!r}; valid: {', '.join(sorted(valid))}", pytrace=False
+                )
+            if key in ("vehicle", "plan") and value is not None:
+                value = Path(value)
+            elif key in ("wind_force_ned_n", "fc_args", "sim_args") and value is not None:
+                value = tuple(value)
+            kw[key] = value
+    if kw.get("vehicle") is not None and not Path(kw["vehicle"]).is_file():
+        pytest.fail(f"SITL vehicle file not found: {kw['vehicle']}", pytrace=False)
+    kw["fc_args"] = ("--param-file", str(param_file), *kw.get("fc_args", ()))
+    return SitlOptions(lockstep=True, gcs=gcs_url, log_dir=log_dir, tlog=tlog, **kw)
+
+
+def _safe_name(nodeid: str) -> str:
+    name = re.sub(r"[^A-Za-z0-9_.-]+", "_", nodeid.split("::", 1)[-1]).strip("_")
+    return name[:80] or "test"
+
+
+@pytest.fixture
+def sitl(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Vehicle]:
+    """A connected :class:`ground.client.Vehicle` flying in fresh lockstep SITL (see the module
+    docstring); waits in the vehicle are in simulated seconds."""
+    cfg = request.config
+    log_dir = cfg.getoption("sitl_log_dir")
+    log_dir = Path(log_dir) if log_dir is not None else tmp_path_factory.getbasetemp() / "sitl-logs"
+    log_dir.mkdir(parents=True, exist_ok=True)
+    stem = f"{_safe_name(request.node.nodeid)}-{os.getpid()}-{time.strftime('%H%M%S')}"
+    run = _SitlRun(tlog=log_dir / f"{stem}.tlog", param_file=log_dir / f"{stem}.parm")
+    request.node.stash[_RUN_KEY] = run
+
+    speed = cfg.getoption("sitl_speed")
+    wall_per_sim_s = max(3.0, 3.0 / speed) if speed else 3.0
+    vehicle = Vehicle("udpin:127.0.0.1:0", connect_timeout_s=CONNECT_TIMEOUT_S, wall_per_sim_s=wall_per_sim_s)
+    vehicle.open()
+    sitl_proc: Sitl | None = None
+    yielded = False
+    try:
+        options = _options(request, log_dir, run.tlog, run.param_file, f"udp:127.0.0.1:{vehicle.local_address[1]}")
+        sitl_proc = Sitl(options, echo=run.output.append)
+        run.sitl = sitl_proc
+        with sitl_proc:
+            vehicle.wait_heartbeat()
+            yielded = True
+            yield vehicle
+            vehicle.close()
+    finally:
+        vehicle.close()
+        # A set-up failure (SITL did not start, no heartbeat) keeps the log too: the set-up
+        # report, made after this, carries the section.
+        keep = cfg.getoption("sitl_keep_logs") or run.failed or not yielded
+        if not keep:
+            for path in (run.tlog, run.param_file):
+                try:
+                    path.unlink()
+                except FileNotFoundError:
+                    pass
+
+
+@pytest.fixture
+def sitl_process(sitl: Vehicle, request: pytest.FixtureRequest) -> Sitl:
+    """The running :class:`ground.sitl.Sitl` behind the ``sitl`` fixture (``.tlog``, ``.gcs_address``)."""
+    run = request.node.stash[_RUN_KEY]
+    assert run.sitl is not None
+    return run.sitl
