@@ -50,7 +50,16 @@ from typing import Any, Callable, TextIO
 
 import numpy as np
 
-from fc.telemetry import CHANNEL_TAGS, CHI_NAMES, SIG_NAMES, SMC_ARRAY_ID, SMC_FIELDS
+from fc.telemetry import (
+    CHANNEL_TAGS,
+    CHI_NAMES,
+    FLAG_ARMED,
+    FLAG_FAILSAFE,
+    FLAG_LANDING,
+    SIG_NAMES,
+    SMC_ARRAY_ID,
+    SMC_FIELDS,
+)
 from smcpilot.errors import SmcpilotError, TlogError, TlogFormatError
 from smcpilot.frames import euler_flu_to_frd, nwu_to_ned
 from smcpilot.tlog import read_tlog
@@ -89,7 +98,7 @@ _SMC_INDEX = {name: i for i, name in enumerate(SMC_FIELDS)}
 # Target changes smaller than this (m or rad) are float noise, not a new set-point.
 _SETPOINT_TOLERANCE = 1e-4
 # STATUSTEXT prefixes after which the FC descends on purpose (tracking is not assessed).
-_LANDING_EVENT_PREFIXES = ("Landing", "FAILSAFE", "State back")
+_LANDING_EVENT_PREFIXES = ("Landing", "FAILSAFE", "State back", "Mode LAND", "Mode RTL", "Failsafe")
 
 _SEVERITY_NAMES = {
     0: "EMERGENCY",
@@ -472,7 +481,18 @@ def _tracking_masks(log: FlightLog, settle_s: float) -> tuple[np.ndarray, np.nda
         changed[1:] |= armed[1:] & ~armed[:-1]
     change_idx = np.flatnonzero(changed)
     last_change_t = t[change_idx[np.searchsorted(change_idx, np.arange(n), side="right") - 1]] if n else t
-    # Landing (or failsafe descent) from its event until the next set-point change.
+    flags = log.smc.get("flags") if log.smc else None
+    # (All zeros means a log written before the FC logged its flags: a real FC run sets at least
+    # POSITION_HOLD.)
+    if flags is not None and flags.size == n and n and np.all(np.isfinite(flags)) and np.any(flags != 0):
+        # The FC logs its state every tick: landing/failsafe bits are exact.
+        bits = flags.astype(np.int64)
+        armed = (bits & FLAG_ARMED) != 0
+        landing = (bits & (FLAG_LANDING | FLAG_FAILSAFE)) != 0
+        holding = armed & ~landing
+        settled = holding & (t - last_change_t >= settle_s)
+        return holding, settled
+    # Older logs: landing (or failsafe descent) from its event until the next set-point change.
     landing = np.zeros(n, dtype=bool)
     for ev in log.events:
         if ev.text.startswith(_LANDING_EVENT_PREFIXES):

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from fc.telemetry import SMC_ARRAY_ID, SMC_FIELDS
+from fc.telemetry import FLAG_ARMED, FLAG_LANDING, FLAG_POSITION_HOLD, SMC_ARRAY_ID, SMC_FIELDS
 from ground import logtools
 from ground.logtools import LogError, load_log, plot_log, print_summary, summarize
 from smcpilot.errors import SmcpilotError
@@ -104,7 +104,7 @@ LANDING_K = 1250  # "Landing" at 25.0 s
 DISARM_K = 1300  # disarmed from 26.0 s
 
 
-def write_flight(path: Path, *, cascade: bool = False) -> None:
+def write_flight(path: Path, *, cascade: bool = False, flags: bool = False) -> None:
     """Hold (0, 0, 3 m) 0.1 m too high; at 10 s go to N 4, E -3, yaw 170 and from 18 s sit 0.2 m
     west of it with yaw -175 (15 deg past the set-point across ±180); land at 25 s, disarm at 26 s."""
     b = LogBuilder(path)
@@ -136,8 +136,12 @@ def write_flight(path: Path, *, cascade: bool = False) -> None:
                 sig = (5.0, 5.0, 5.0, 5.0)
             fields.update({f"sigma_{c}": v for c, v in zip(logtools.CHANNELS, sig)})
             fields.update({f"chi_{c}": 0.5 + k * 1e-4 * (j + 1) for j, c in enumerate(logtools.CHANNELS)})
+        if flags:  # the FC's per-tick state bits instead of the "Landing" event
+            fields["flags"] = float(
+                FLAG_POSITION_HOLD | (FLAG_ARMED if armed else 0) | (FLAG_LANDING if armed and k >= LANDING_K else 0)
+            )
         b.smc(t_us, **fields)
-        if k == LANDING_K:
+        if k == LANDING_K and not flags:
             b.event(t_us, "Landing")
         if k == DISARM_K:
             b.event(t_us, "Landed: disarmed")
@@ -252,6 +256,16 @@ def test_summary_of_a_flight_with_known_errors(flight_log: Path) -> None:
     assert s["events"][2]["severity"] == "INFO"
     assert s["message_counts"]["DEBUG_FLOAT_ARRAY"] == N_TICKS
     assert s["truncated"] is False
+
+
+def test_logged_flags_mark_landing_without_any_event(tmp_path: Path) -> None:
+    """Logs with the FC's per-tick flags need no event text to tell the landing apart."""
+    path = tmp_path / "flags.tlog"
+    write_flight(path, flags=True)
+    s = summarize(load_log(path), settle_s=7.99)
+    assert "Landing" not in [e["text"] for e in s["events"]]
+    assert s["settled_time_s"] == pytest.approx(450 * DT_US * 1e-6)
+    assert s["position_error_final_m"] == pytest.approx(0.2, rel=1e-5)  # the descent is not "final"
 
 
 def test_default_settle_time_is_8_s(flight_log: Path) -> None:
