@@ -16,8 +16,7 @@ heading change across +-180 deg takes the short way.
 
 from __future__ import annotations
 
-import math
-from typing import NamedTuple, Sequence
+from typing import NamedTuple
 
 from fc.config import FcConfig
 from fc.control import make_controller
@@ -30,7 +29,6 @@ from smcpilot.model import PaperModel
 from smcpilot.vehicle import VehicleParams
 
 _NAN = float("nan")
-_INF = float("inf")
 
 
 class VehicleState(NamedTuple):
@@ -245,9 +243,3 @@ class FlightControl:
         motors, realised, limited = self.mixer.mix(0.0, 0.0, 0.0, thrust)
         return TickOutput(motors, realised, limited, None, (0.0, 0.0, _NAN, _NAN))
 
-
-def vehicle_state_from_tuple(v: Sequence[float]) -> VehicleState:
-    return VehicleState(*[float(a) for a in v])
-
-
-__all__ = ["FlightControl", "TickOutput", "VehicleState", "vehicle_state_from_tuple", "_INF"]

@@ -152,6 +152,14 @@ class PaperModel:
             fz - self.gravity_mps2,
         )
 
+    @staticmethod
+    def tilt_cos(phi: float, theta: float, floor: float) -> float:
+        """cos(phi) cos(theta) kept at least ``floor`` away from zero (guards 1/g_z near 90 deg tilt)."""
+        ctc = _cos(phi) * _cos(theta)
+        if -floor < ctc < floor:
+            return floor if ctc >= 0.0 else -floor
+        return ctc
+
     def gain_z(self, phi: float, theta: float) -> float:
         """g_z = cos(phi) cos(theta) / m, 1/kg. (g_phi = b1, g_theta = b2, g_psi = b3 are constants.)"""
         return _cos(phi) * _cos(theta) / self.mass_kg

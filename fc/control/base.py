@@ -81,6 +81,43 @@ class Controller(Protocol):
         ...
 
 
+class IntegratingBaseline:
+    """Shared machinery of the baselines whose u is algebraic and whose states are integrators.
+
+    Subclasses implement :meth:`_output` returning (u, state derivative, diagnostics); the
+    continuous form integrates the derivative in the ODE, the sampled form by forward Euler.
+    """
+
+    state_names: tuple[str, ...]
+
+    def initial_state(self, meas: Meas) -> tuple[float, ...]:
+        return (0.0,) * len(self.state_names)
+
+    def _output(self, meas: Meas, ref: Ref, state: Sequence[float]) -> tuple[Vec4, tuple[float, ...], Diagnostics]:
+        raise NotImplementedError
+
+    def command(self, meas: Meas, ref: Ref, state: Sequence[float]) -> Vec4:
+        return self._output(meas, ref, state)[0]
+
+    def derivatives(
+        self, meas: Meas, ref: Ref, state: Sequence[float], accel: Sequence[float] | None = None
+    ) -> tuple[tuple[float, ...], Diagnostics]:
+        _u, d, diag = self._output(meas, ref, state)
+        return d, diag
+
+    def step(
+        self, meas: Meas, ref: Ref, state: Sequence[float], dt_s: float, accel: Sequence[float] | None = None
+    ) -> tuple[Vec4, tuple[float, ...], Diagnostics]:
+        u, d, diag = self._output(meas, ref, state)
+        return u, tuple(x + dt_s * dx for x, dx in zip(state, d)), diag
+
+    def anti_windup(
+        self, prev: Sequence[float], new: Sequence[float], u_realised: Sequence[float], limited: Sequence[bool]
+    ) -> tuple[float, ...]:
+        """Integrators of limited channels keep their previous values."""
+        return tuple(prev[i] if limited[i] else new[i] for i in range(len(new)))
+
+
 def constant_reference(targets: Sequence[float]) -> tuple[float, ...]:
     """The 16-float reference of constant set-points (derivatives zero), channel order."""
     if len(targets) != 4:

@@ -20,11 +20,10 @@ import math
 from dataclasses import dataclass
 from typing import Sequence
 
-from fc.control.base import Diagnostics, Vec4
+from fc.control.base import Diagnostics, IntegratingBaseline, Vec4
 from smcpilot.errors import InvalidGainError
 from smcpilot.model import PaperModel
 
-_cos = math.cos
 
 
 @dataclass(frozen=True)
@@ -46,7 +45,7 @@ class CascadePidParams:
                 raise InvalidGainError(f"cascade_pid gain {name} needs 4 finite values >= 0, got {v!r}")
 
 
-class CascadePid:
+class CascadePid(IntegratingBaseline):
     """State: integrals of the inner-loop rate errors ``(I_phi, I_theta, I_psi, I_z)``."""
 
     name = "cascade_pid"
@@ -56,11 +55,8 @@ class CascadePid:
         self.model = model
         self.params = params
 
-    def initial_state(self, meas: Sequence[float]) -> tuple[float, ...]:
-        return (0.0, 0.0, 0.0, 0.0)
-
-    def _output(self, meas: Sequence[float], ref: Sequence[float], state: Sequence[float]) -> tuple[Vec4, Vec4]:
-        """(u, inner-loop rate errors)."""
+    def _output(self, meas: Sequence[float], ref: Sequence[float], state: Sequence[float]) -> tuple[Vec4, Vec4, Diagnostics]:
+        """(u, inner-loop rate errors = the integrators' derivatives, diagnostics)."""
         p = self.params
         m = self.model
         acc = [0.0] * 4
@@ -70,45 +66,11 @@ class CascadePid:
             er = rate_cmd - meas[2 * i + 1]
             acc[i] = p.k_inner[i] * er + p.ki_inner[i] * state[i] + ref[4 * i + 2]
             err[i] = er
-        ctc = _cos(meas[0]) * _cos(meas[2])
-        tmin = p.tilt_cos_min
-        if -tmin < ctc < tmin:
-            ctc = tmin if ctc >= 0.0 else -tmin
+        ctc = m.tilt_cos(meas[0], meas[2], p.tilt_cos_min)
         u = (
             acc[0] / m.b1,
             acc[1] / m.b2,
             acc[2] / m.b3,
             m.mass_kg * (m.gravity_mps2 + acc[3]) / ctc,
         )
-        return u, (err[0], err[1], err[2], err[3])
-
-    def command(self, meas: Sequence[float], ref: Sequence[float], state: Sequence[float]) -> Vec4:
-        return self._output(meas, ref, state)[0]
-
-    def derivatives(
-        self, meas: Sequence[float], ref: Sequence[float], state: Sequence[float], accel: Sequence[float] | None = None
-    ) -> tuple[tuple[float, ...], Diagnostics]:
-        u, err = self._output(meas, ref, state)
-        return err, Diagnostics(None, None, None, u, None)
-
-    def step(
-        self,
-        meas: Sequence[float],
-        ref: Sequence[float],
-        state: Sequence[float],
-        dt_s: float,
-        accel: Sequence[float] | None = None,
-    ) -> tuple[Vec4, tuple[float, ...], Diagnostics]:
-        u, err = self._output(meas, ref, state)
-        new = tuple(state[i] + dt_s * err[i] for i in range(4))
-        return u, new, Diagnostics(None, None, None, u, None)
-
-    def anti_windup(
-        self,
-        prev: Sequence[float],
-        new: Sequence[float],
-        u_realised: Sequence[float],
-        limited: Sequence[bool],
-    ) -> tuple[float, ...]:
-        """Integrators of limited channels keep their previous values."""
-        return tuple(prev[i] if limited[i] else new[i] for i in range(4))
+        return u, (err[0], err[1], err[2], err[3]), Diagnostics(None, None, None, u, None)

@@ -30,7 +30,6 @@ from smcpilot.model import CHANNELS, PaperModel
 from smcpilot.typos import CONTROLLER_TYPOS, parse_typos
 
 _INF = math.inf
-_cos = math.cos
 _copysign = math.copysign
 
 
@@ -160,7 +159,7 @@ class PidSmc:
         if self.params.u0 is not None:
             u = self.params.u0
         else:
-            cphi_ctheta = max(_cos(meas[0]) * _cos(meas[2]), self._tilt_min)
+            cphi_ctheta = self.model.tilt_cos(meas[0], meas[2], self._tilt_min)
             u = (0.0, 0.0, 0.0, self.model.mass_kg * self.model.gravity_mps2 / cphi_ctheta)
         return (0.0, 0.0, 0.0, 0.0) + tuple(float(x) for x in u) + tuple(float(c) for c in self._chi0)
 
@@ -177,10 +176,7 @@ class PidSmc:
         u0, u1, u2, u3 = state[4], state[5], state[6], state[7]
         model = self.model
         wbar = model.omega_bar_of_inputs(u0, u1, u2, u3)
-        ctc = _cos(phi) * _cos(th)
-        if -self._tilt_min < ctc < self._tilt_min:
-            ctc = self._tilt_min if ctc >= 0.0 else -self._tilt_min
-        gz = ctc * self._inv_mass
+        gz = model.tilt_cos(phi, th, self._tilt_min) * self._inv_mass
         f0, f1, f2, f3 = model.drift(phi_d, th_d, psi_d, z_d, wbar)
         g0, g1, g2 = model.b1, model.b2, model.b3
         a0 = f0 + g0 * u0

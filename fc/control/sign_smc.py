@@ -17,11 +17,10 @@ import math
 from dataclasses import dataclass
 from typing import Sequence
 
-from fc.control.base import Diagnostics, Vec4
+from fc.control.base import Diagnostics, IntegratingBaseline, Vec4
 from smcpilot.errors import InvalidGainError
 from smcpilot.model import PaperModel
 
-_cos = math.cos
 
 
 @dataclass(frozen=True)
@@ -46,7 +45,7 @@ class SignSmcParams:
             raise InvalidGainError(f"sign_smc gain kd must be > 0 (u divides by kd g), got {self.kd!r}")
 
 
-class SignSmc:
+class SignSmc(IntegratingBaseline):
     """State: ``(int e_phi, int e_theta, int e_psi, int e_z)``."""
 
     name = "sign_smc"
@@ -58,19 +57,11 @@ class SignSmc:
         p = params
         self._k = tuple((p.kp[i], p.ki[i], p.kd[i], p.eta[i], p.lam[i]) for i in range(4))
 
-    def initial_state(self, meas: Sequence[float]) -> tuple[float, ...]:
-        return (0.0, 0.0, 0.0, 0.0)
-
-    def _output(self, meas: Sequence[float], ref: Sequence[float], state: Sequence[float]) -> tuple[Vec4, Vec4, Vec4]:
-        """(u, s, e) for every channel."""
+    def _output(self, meas: Sequence[float], ref: Sequence[float], state: Sequence[float]) -> tuple[Vec4, Vec4, Diagnostics]:
+        """(u, d(int e)/dt = e, diagnostics with sigma = s) for every channel."""
         m = self.model
-        phi, th = meas[0], meas[2]
         f = m.drift(meas[1], meas[3], meas[5], meas[7], 0.0)
-        ctc = _cos(phi) * _cos(th)
-        tmin = self.params.tilt_cos_min
-        if -tmin < ctc < tmin:
-            ctc = tmin if ctc >= 0.0 else -tmin
-        g = (m.b1, m.b2, m.b3, ctc / m.mass_kg)
+        g = (m.b1, m.b2, m.b3, m.tilt_cos(meas[0], meas[2], self.params.tilt_cos_min) / m.mass_kg)
         u = [0.0] * 4
         s = [0.0] * 4
         e = [0.0] * 4
@@ -83,35 +74,5 @@ class SignSmc:
             u[i] = (-kp * edi - ki * ei - kd * (f[i] - ref[4 * i + 2]) - eta * sgn - lam * si) / (kd * g[i])
             s[i] = si
             e[i] = ei
-        return (u[0], u[1], u[2], u[3]), (s[0], s[1], s[2], s[3]), (e[0], e[1], e[2], e[3])
-
-    def command(self, meas: Sequence[float], ref: Sequence[float], state: Sequence[float]) -> Vec4:
-        return self._output(meas, ref, state)[0]
-
-    def derivatives(
-        self, meas: Sequence[float], ref: Sequence[float], state: Sequence[float], accel: Sequence[float] | None = None
-    ) -> tuple[tuple[float, ...], Diagnostics]:
-        u, s, e = self._output(meas, ref, state)
-        return e, Diagnostics(None, s, None, u, None)
-
-    def step(
-        self,
-        meas: Sequence[float],
-        ref: Sequence[float],
-        state: Sequence[float],
-        dt_s: float,
-        accel: Sequence[float] | None = None,
-    ) -> tuple[Vec4, tuple[float, ...], Diagnostics]:
-        u, s, e = self._output(meas, ref, state)
-        new = tuple(state[i] + dt_s * e[i] for i in range(4))
-        return u, new, Diagnostics(None, s, None, u, None)
-
-    def anti_windup(
-        self,
-        prev: Sequence[float],
-        new: Sequence[float],
-        u_realised: Sequence[float],
-        limited: Sequence[bool],
-    ) -> tuple[float, ...]:
-        """Integrators of limited channels keep their previous values."""
-        return tuple(prev[i] if limited[i] else new[i] for i in range(4))
+        uu = (u[0], u[1], u[2], u[3])
+        return uu, (e[0], e[1], e[2], e[3]), Diagnostics(None, (s[0], s[1], s[2], s[3]), None, uu, None)
