@@ -77,6 +77,7 @@ class FcStats:
     lateness_s: list[float] = field(default_factory=list)
     rx_invalid_state: int = 0
     duplicate_states: int = 0
+    out_of_order_states: int = 0
     failsafe_events: int = 0
 
     def summary(self) -> dict:
@@ -95,6 +96,7 @@ class FcStats:
             "lateness_max_s": late[-1] if late else None,
             "rx_invalid_state": self.rx_invalid_state,
             "duplicate_states": self.duplicate_states,
+            "out_of_order_states": self.out_of_order_states,
             "failsafe_events": self.failsafe_events,
         }
 
@@ -163,8 +165,10 @@ class FlightControllerApp:
                 else None
             )
         except Exception:
-            if self.tlog is not None:
+            if self.tlog is not None:  # a configuration error must not leave an empty log behind
                 self.tlog.close()
+                if self.tlog.records_written == 0:
+                    self.tlog.path.unlink(missing_ok=True)
             raise
         # Log-only messages have their own sequence numbers: the links' numbering stays gap-free.
         self._logmav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=FC_COMPONENT)
@@ -335,7 +339,7 @@ class FlightControllerApp:
                         self.sim.send(self._last_actuator)
                         continue
                     if t_ms < self._last_tick_ms:
-                        self.stats.duplicate_states += 1
+                        self.stats.out_of_order_states += 1
                         continue
                 self.state, self.body_rates = conv
                 self._state_ms = t_ms

@@ -56,6 +56,7 @@ import collections
 import logging
 import math
 import queue
+import re
 import threading
 import time
 from dataclasses import dataclass, field, replace
@@ -1421,16 +1422,33 @@ class Vehicle:
         return value
 
     def _read_param(self, name: str) -> tuple[float, int]:
+        """(value, MAV_PARAM_TYPE). Stops re-requesting early when the vehicle sent a STATUSTEXT
+        naming the parameter instead of a value (e.g. "unknown SMC_FOO"): that is its answer."""
         pid = _param_id(name)
         link = self._require_link()
-        with self.subscribe("PARAM_VALUE") as sub:
-            for _ in range(self.param_tries):
+        said: list[str] = []
+
+        def match(m: mavlink.MAVLink_message) -> bool:
+            if m.get_type() == "STATUSTEXT":
+                text = _text(m.text)
+                if re.search(rf"\b{re.escape(pid)}\b", text.upper()):
+                    said.append(text)
+                    return True
+                return False
+            return _text(m.param_id) == pid
+
+        tries = 0
+        with self.subscribe(("PARAM_VALUE", "STATUSTEXT")) as sub:
+            while tries < self.param_tries and not said:
+                tries += 1
                 self.send(link.mav.param_request_read_encode(self.target_system, self.target_component, pid.encode(), -1))
-                msg = _await(sub, lambda m: _text(m.param_id) == pid, self.param_timeout_s)
-                if msg is not None:
+                msg = _await(sub, match, self.param_timeout_s)
+                if msg is not None and msg.get_type() == "PARAM_VALUE":
                     return _param_value(msg), msg.param_type
+        if said:
+            raise ParamError(f"no value for parameter {pid}: {said[-1]}")
         raise ParamError(
-            f"no PARAM_VALUE for {pid!r} after {self.param_tries} requests {self.param_timeout_s:g} s apart"
+            f"no PARAM_VALUE for {pid!r} after {tries} requests {self.param_timeout_s:g} s apart"
             " (unknown parameter, or the vehicle is not answering)"
         )
 
@@ -1558,10 +1576,11 @@ class Vehicle:
                 requested = True
                 self.send(full[seq].to_message(link.mav, seq, ts, tc))
 
-    def download_mission(self) -> list[MissionItem]:
+    def download_mission(self, *, include_home: bool = False) -> list[MissionItem]:
         """Download the mission: MISSION_REQUEST_LIST -> MISSION_COUNT -> MISSION_REQUEST_INT
         (each item) -> MISSION_ACK. Each request is re-sent every ``mission_timeout_s`` up to
-        ``mission_tries`` times. Returns the items to fly: **item 0 (home) is stripped**."""
+        ``mission_tries`` times. Returns the items to fly: **item 0 (home) is stripped** unless
+        ``include_home`` (then the list is exactly the vehicle's, sequence number = index)."""
         link = self._require_link()
         ts, tc = self.target_system, self.target_component
         mtype = mavlink.MAV_MISSION_TYPE_MISSION
@@ -1585,7 +1604,7 @@ class Vehicle:
                 )
                 items.append(MissionItem.from_message(reply))
             self.send(link.mav.mission_ack_encode(ts, tc, mavlink.MAV_MISSION_ACCEPTED, mtype))
-        return items[1:]
+        return items if include_home else items[1:]
 
     def clear_mission(self) -> None:
         """MISSION_CLEAR_ALL, re-sent until the MISSION_ACK; raises :class:`MissionError` if refused."""

@@ -61,14 +61,13 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from ground.client import (
     COPTER_MODES,
-    CommandDenied,
     HomePosition,
     MissionItem,
     Telemetry,
     UnknownModeError,
     Vehicle,
     VehicleError,
-    mode_name,
+    mode_number,
 )
 from smcpilot.errors import ConfigError
 
@@ -427,6 +426,7 @@ def main(args: argparse.Namespace) -> int:
     if args.timeout is None or not (math.isfinite(args.timeout) and args.timeout > 0):
         raise ConfigError(f"--timeout must be > 0 seconds, got {args.timeout}")
     handler: Callable[[Vehicle, argparse.Namespace, TextIO], int] = args.gcs_handler
+    _precheck(args)
     try:
         with Vehicle(args.connect, system_id=args.sysid, connect_timeout_s=args.timeout) as vehicle:
             return handler(vehicle, args, sys.stdout)
@@ -435,6 +435,29 @@ def main(args: argparse.Namespace) -> int:
     except VehicleError as exc:
         print(f"smcpilot gcs: error: {exc}", file=sys.stderr)
         return EXIT_VEHICLE
+
+
+def _precheck(args: argparse.Namespace) -> None:
+    """Usage errors we can find before connecting (exit 2 at once, no vehicle needed)."""
+    if args.gcs_handler is _mode:
+        mode_number(args.mode_name)
+    elif args.gcs_handler is _mission_upload:
+        args.mission_entries = load_mission_file(args.file)
+    elif args.gcs_handler is _takeoff and not (math.isfinite(args.alt_m) and args.alt_m > 0):
+        raise ConfigError(f"takeoff altitude must be > 0 m, got {args.alt_m}")
+    elif args.gcs_handler is _goto:
+        for name in ("north_m", "east_m", "down_m", "yaw"):
+            v = getattr(args, name)
+            if v is not None and not math.isfinite(v):
+                raise ConfigError(f"goto {name}: must be a finite number, got {v}")
+    elif args.gcs_handler is _param_set and not math.isfinite(args.value):
+        raise ConfigError(f"parameter value must be finite, got {args.value}")
+    elif args.gcs_handler is _watch and not (math.isfinite(args.rate_hz) and 0 < args.rate_hz <= 50):
+        raise ConfigError(f"--rate-hz must lie in (0, 50], got {args.rate_hz}")
+    for name in ("tol", "timeout_sim"):
+        v = getattr(args, name, None)
+        if v is not None and not (math.isfinite(v) and v > 0):
+            raise ConfigError(f"--{name.replace('_', '-')} must be > 0, got {v}")
 
 
 def _settle(vehicle: Vehicle, wall_s: float = 2.0) -> Telemetry:
@@ -475,8 +498,6 @@ def _disarm(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
 
 
 def _takeoff(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
-    if not math.isfinite(args.alt_m) or args.alt_m <= 0:
-        raise ConfigError(f"takeoff altitude must be > 0 m, got {args.alt_m}")
     vehicle.takeoff(args.alt_m)
     out.write(f"taking off to {args.alt_m:g} m\n")
     if args.wait:
@@ -486,9 +507,6 @@ def _takeoff(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
 
 
 def _goto(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
-    for name in ("north_m", "east_m", "down_m"):
-        if not math.isfinite(getattr(args, name)):
-            raise ConfigError(f"goto {name[0].upper()} must be a finite number")
     vehicle.goto_ned(args.north_m, args.east_m, args.down_m, args.yaw)
     out.write(f"going to NED ({args.north_m:g}, {args.east_m:g}, {args.down_m:g}) m\n")
     if args.wait:
@@ -526,8 +544,6 @@ def _param_get(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
 
 
 def _param_set(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
-    if not math.isfinite(args.value):
-        raise ConfigError(f"parameter value must be finite, got {args.value}")
     value = vehicle.set_param(args.name, args.value)
     out.write(f"{args.name.strip().upper()} {_param_text(value)}\n")
     return EXIT_OK
@@ -548,7 +564,7 @@ def _param_text(value: float) -> str:
 
 
 def _mission_upload(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
-    entries = load_mission_file(args.file)
+    entries = getattr(args, "mission_entries", None) or load_mission_file(args.file)
     home = None
     if any("north_m" in e for e in entries):
         home = vehicle.get_home()
@@ -590,8 +606,6 @@ def _mission_clear(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> i
 
 
 def _watch(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
-    if not (math.isfinite(args.rate_hz) and 0 < args.rate_hz <= 50):
-        raise ConfigError(f"--rate-hz must lie in (0, 50], got {args.rate_hz}")
     if args.once:
         _settle(vehicle)
         out.write("\n".join(render_frame(vehicle.telemetry, url=vehicle.url)) + "\n")

@@ -78,7 +78,7 @@ def _options(args: argparse.Namespace, **extra: Any) -> SitlOptions:
 
 
 class _Terminated(Exception):
-    pass
+    """SIGTERM arrived (exit 143, as the shell reports a process ended by it)."""
 
 
 def _raise_terminated(*_: object) -> None:
@@ -104,9 +104,12 @@ def sitl_main(args: argparse.Namespace) -> int:
             print_connect_help(sitl)
             print("  stop with Ctrl-C" + (f"; runs {args.duration:g} simulated seconds" if args.duration else ""), flush=True)
             sitl.wait()
-    except (KeyboardInterrupt, _Terminated):
+    except KeyboardInterrupt:
         print("smcpilot sitl: stopped", file=sys.stderr)
         return 130
+    except _Terminated:
+        print("smcpilot sitl: terminated", file=sys.stderr)
+        return 143
     except SitlError as exc:
         print(f"smcpilot sitl: error: {exc}", file=sys.stderr)
         return 1
@@ -150,9 +153,12 @@ def demo_main(args: argparse.Namespace) -> int:
     try:
         with sitl:
             sitl.wait()
-    except (KeyboardInterrupt, _Terminated):
+    except KeyboardInterrupt:
         print("smcpilot demo: stopped", file=sys.stderr)
         return 130
+    except _Terminated:
+        print("smcpilot demo: terminated", file=sys.stderr)
+        return 143
     except SitlError as exc:
         print(f"smcpilot demo: error: {exc}", file=sys.stderr)
         return 1
