@@ -351,7 +351,7 @@ def test_smcpilot_sitl_sigterm_stops_everything(tmp_path: Path) -> None:
         rc = proc.wait(timeout=20.0)
         th.join(timeout=5.0)
         assert rc == 143, (rc, out)  # 128 + SIGTERM
-        assert "stopped" in "".join(out)
+        assert "terminated" in "".join(out)
         for pid in kids:
             assert not (process_alive(pid) and cmdline(pid) == cmds[pid]), f"child {pid} ({cmds[pid]}) still running"
         # The FC closed its log cleanly (whole records, real-time stamps).
