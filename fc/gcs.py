@@ -22,7 +22,7 @@ from fc.mission import RELATIVE_FRAMES
 from fc.modes import Mode
 from fc.params import PARAM_INDEX, PARAMS, ParamError
 from smcpilot import __version__
-from smcpilot.frames import euler_frd_to_flu, ned_to_nwu, nwu_to_ned
+from smcpilot.frames import euler_flu_to_frd, euler_frd_to_flu, ned_to_nwu, nwu_to_ned
 from smcpilot.geo import ned_to_global
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -58,7 +58,7 @@ class GcsHandler:
         #: reason -> count of dropped or refused messages
         self.rejected: Counter[str] = Counter()
         self.gcs_heartbeats = 0
-        self._last_reject_text_s = -math.inf
+        self._last_reject_text_s: dict[tuple[str, Address | None], float] = {}
         self._handlers: dict[int, Callable[[mavlink.MAVLink_message, Address], None]] = {
             M.MAVLINK_MSG_ID_HEARTBEAT: self._heartbeat,
             M.MAVLINK_MSG_ID_COMMAND_LONG: self._command_long,
@@ -104,12 +104,16 @@ class GcsHandler:
             return False
         return True
 
-    def _refuse(self, reason: str, text: str) -> None:
-        """Count a refused message and say why (at most one STATUSTEXT a second for these)."""
+    def _refuse(self, reason: str, text: str, addr: Address | None = None) -> None:
+        """Count a refused message and say why (at most one STATUSTEXT a second per reason and
+        requester, so a flood of bad set-points cannot flood the ground link)."""
         self.rejected[reason] += 1
         now = self.wall_s()
-        if now - self._last_reject_text_s >= 1.0:
-            self._last_reject_text_s = now
+        key = (reason, addr)
+        if now - self._last_reject_text_s.get(key, -math.inf) >= 1.0:
+            if len(self._last_reject_text_s) > 256:
+                self._last_reject_text_s.clear()
+            self._last_reject_text_s[key] = now
             self.app.event(M.MAV_SEVERITY_WARNING, text)
 
     def handle(self, msg: mavlink.MAVLink_message, addr: Address) -> None:
@@ -219,39 +223,39 @@ class GcsHandler:
 
     def _target_local(self, m: mavlink.MAVLink_message, addr: Address) -> None:
         if m.coordinate_frame != M.MAV_FRAME_LOCAL_NED:
-            self._refuse("unsupported_frame", f"Set-point: frame {m.coordinate_frame} not supported (use LOCAL_NED)")
+            self._refuse("unsupported_frame", f"Set-point: frame {m.coordinate_frame} not supported (use LOCAL_NED)", addr)
             return
         if m.type_mask & _IGNORE_POS:
-            self._refuse("no_position", "Set-point: only position targets are supported")
+            self._refuse("no_position", "Set-point: only position targets are supported", addr)
             return
         yaw = None if m.type_mask & _IGNORE_YAW else m.yaw
         if yaw is not None and not math.isfinite(yaw):
-            self._refuse("non_finite", "Set-point: yaw is not a number")
+            self._refuse("non_finite", "Set-point: yaw is not a number", addr)
             return
         x, y, z = ned_to_nwu((m.x, m.y, m.z))
         code, reason = self.app.commander.goto_local(
             x, y, z, euler_frd_to_flu(0.0, 0.0, yaw)[2] if yaw is not None else None
         )
         if code != M.MAV_RESULT_ACCEPTED:
-            self._refuse("setpoint_refused", reason or "Set-point refused")
+            self._refuse("setpoint_refused", reason or "Set-point refused", addr)
 
     def _target_global(self, m: mavlink.MAVLink_message, addr: Address) -> None:
         if m.coordinate_frame not in (M.MAV_FRAME_GLOBAL_INT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.MAV_FRAME_GLOBAL,
                                       M.MAV_FRAME_GLOBAL_RELATIVE_ALT):  # fmt: skip
-            self._refuse("unsupported_frame", f"Set-point: frame {m.coordinate_frame} not supported")
+            self._refuse("unsupported_frame", f"Set-point: frame {m.coordinate_frame} not supported", addr)
             return
         if m.type_mask & _IGNORE_POS:
-            self._refuse("no_position", "Set-point: only position targets are supported")
+            self._refuse("no_position", "Set-point: only position targets are supported", addr)
             return
         if not math.isfinite(m.alt):
-            self._refuse("non_finite", "Set-point: altitude is not a number")
+            self._refuse("non_finite", "Set-point: altitude is not a number", addr)
             return
         c = self.app.commander
         x, y, z = c.local_of_global(m.lat_int * 1e-7, m.lon_int * 1e-7, m.alt, m.coordinate_frame in RELATIVE_FRAMES)
         yaw = None if m.type_mask & _IGNORE_YAW or not math.isfinite(m.yaw) else euler_frd_to_flu(0.0, 0.0, m.yaw)[2]
         code, reason = c.goto_local(x, y, z, yaw)
         if code != M.MAV_RESULT_ACCEPTED:
-            self._refuse("setpoint_refused", reason or "Set-point refused")
+            self._refuse("setpoint_refused", reason or "Set-point refused", addr)
 
     # -- parameters -----------------------------------------------------------------------------
     def _param_msg(self, index: int) -> mavlink.MAVLink_message:
@@ -274,7 +278,7 @@ class GcsHandler:
         else:
             index = PARAM_INDEX.get(name, -1)
         if index < 0:
-            self._refuse("unknown_param", f"Param read: unknown {name or m.param_index}")
+            self._refuse("unknown_param", f"Param read: unknown {name or m.param_index}", addr)
             return
         self._send_to(self._param_msg(index), addr)
 
@@ -284,7 +288,7 @@ class GcsHandler:
         name = _param_name(m.param_id)
         index = PARAM_INDEX.get(name)
         if index is None:
-            self._refuse("unknown_param", f"Param set: unknown {name}")
+            self._refuse("unknown_param", f"Param set: unknown {name}", addr)
             return
         try:
             cfg = self.app.params.set(name, float(m.param_value))
@@ -304,7 +308,7 @@ class GcsHandler:
     # -- missions, streams, FTP -----------------------------------------------------------------
     def _mission_set_current(self, m: mavlink.MAVLink_message, addr: Address) -> None:
         if not self.app.mission.set_current(m.seq):
-            self._refuse("bad_mission_seq", f"Mission: no item {m.seq}")
+            self._refuse("bad_mission_seq", f"Mission: no item {m.seq}", addr)
         self._broadcast(self.build(M.MAVLINK_MSG_ID_MISSION_CURRENT)[0])
 
     def _request_data_stream(self, m: mavlink.MAVLink_message, addr: Address) -> None:
@@ -356,7 +360,15 @@ class GcsHandler:
         if msg_id == M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE:
             return [mav.extended_sys_state_encode(M.MAV_VTOL_STATE_UNDEFINED, c.landed_state())]
         if msg_id == M.MAVLINK_MSG_ID_MISSION_CURRENT:
-            return [mav.mission_current_encode(app.mission.current)]
+            n_items = len(app.mission.items)
+            return [mav.mission_current_encode(app.mission.current, n_items - 1 if n_items else 0xFFFF)]
+        if msg_id == M.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED:
+            if not f.armed:
+                return []
+            tn, te, td = nwu_to_ned(f.target)
+            yaw_ned = euler_flu_to_frd(0.0, 0.0, f.yaw_target_rad)[2]
+            mask = 0xFFF & ~(_IGNORE_POS | _IGNORE_YAW)  # position and yaw are the set-point
+            return [mav.position_target_local_ned_encode(t_ms, M.MAV_FRAME_LOCAL_NED, mask, tn, te, td, 0, 0, 0, 0, 0, 0, yaw_ned, 0)]
         if msg_id == M.MAVLINK_MSG_ID_NAMED_VALUE_INT:
             return [mav.named_value_int_encode(t_ms, b"OVERRUN", app.stats.overruns)]
         if msg_id == M.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT:

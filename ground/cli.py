@@ -92,15 +92,29 @@ def _gcs(sub: argparse._SubParsersAction) -> None:
         help="ground station: status, arm, take-off, go-to, land, modes, parameters, missions, live view",
         description="Talk to a running flight controller over MAVLink (docs/gcs-protocol.md). Exit codes: 0 done,"
         " 1 the vehicle refused or did not answer in time, 2 usage or configuration error.",
-        epilog="Mission files: [[item]] tables with type = takeoff (alt_m) | waypoint (north_m/east_m or lat/lon,"
-        " alt_m, hold_s, yaw_deg, radius_m) | loiter_time (hold_s, position, alt_m) | land (position) | rtl |"
-        " speed (speed_mps); north/east are metres from the vehicle's home.",
+        epilog="Mission files (`mission upload`, `mission download`) use the format of `smcpilot mission`: [[item]]"
+        " tables with type = takeoff (alt_m) | waypoint (north_m/east_m or lat_deg/lon_deg, alt_m, hold_s, yaw_deg,"
+        " radius_m) | loiter_time (hold_s, position, alt_m) | land (position) | rtl | speed (speed_mps);"
+        " north/east are metres from the vehicle's home.",
     )
     gcs_cmd.add_arguments(p)
     p.set_defaults(handler=gcs_cmd.main)
 
 
-SUBCOMMANDS = (_paper, _sitl, _demo, _bench, _plot, _log, _gcs)
+def _mission(sub: argparse._SubParsersAction) -> None:
+    from ground import missions
+
+    p = sub.add_parser(
+        "mission",
+        help="scripted missions: fly a mission TOML in SITL (or on a running vehicle) and check its expectations",
+        description="Scripted missions ([[item]], [sitl], [[expect]] in a TOML file; format in ground/missions.py)."
+        " Exit codes: 0 every expectation held, 1 one failed or the flight could not be flown, 2 broken file or usage.",
+    )
+    missions.add_arguments(p)
+    p.set_defaults(handler=missions.main)
+
+
+SUBCOMMANDS = (_paper, _sitl, _demo, _bench, _plot, _log, _gcs, _mission)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -17,32 +17,12 @@ telemetry (default ``udpin:127.0.0.1:14550``, where ``smcpilot sitl`` sends it; 
 Exit codes: 0 done; 1 the vehicle refused or did not answer in time (denied, timeout); 2 usage or
 configuration error (bad option, unreadable mission file). Errors are one line on stderr.
 
-Mission files (TOML) list the items to fly, in order (home is added by the client as item 0)::
-
-    [[item]]
-    type = "takeoff"        # alt_m
-    alt_m = 3.0
-
-    [[item]]
-    type = "waypoint"       # north_m/east_m (from home) or lat/lon (deg); alt_m above home;
-    north_m = 4.0           # optional hold_s, yaw_deg, radius_m
-    east_m = -3.0
-    alt_m = 3.0
-    hold_s = 2.0
-
-    [[item]]
-    type = "loiter_time"    # hold_s; optional position (north_m/east_m or lat/lon) and alt_m
-    hold_s = 5.0
-
-    [[item]]
-    type = "speed"          # speed_mps
-    speed_mps = 2.0
-
-    [[item]]
-    type = "land"           # optional position; or type = "rtl"
-
-North/east offsets become latitude/longitude through the vehicle's HOME_POSITION with
-:func:`smcpilot.geo.ned_to_global` (the one conversion the project uses).
+Mission files are ``smcpilot mission``'s TOML format (:mod:`ground.missions`: ``[[item]]`` tables
+of type takeoff / waypoint / loiter_time / land / rtl / speed, positions as ``north_m``/``east_m``
+from home or ``lat_deg``/``lon_deg``); ``mission upload`` flies only the items (``[sitl]`` and
+``[[expect]]`` are for ``smcpilot mission run``). North/east offsets become latitude/longitude
+through the vehicle's HOME_POSITION in :meth:`ground.missions.Mission.to_items` (with
+:func:`smcpilot.geo.ned_to_global`); ``mission download`` writes the same format back.
 """
 
 from __future__ import annotations
@@ -53,11 +33,9 @@ import math
 import os
 import sys
 import time
-import tomllib
 from pathlib import Path
-from typing import Any, Callable, Iterable, Sequence, TextIO
+from typing import Any, Callable, Sequence, TextIO
 
-from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from ground.client import (
     COPTER_MODES,
@@ -69,6 +47,7 @@ from ground.client import (
     VehicleError,
     mode_number,
 )
+from ground.missions import ItemSpec, MissionFileError, items_to_toml, load_mission
 from smcpilot.errors import ConfigError
 
 DEFAULT_CONNECT = "udpin:127.0.0.1:14550"
@@ -77,199 +56,6 @@ CONNECT_ENV = "SMCPILOT_CONNECT"
 EXIT_OK = 0
 EXIT_VEHICLE = 1
 EXIT_USAGE = 2
-
-
-class MissionFileError(ConfigError):
-    """A mission TOML file is unreadable or an item is invalid (the message names item and key)."""
-
-
-# ------------------------------------------------------------------------------------ mission files
-_TYPE_KEYS: dict[str, tuple[set[str], set[str]]] = {
-    # type: (required keys, optional keys) besides "type"; a position is north_m+east_m or lat+lon.
-    "takeoff": ({"alt_m"}, set()),
-    "waypoint": ({"alt_m"}, {"hold_s", "yaw_deg", "radius_m"}),
-    "loiter_time": ({"hold_s"}, {"alt_m"}),
-    "land": (set(), set()),
-    "rtl": (set(), set()),
-    "speed": ({"speed_mps"}, set()),
-}
-_POSITION_KEYS = {"north_m", "east_m", "lat", "lon"}
-_POSITIONED = {"waypoint", "loiter_time", "land"}
-
-
-def load_mission_file(path: Path) -> list[dict[str, Any]]:
-    """Read and validate a mission TOML file (``[[item]]`` tables, see the module docstring).
-
-    Returns the items as checked dicts (positions not yet resolved: :func:`mission_items` does
-    that with the vehicle's home). Raises :class:`MissionFileError` naming the item and key.
-    """
-    try:
-        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise MissionFileError(f"mission file not found: {path}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise MissionFileError(f"mission file {path}: cannot read: {exc}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise MissionFileError(f"mission file {path}: invalid TOML: {exc}") from None
-    extra = set(data) - {"item"}
-    if extra:
-        raise MissionFileError(f"mission file {path}: unknown top-level key(s) {', '.join(sorted(extra))}; items go in [[item]] tables")
-    raw = data.get("item")
-    if not isinstance(raw, list) or not raw:
-        raise MissionFileError(f"mission file {path}: no [[item]] tables")
-    items: list[dict[str, Any]] = []
-    for i, entry in enumerate(raw, start=1):
-        where = f"mission file {path}: item {i}"
-        if not isinstance(entry, dict):
-            raise MissionFileError(f"{where}: must be a table")
-        kind = entry.get("type")
-        if kind not in _TYPE_KEYS:
-            raise MissionFileError(f"{where}: type must be one of {', '.join(_TYPE_KEYS)}, got {kind!r}")
-        required, optional = _TYPE_KEYS[kind]
-        allowed = required | optional | {"type"} | (_POSITION_KEYS if kind in _POSITIONED else set())
-        unknown = set(entry) - allowed
-        if unknown:
-            raise MissionFileError(f"{where} ({kind}): unknown key(s) {', '.join(sorted(unknown))}; allowed: {', '.join(sorted(allowed - {'type'}))}")
-        missing = required - set(entry)
-        if missing:
-            raise MissionFileError(f"{where} ({kind}): missing key(s) {', '.join(sorted(missing))}")
-        for key, value in entry.items():
-            if key == "type":
-                continue
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise MissionFileError(f"{where} ({kind}): {key} must be a finite number, got {value!r}")
-        has_ne = {"north_m", "east_m"} & set(entry)
-        has_ll = {"lat", "lon"} & set(entry)
-        if has_ne and has_ll:
-            raise MissionFileError(f"{where} ({kind}): give north_m/east_m or lat/lon, not both")
-        if has_ne and has_ne != {"north_m", "east_m"}:
-            raise MissionFileError(f"{where} ({kind}): north_m and east_m go together")
-        if has_ll and has_ll != {"lat", "lon"}:
-            raise MissionFileError(f"{where} ({kind}): lat and lon go together")
-        if kind == "waypoint" and not (has_ne or has_ll):
-            raise MissionFileError(f"{where} (waypoint): needs a position: north_m/east_m or lat/lon")
-        if has_ll and not (-90.0 <= entry["lat"] <= 90.0 and -180.0 <= entry["lon"] <= 180.0):
-            raise MissionFileError(f"{where} ({kind}): lat/lon out of range")
-        for key in ("hold_s", "radius_m"):
-            if key in entry and entry[key] < 0:
-                raise MissionFileError(f"{where} ({kind}): {key} must be >= 0")
-        if kind == "takeoff" and not entry["alt_m"] > 0:
-            raise MissionFileError(f"{where} (takeoff): alt_m must be > 0")
-        if kind == "speed" and not (entry["speed_mps"] > 0 or entry["speed_mps"] == -1):
-            raise MissionFileError(f"{where} (speed): speed_mps must be > 0 (or -1: no change)")
-        items.append(dict(entry))
-    return items
-
-
-def mission_items(entries: Sequence[dict[str, Any]], home: HomePosition | None) -> list[MissionItem]:
-    """Checked mission-file entries -> :class:`MissionItem` list; north/east offsets become
-    latitude/longitude around ``home`` (needed only when some item uses them)."""
-    geo_home = None
-    items: list[MissionItem] = []
-    for i, e in enumerate(entries, start=1):
-        kind = e["type"]
-        lat = lon = 0.0
-        if "north_m" in e:
-            if home is None:
-                raise VehicleError(f"mission item {i}: north_m/east_m need the vehicle's HOME_POSITION, which it did not send")
-            if geo_home is None:
-                from smcpilot.geo import Home
-
-                geo_home = Home(home.lat_deg, home.lon_deg, home.alt_amsl_m)
-            lat, lon = _ned_to_latlon(geo_home, float(e["north_m"]), float(e["east_m"]))
-        elif "lat" in e:
-            lat, lon = float(e["lat"]), float(e["lon"])
-        if kind == "takeoff":
-            items.append(MissionItem.takeoff(e["alt_m"]))
-        elif kind == "waypoint":
-            items.append(
-                MissionItem.waypoint(
-                    lat, lon, e["alt_m"], hold_s=e.get("hold_s", 0.0), acceptance_radius_m=e.get("radius_m", 0.0), yaw_deg=e.get("yaw_deg")
-                )
-            )
-        elif kind == "loiter_time":
-            items.append(MissionItem.loiter_time(e["hold_s"], lat, lon, e.get("alt_m", 0.0)))
-        elif kind == "land":
-            items.append(MissionItem.land(lat, lon))
-        elif kind == "rtl":
-            items.append(MissionItem.rtl())
-        elif kind == "speed":
-            items.append(MissionItem.change_speed(e["speed_mps"]))
-        else:  # pragma: no cover - load_mission_file checked the type
-            raise MissionFileError(f"mission item {i}: unknown type {kind!r}")
-    return items
-
-
-def _ned_to_latlon(home: Any, north_m: float, east_m: float) -> tuple[float, float]:
-    from smcpilot.geo import ned_to_global
-
-    lat, lon, _alt = ned_to_global(home, north_m, east_m, 0.0)
-    return lat, lon
-
-
-_COMMAND_TYPES = {
-    mavlink.MAV_CMD_NAV_TAKEOFF: "takeoff",
-    mavlink.MAV_CMD_NAV_WAYPOINT: "waypoint",
-    mavlink.MAV_CMD_NAV_LOITER_TIME: "loiter_time",
-    mavlink.MAV_CMD_NAV_LAND: "land",
-    mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH: "rtl",
-    mavlink.MAV_CMD_DO_CHANGE_SPEED: "speed",
-}
-
-
-def item_to_entry(item: MissionItem) -> dict[str, Any]:
-    """A :class:`MissionItem` as a mission-file entry (lat/lon form; absent values left out).
-    Items the file format has no type for come back as ``{"type": "raw", ...}`` with every field."""
-    kind = _COMMAND_TYPES.get(item.command)
-    has_pos = item.lat_deg != 0.0 or item.lon_deg != 0.0
-    pos = {"lat": round(item.lat_deg, 7), "lon": round(item.lon_deg, 7)} if has_pos else {}
-    if kind == "takeoff":
-        return {"type": kind, "alt_m": item.alt_m}
-    if kind == "waypoint":
-        e: dict[str, Any] = {"type": kind, **pos, "alt_m": item.alt_m}
-        if item.param1:
-            e["hold_s"] = item.param1
-        if item.param2:
-            e["radius_m"] = item.param2
-        if math.isfinite(item.param4):
-            e["yaw_deg"] = item.param4
-        return e
-    if kind == "loiter_time":
-        e = {"type": kind, "hold_s": item.param1, **pos}
-        if item.alt_m:
-            e["alt_m"] = item.alt_m
-        return e
-    if kind == "land":
-        return {"type": kind, **pos}
-    if kind == "rtl":
-        return {"type": kind}
-    if kind == "speed":
-        return {"type": kind, "speed_mps": item.param2}
-    return {
-        "type": "raw",
-        "command": item.command,
-        "frame": item.frame,
-        "params": [item.param1, item.param2, item.param3, item.param4],
-        "lat": item.lat_deg,
-        "lon": item.lon_deg,
-        "alt_m": item.alt_m,
-    }
-
-
-def entries_to_toml(entries: Iterable[dict[str, Any]]) -> str:
-    """Mission-file TOML text of entries (``raw`` entries become comments: the format has no
-    type for them)."""
-    lines = ["# mission downloaded by smcpilot gcs (item 0, home, is not listed)", ""]
-    for e in entries:
-        if e["type"] == "raw":
-            lines.append(f"# unsupported item: {json.dumps(e)}")
-            lines.append("")
-            continue
-        lines.append("[[item]]")
-        for key, value in e.items():
-            lines.append(f"{key} = {json.dumps(value) if isinstance(value, str) else repr(float(value))}")
-        lines.append("")
-    return "\n".join(lines)
 
 
 # -------------------------------------------------------------------------------------- rendering
@@ -402,12 +188,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     mission = sub.add_parser("mission", help="upload, download, start or clear the mission", description="The mission protocol (item 0 is home and is handled by the client).")
     msub = mission.add_subparsers(dest="mission_command", metavar="ACTION")
     msub.required = True
-    s = msub.add_parser("upload", help="upload a mission TOML file", description="Upload the [[item]] list of FILE (see `smcpilot gcs --help` for the format); north_m/east_m are converted through the vehicle's home.")
+    s = msub.add_parser("upload", help="upload a mission TOML file", description="Upload the [[item]] list of a mission file (the format of `smcpilot mission`, see ground/missions.py; its [sitl] and [[expect]] tables are ignored here). north_m/east_m are converted to latitude/longitude through the vehicle's home.")
     s.add_argument("file", type=Path, metavar="FILE", help="mission TOML file")
     s.set_defaults(gcs_handler=_mission_upload)
     s = msub.add_parser("download", help="download the mission (TOML to FILE or stdout)", description="Download the mission; home (item 0) is left out.")
     s.add_argument("file", type=Path, nargs="?", metavar="FILE", help="write the mission here (TOML); default: print it")
-    s.add_argument("--json", action="store_true", help="print the items as JSON instead of TOML")
+    s.add_argument("--json", action="store_true", help="print the items as JSON instead of TOML (a list of [[item]] tables)")
+    s.add_argument("--latlon", action="store_true", help="write positions as lat_deg/lon_deg (default: north_m/east_m from the vehicle's home)")
     s.set_defaults(gcs_handler=_mission_download)
     s = msub.add_parser("start", help="fly the mission (AUTO)", description="MAV_CMD_MISSION_START: switches to AUTO (armed, with a mission).")
     s.set_defaults(gcs_handler=_mission_start)
@@ -442,7 +229,7 @@ def _precheck(args: argparse.Namespace) -> None:
     if args.gcs_handler is _mode:
         mode_number(args.mode_name)
     elif args.gcs_handler is _mission_upload:
-        args.mission_entries = load_mission_file(args.file)
+        args.mission = load_mission(args.file)
     elif args.gcs_handler is _takeoff and not (math.isfinite(args.alt_m) and args.alt_m > 0):
         raise ConfigError(f"takeoff altitude must be > 0 m, got {args.alt_m}")
     elif args.gcs_handler is _goto:
@@ -564,11 +351,9 @@ def _param_text(value: float) -> str:
 
 
 def _mission_upload(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
-    entries = getattr(args, "mission_entries", None) or load_mission_file(args.file)
-    home = None
-    if any("north_m" in e for e in entries):
-        home = vehicle.get_home()
-    items = mission_items(entries, home)
+    mission = getattr(args, "mission", None) or load_mission(args.file)
+    home = vehicle.get_home() if mission.uses_local_positions else None
+    items = mission.to_items(home)
     vehicle.upload_mission(items)
     out.write(f"uploaded {len(items)} items (+ home) from {args.file}\n")
     return EXIT_OK
@@ -576,11 +361,12 @@ def _mission_upload(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> 
 
 def _mission_download(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
     items = vehicle.download_mission()
-    entries = [item_to_entry(it) for it in items]
+    home = None if args.latlon else vehicle.get_home()
     if args.json:
-        text = json.dumps(entries) + "\n"
+        text = json.dumps([_entry(item, k, home) for k, item in enumerate(items, start=1)]) + "\n"
     else:
-        text = entries_to_toml(entries)
+        where = "lat_deg/lon_deg" if home is None else "north_m/east_m from the vehicle's home"
+        text = items_to_toml(items, home, header=f"mission downloaded by smcpilot gcs ({len(items)} items; home, item 0, not listed; positions as {where})")
     if args.file is not None:
         try:
             args.file.parent.mkdir(parents=True, exist_ok=True)
@@ -591,6 +377,24 @@ def _mission_download(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -
     else:
         out.write(text)
     return EXIT_OK
+
+
+def _entry(item: MissionItem, number: int, home: HomePosition | None) -> dict[str, Any]:
+    """One downloaded item in the mission-file format, for ``--json`` (an item the format has no
+    type for comes as ``{"type": null, "command": ..., ...}``)."""
+    try:
+        return ItemSpec.from_mission_item(item, number, home).to_toml_entry()
+    except MissionFileError:
+        return {
+            "type": None,
+            "command": item.command,
+            "command_name": item.command_name,
+            "frame": item.frame,
+            "params": [item.param1, item.param2, item.param3, item.param4],
+            "lat_deg": item.lat_deg,
+            "lon_deg": item.lon_deg,
+            "alt_m": item.alt_m,
+        }
 
 
 def _mission_start(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:

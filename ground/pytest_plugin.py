@@ -15,12 +15,14 @@ run once the package is installed. It provides:
   ``--sitl-keep-logs``;
 - the marker ``@pytest.mark.sitl_options(...)``: per-test :class:`~ground.sitl.SitlOptions`
   fields, e.g. ``controller="pid_smc"``, ``wind_force_ned_n=(2, 0, 0)``, ``noise=True``,
-  ``seed=3``, ``vehicle="heavy.toml"``, ``gust_std_n=0.5``, ``fc_args=("--home", "47,8,400")``.
+  ``seed=3``, ``vehicle="heavy.toml"``, ``gust_std_n=0.5``, ``home="47.0,8.0,400"``,
+  ``param_file="tuned.parm"`` (the FC loads it, and rewrites it on every PARAM_SET).
 
 The telemetry log (``.tlog``) of a test is kept when the test fails — its path (and the last
 lines the FC and simulator printed) appear in the failure report, section "smcpilot sitl" — and
 deleted when it passes, unless ``--sitl-keep-logs``. Each test also gets its own FC parameter
-file next to the log, so a parameter one test sets never leaks into another.
+file next to the log (kept and deleted with it), so a parameter one test sets never leaks into
+another.
 
 Example::
 
@@ -38,6 +40,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import itertools
 import os
 import re
 import time
@@ -69,6 +72,7 @@ class _SitlRun:
 
 
 _RUN_KEY = pytest.StashKey[_SitlRun]()
+_RUN_NUMBERS = itertools.count(1)
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -97,7 +101,8 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) ->
     if run is None or not report.failed:
         return
     run.failed = True
-    lines = [f"tlog kept: {run.tlog}"]
+    started = run.sitl is not None and run.sitl.fc is not None
+    lines = [f"tlog kept: {run.tlog}" if started else "no tlog: SITL did not start"]
     if run.output:
         lines.append("last output of the FC and the simulator:")
         lines.extend(f"  {line}" for line in run.output)
@@ -128,14 +133,17 @@ def _options(request: pytest.FixtureRequest, log_dir: Path, tlog: Path, param_fi
                 pytest.fail(
                     f"@pytest.mark.{_MARKER}: unknown option {key!r}; valid: {', '.join(sorted(valid))}", pytrace=False
                 )
-            if key in ("vehicle", "plan") and value is not None:
+            if key in ("vehicle", "plan", "param_file") and value is not None:
                 value = Path(value)
             elif key in ("wind_force_ned_n", "fc_args", "sim_args") and value is not None:
                 value = tuple(value)
             kw[key] = value
     if kw.get("vehicle") is not None and not Path(kw["vehicle"]).is_file():
         pytest.fail(f"SITL vehicle file not found: {kw['vehicle']}", pytrace=False)
-    kw["fc_args"] = ("--param-file", str(param_file), *kw.get("fc_args", ()))
+    if kw.get("param_file") is None:
+        kw["param_file"] = param_file
+    else:
+        kw["param_file"] = Path(kw["param_file"])
     return SitlOptions(lockstep=True, gcs=gcs_url, log_dir=log_dir, tlog=tlog, **kw)
 
 
@@ -152,18 +160,18 @@ def sitl(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactor
     log_dir = cfg.getoption("sitl_log_dir")
     log_dir = Path(log_dir) if log_dir is not None else tmp_path_factory.getbasetemp() / "sitl-logs"
     log_dir.mkdir(parents=True, exist_ok=True)
-    stem = f"{_safe_name(request.node.nodeid)}-{os.getpid()}-{time.strftime('%H%M%S')}"
+    stem = f"{_safe_name(request.node.nodeid)}-{os.getpid()}-{time.strftime('%H%M%S')}-{next(_RUN_NUMBERS)}"
     run = _SitlRun(tlog=log_dir / f"{stem}.tlog", param_file=log_dir / f"{stem}.parm")
     request.node.stash[_RUN_KEY] = run
 
-    speed = cfg.getoption("sitl_speed")
-    wall_per_sim_s = max(3.0, 3.0 / speed) if speed else 3.0
-    vehicle = Vehicle("udpin:127.0.0.1:0", connect_timeout_s=CONNECT_TIMEOUT_S, wall_per_sim_s=wall_per_sim_s)
+    vehicle = Vehicle("udpin:127.0.0.1:0", connect_timeout_s=CONNECT_TIMEOUT_S)
     vehicle.open()
     sitl_proc: Sitl | None = None
     yielded = False
     try:
         options = _options(request, log_dir, run.tlog, run.param_file, f"udp:127.0.0.1:{vehicle.local_address[1]}")
+        if options.speed is not None:  # a slow simulation needs more wall time per simulated second
+            vehicle.wall_per_sim_s = max(vehicle.wall_per_sim_s, 3.0 / options.speed)
         sitl_proc = Sitl(options, echo=run.output.append)
         run.sitl = sitl_proc
         with sitl_proc:
@@ -177,7 +185,7 @@ def sitl(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactor
         # report, made after this, carries the section.
         keep = cfg.getoption("sitl_keep_logs") or run.failed or not yielded
         if not keep:
-            for path in (run.tlog, run.param_file):
+            for path in (run.tlog, run.param_file):  # a marker's own param_file is the user's: kept
                 try:
                     path.unlink()
                 except FileNotFoundError:

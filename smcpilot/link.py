@@ -71,7 +71,7 @@ DEFAULT_PEER_TIMEOUT_S = 10.0
 DEFAULT_MAX_DATAGRAM_BYTES = 1400
 #: At most this many peers learnt from incoming traffic are remembered (the initial destination
 #: of an ``out`` endpoint comes on top); a flood of new source addresses cannot make us send to
-#: more places than this.
+#: more places than this. When full, the peer heard from least recently is forgotten.
 DEFAULT_MAX_PEERS = 16
 
 _SCHEMES: dict[str, Literal["out", "in"]] = {"udp": "out", "udpout": "out", "udpin": "in"}
@@ -550,8 +550,12 @@ class MavlinkUdp:
         if len(seen) >= self._max_peers:
             self._prune_peers()
             if len(seen) >= self._max_peers:
+                # Full: forget the peer heard from least recently (a live ground station writes
+                # at least its 1 Hz heartbeat and is back within a second; a burst of short-lived
+                # clients cannot lock new ones out for the whole peer timeout).
+                oldest = min(seen, key=seen.__getitem__)
+                del seen[oldest]
                 self.counters.peers_rejected += 1
-                return
         seen[addr] = now_s
         self._next_prune_s = min(self._next_prune_s, now_s + self._peer_timeout_s)
         self._rebuild_destinations()

@@ -435,12 +435,15 @@ def test_initial_destination_never_expires() -> None:
             assert fc.peers == (sim.getsockname(),)
 
 
-def test_new_peers_beyond_max_peers_are_not_remembered() -> None:
-    with listener(max_peers=2) as fc, raw_socket() as a, raw_socket() as b, raw_socket() as c:
+def test_a_new_peer_beyond_max_peers_replaces_the_least_recently_heard() -> None:
+    now_s = [0.0]
+    with listener(max_peers=2, monotonic_s=lambda: now_s[0]) as fc, raw_socket() as a, raw_socket() as b, raw_socket() as c:
         for sock in (a, b, c):
+            now_s[0] += 1.0  # a is the least recently heard when c arrives
             sock.sendto(packet(encoder(255), heartbeat(encoder(255))), fc.local_address)
-        assert len(recv_messages(fc, 3)) == 3  # messages still delivered
-        assert fc.peers == (a.getsockname(), b.getsockname())
+            assert len(recv_messages(fc, 1)) == 1  # messages are always delivered
+        assert set(fc.peers) == {b.getsockname(), c.getsockname()}
+        assert len(fc.peers) == 2  # never more than max_peers
         assert fc.counters.peers_rejected == 1
 
 
