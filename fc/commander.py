@@ -80,8 +80,9 @@ class Commander:
         self._auto_phase = ""
         self._auto_t0 = 0.0
         self.mission_complete = False
-        # RTL (also inside AUTO)
+        # RTL (also inside AUTO): "", "start", "climb", "home", "land"
         self._rtl_phase = ""
+        self._rtl_z = 0.0
         # GCS-loss failsafe
         self._gcs_last_hb_s: float | None = None
         self._gcs_failsafe = False
@@ -155,7 +156,7 @@ class Commander:
             f.set_target(st.x_m, st.y_m, st.z_m)
             f.land()
         elif mode == Mode.RTL and f.armed:
-            self._rtl_phase = "climb"
+            self._rtl_phase = "start"
         elif mode == Mode.AUTO:
             self.mission_complete = False
             self._auto_seq = -1  # (re)start the current item
@@ -331,20 +332,21 @@ class Commander:
             self.mode = Mode.GUIDED if self.mode == Mode.RTL else self.mode
 
     def _run_rtl(self, st: VehicleState) -> None:
+        """RTL: climb to max(altitude, RTL_ALT_M) where we are, fly home at that height, land."""
         f = self.flight
-        if self._rtl_phase in ("", "climb"):
-            alt = max(st.z_m, self.config.rtl_alt_m)
-            if self._rtl_phase == "":
-                self._rtl_phase = "climb"
-            if f.target != (st.x_m, st.y_m, alt) and abs(f.target[2] - alt) > 1e-6 and f.target[2] < alt:
-                f.set_target(f.target[0], f.target[1], alt)
-            if abs(st.z_m - f.target[2]) < TAKEOFF_DONE_M:
+        phase = self._rtl_phase
+        if phase in ("", "start"):
+            self._rtl_z = max(st.z_m, self.config.rtl_alt_m)
+            f.set_target(st.x_m, st.y_m, self._rtl_z)
+            self._rtl_phase = "climb"
+        elif phase == "climb":
+            if abs(st.z_m - self._rtl_z) < TAKEOFF_DONE_M:
+                f.set_target(0.0, 0.0, self._rtl_z)
                 self._rtl_phase = "home"
-                f.set_target(0.0, 0.0, f.target[2])
-        elif self._rtl_phase == "home":
+        elif phase == "home":
             if math.hypot(st.x_m, st.y_m) < RTL_HOME_RADIUS_M:
-                self._rtl_phase = "land"
                 f.land()
+                self._rtl_phase = "land"
         # "land": the pipeline descends and disarms on touchdown
 
     def _start_item(self, it: MissionItem, st: VehicleState, t_s: float) -> None:
@@ -366,7 +368,7 @@ class Commander:
                 z = max(st.z_m, 0.0)
             f.set_target(x, y, z, yaw)
         elif it.command == CMD_RTL:
-            self._rtl_phase = "climb"
+            self._rtl_phase = "start"
         elif it.command == CMD_CHANGE_SPEED:
             if it.param2 > 0.0:
                 f.speed_xy_mps = it.param2
