@@ -325,8 +325,12 @@ class Commander:
 
     def on_disarmed(self) -> None:
         """The pipeline disarmed by itself (touchdown)."""
-        if self.mode == Mode.AUTO:
-            self.mission_complete = True
+        if self.mode == Mode.AUTO and not self.mission_complete:
+            items = self.mission.items
+            cur = self.mission.current
+            if 0 < cur < len(items) and items[cur].command in (CMD_LAND, CMD_RTL):
+                self._send_reached(cur)  # a landing item is reached on touchdown
+            self._complete()
         self._rtl_phase = ""
         if self.mode in (Mode.LAND, Mode.RTL):
             self.mode = Mode.GUIDED if self.mode == Mode.RTL else self.mode
@@ -407,10 +411,11 @@ class Commander:
             self._auto_phase = "done"
         if self._auto_phase == "done":
             self._send_reached(mission.current)
-            mission.current += 1
-            self._auto_seq = -1
-            if mission.current >= len(items):
-                self._complete()
+            if mission.current + 1 >= len(items):
+                self._complete()  # MISSION_CURRENT stays on the last item
+            else:
+                mission.current += 1
+                self._auto_seq = -1
 
     def _send_reached(self, seq: int) -> None:
         if self._broadcast is not None:

@@ -293,7 +293,8 @@ def test_auto_flies_the_mission_and_reports_each_item() -> None:
         rig.run(0.5)
         if not rig.flight.armed:
             break
-    assert rig.reached == [1, 2, 3, 4]  # MISSION_ITEM_REACHED for each item before the landing
+    assert rig.reached == [1, 2, 3, 4, 5]  # MISSION_ITEM_REACHED for each item, the landing on touchdown
+    assert c.mission.current == 5  # MISSION_CURRENT stays on the last item
     assert not rig.flight.armed and c.mission_complete
     n, e = rig.pos[0], -rig.pos[1]  # landed "here": where item 4 was reached (within WP_RADIUS_M)
     assert math.hypot(n - 3.0, e - 3.0) < FcConfig().wp_radius_m + 0.05
