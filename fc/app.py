@@ -134,6 +134,7 @@ class FlightControllerApp:
         duration_s: float | None = None,
         startup_timeout_s: float = 30.0,
         spin_s: float = 0.002,
+        sim_system_id: int | None = None,
         out: TextIO = sys.stdout,
         monotonic: Callable[[], float] = time.monotonic,
     ) -> None:
@@ -155,10 +156,14 @@ class FlightControllerApp:
         self.tlog = TlogWriter(tlog_path) if tlog_path is not None else None
         clock_us = self.clock.now_us
         sysid = config.system_id
+        # The simulator link keeps the system id the two processes were launched with; a
+        # SYSID_THISMAV change (restart) renames the vehicle to ground stations only.
+        sim_sysid = sysid if sim_system_id is None else sim_system_id
         try:
             self.sim = MavlinkUdp(
-                sim_url, source_system=sysid, source_component=FC_COMPONENT, accept_system=sysid, tlog=self.tlog, clock_us=clock_us
-            )
+                sim_url, source_system=sim_sysid, source_component=FC_COMPONENT, accept_system=sim_sysid,
+                tlog=self.tlog, clock_us=clock_us,
+            )  # fmt: skip
             self.gcs = (
                 MavlinkUdp(gcs_url, source_system=sysid, source_component=FC_COMPONENT, tlog=self.tlog, clock_us=clock_us)
                 if gcs_url

@@ -89,6 +89,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             home=home,
             duration_s=args.duration,
             startup_timeout_s=args.startup_timeout_s,
+            sim_system_id=args.sysid,
         )
     except (SmcpilotError, OSError) as exc:
         print(f"fc: error: {exc}", file=sys.stderr)

@@ -164,6 +164,23 @@ class Commander:
             self.say(f"Mode {mode.name}")
 
     # -- arming ---------------------------------------------------------------------------------
+    def prearm_failure(self) -> str | None:
+        """Why arming (without force) would be refused now, or None: the PREARM_CHECK health bit."""
+        if self.state is None:
+            return "PreArm: no vehicle state yet"
+        if not self.state_fresh:
+            return "PreArm: vehicle state is stale"
+        if self.config.arming_check:
+            if self.failsafe_active:
+                return "PreArm: in failsafe"
+            if not self.on_ground():
+                return "PreArm: vehicle is not on the ground"
+            if self.mode not in ARMABLE:
+                return f"PreArm: cannot arm in {self.mode.name}"
+            if self.mode == Mode.AUTO and len(self.mission.items) < 2:
+                return "PreArm: AUTO without a mission"
+        return None
+
     def arm(self, force: bool = False) -> Result:
         f = self.flight
         if f.armed:
@@ -172,17 +189,9 @@ class Commander:
         if st is None:
             return _denied("PreArm: no vehicle state yet")
         if not force:
-            if not self.state_fresh:
-                return _denied("PreArm: vehicle state is stale")
-            if self.config.arming_check:
-                if self.failsafe_active:
-                    return _denied("PreArm: in failsafe")
-                if not self.on_ground():
-                    return _denied("PreArm: vehicle is not on the ground")
-                if self.mode not in ARMABLE:
-                    return _denied(f"PreArm: cannot arm in {self.mode.name}")
-                if self.mode == Mode.AUTO and len(self.mission.items) < 2:
-                    return _denied("PreArm: AUTO without a mission")
+            why = self.prearm_failure()
+            if why is not None:
+                return _denied(why)
         f.arm(st)
         self._ground_armed_s = 0.0
         if self.mode == Mode.AUTO:

@@ -354,7 +354,8 @@ class GcsHandler:
             return [telemetry.heartbeat(mav, f.armed, int(c.mode), status)]
         if msg_id == M.MAVLINK_MSG_ID_SYS_STATUS:
             healthy = not app.failsafe and st is not None
-            return [telemetry.sys_status(mav, 0, healthy)]
+            prearm_ok = f.armed or c.prearm_failure() is None
+            return [telemetry.sys_status(mav, 0, healthy, prearm_ok)]
         if msg_id == M.MAVLINK_MSG_ID_SYSTEM_TIME:
             return [mav.system_time_encode(0, t_ms)]
         if msg_id == M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE:

@@ -63,6 +63,14 @@ _SENSORS = (
     | mavlink.MAV_SYS_STATUS_PREARM_CHECK
 )
 
+#: the bits a failsafe or a missing state marks unhealthy
+_CONTROL_BITS = (
+    mavlink.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
+    | mavlink.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
+    | mavlink.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
+    | mavlink.MAV_SYS_STATUS_AHRS
+)
+
 _NAN = float("nan")
 
 
@@ -79,11 +87,13 @@ def heartbeat(mav: mavlink.MAVLink, armed: bool, custom_mode: int, system_status
     )
 
 
-def sys_status(mav: mavlink.MAVLink, load_permille: int, healthy: bool, drop_rate_permille: int = 0) -> mavlink.MAVLink_message:
-    health = _SENSORS if healthy else _SENSORS & ~mavlink.MAV_SYS_STATUS_PREARM_CHECK
-    return mav.sys_status_encode(
-        _SENSORS, _SENSORS, health, max(0, min(1000, load_permille)), 12600, -1, -1, drop_rate_permille, 0, 0, 0, 0, 0
-    )
+def sys_status(mav: mavlink.MAVLink, load_permille: int, healthy: bool, prearm_ok: bool) -> mavlink.MAVLink_message:
+    """SYS_STATUS: every sensor present and enabled; all healthy unless ``healthy`` is False
+    (failsafe, no state); PREARM_CHECK healthy when arming would pass (or the vehicle is armed)."""
+    health = _SENSORS if healthy else _SENSORS & ~_CONTROL_BITS
+    if not prearm_ok:
+        health &= ~mavlink.MAV_SYS_STATUS_PREARM_CHECK
+    return mav.sys_status_encode(_SENSORS, _SENSORS, health, max(0, min(1000, load_permille)), 12600, -1, -1, 0, 0, 0, 0, 0, 0)
 
 
 def attitude(mav: mavlink.MAVLink, time_boot_ms: int, st: VehicleState, body_rates_flu: Sequence[float]) -> mavlink.MAVLink_message:
