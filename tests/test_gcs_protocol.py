@@ -27,7 +27,7 @@ import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as M
 
-from ground.sitl import Sitl, SitlError, SitlOptions
+from ground.sitl import Sitl, SitlOptions
 
 from gcs_helpers import (
     FC_COMPID,
