@@ -10,7 +10,7 @@ import sys
 import time
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from fc.config import FC_CONTROLLERS
 from ground.sitl import Sitl, SitlError, SitlOptions, print_connect_help
@@ -85,6 +85,36 @@ def _raise_terminated(*_: object) -> None:
     raise _Terminated()
 
 
+def _launch_and_wait(
+    opts: SitlOptions, command: str, started: Callable[[Sitl], None] | None = None
+) -> tuple[int | None, Sitl, float]:
+    """Run SITL to its end; (exit code if it did not end normally, the launcher, wall seconds).
+
+    Ctrl-C gives 130, SIGTERM 143 (both processes are stopped either way), a failed child 1.
+    """
+    old = signal.signal(signal.SIGTERM, _raise_terminated)
+    t0 = time.monotonic()
+    sitl = Sitl(opts, echo=lambda line: print(line, flush=True))
+    rc: int | None = None
+    try:
+        with sitl:
+            if started is not None:
+                started(sitl)
+            sitl.wait()
+    except KeyboardInterrupt:
+        print(f"smcpilot {command}: stopped", file=sys.stderr)
+        rc = 130
+    except _Terminated:
+        print(f"smcpilot {command}: terminated", file=sys.stderr)
+        rc = 143
+    except SitlError as exc:
+        print(f"smcpilot {command}: error: {exc}", file=sys.stderr)
+        rc = 1
+    finally:
+        signal.signal(signal.SIGTERM, old)
+    return rc, sitl, time.monotonic() - t0
+
+
 def sitl_main(args: argparse.Namespace) -> int:
     if args.plan is not None and not args.plan.is_file():
         raise ConfigError(f"plan file not found: {args.plan}")
@@ -96,26 +126,14 @@ def sitl_main(args: argparse.Namespace) -> int:
         plan=args.plan,
         paper_disturbance=args.paper_disturbance,
     )
-    old = signal.signal(signal.SIGTERM, _raise_terminated)
-    t0 = time.monotonic()
-    sitl = Sitl(opts, echo=lambda line: print(line, flush=True))
-    try:
-        with sitl:
-            print_connect_help(sitl)
-            print("  stop with Ctrl-C" + (f"; runs {args.duration:g} simulated seconds" if args.duration else ""), flush=True)
-            sitl.wait()
-    except KeyboardInterrupt:
-        print("smcpilot sitl: stopped", file=sys.stderr)
-        return 130
-    except _Terminated:
-        print("smcpilot sitl: terminated", file=sys.stderr)
-        return 143
-    except SitlError as exc:
-        print(f"smcpilot sitl: error: {exc}", file=sys.stderr)
-        return 1
-    finally:
-        signal.signal(signal.SIGTERM, old)
-    wall = time.monotonic() - t0
+
+    def started(sitl: Sitl) -> None:
+        print_connect_help(sitl)
+        print("  stop with Ctrl-C" + (f"; runs {args.duration:g} simulated seconds" if args.duration else ""), flush=True)
+
+    rc, sitl, wall = _launch_and_wait(opts, "sitl", started)
+    if rc is not None:
+        return rc
     fcs = sitl.fc_summary or {}
     sim_s = fcs.get("sim_time_s")
     print(
@@ -147,24 +165,9 @@ def demo_main(args: argparse.Namespace) -> int:
     opts = _options(args, lockstep=True, duration_s=DEMO_DURATION_S, gcs=None, plan=plan)
     print(f"demo: lockstep SITL, {DEMO_DURATION_S:g} s of flight ({plan.name}): take-off to 3 m, set-points,"
           " a heading change across ±180°, landing", flush=True)  # fmt: skip
-    t0 = time.monotonic()
-    sitl = Sitl(opts, echo=lambda line: print(line, flush=True))
-    old = signal.signal(signal.SIGTERM, _raise_terminated)
-    try:
-        with sitl:
-            sitl.wait()
-    except KeyboardInterrupt:
-        print("smcpilot demo: stopped", file=sys.stderr)
-        return 130
-    except _Terminated:
-        print("smcpilot demo: terminated", file=sys.stderr)
-        return 143
-    except SitlError as exc:
-        print(f"smcpilot demo: error: {exc}", file=sys.stderr)
-        return 1
-    finally:
-        signal.signal(signal.SIGTERM, old)
-    wall = time.monotonic() - t0
+    rc, sitl, wall = _launch_and_wait(opts, "demo")
+    if rc is not None:
+        return rc
     fcs = sitl.fc_summary or {}
     assert sitl.tlog is not None
     log = logtools.load_log(sitl.tlog)
@@ -175,7 +178,7 @@ def demo_main(args: argparse.Namespace) -> int:
     print(
         f"\ndemo: {result['sim_seconds']:.1f} simulated s in {wall:.2f} wall s ({result['speed']:.1f}× real time),"
         f" final position error {_fmt(result['position_error_final_m'])} m, max tilt {_fmt(result['max_tilt_deg'])}°,"
-        f" χ̂ = {result['chi_hat_final']}, {result['overruns']} overruns"
+        f" χ̂ = [{', '.join(_fmt(c) for c in result['chi_hat_final'] or [])}], {result['overruns']} overruns"
     )
     if not args.no_plots:
         paths = logtools.plot_log(log, args.out)
