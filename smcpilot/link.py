@@ -335,9 +335,9 @@ class MavlinkUdp:
     def send(self, msg: mavlink.MAVLink_message) -> None:
         """Encode ``msg`` (next sequence number) and send it to every peer; log it once."""
         packet = self._encode(msg)
+        self._send_datagram_to_peers(packet)  # the peer first: logging is off the critical path
         if self._tlog is not None:
             self._tlog.write(self._clock_us(), packet)
-        self._send_datagram_to_peers(packet)
 
     def send_many(self, msgs: Iterable[mavlink.MAVLink_message]) -> None:
         """Encode several messages and send them in as few datagrams as fit
@@ -346,10 +346,10 @@ class MavlinkUdp:
         packets = [encode(msg) for msg in msgs]
         if not packets:
             return
-        if self._tlog is not None:
-            self._tlog.write_many(self._clock_us(), packets)
         for datagram in self._datagrams(packets):
             self._send_datagram_to_peers(datagram)
+        if self._tlog is not None:
+            self._tlog.write_many(self._clock_us(), packets)
 
     def send_many_to(self, msgs: Iterable[mavlink.MAVLink_message], addr: Address) -> None:
         """Like :meth:`send_many`, to ``addr`` only (e.g. a parameter list to the station that asked)."""
