@@ -397,9 +397,10 @@ class Telemetry:
         return math.degrees(self.attitude_rad[2]) % 360.0
 
     def as_dict(self) -> dict[str, Any]:
-        """A JSON-ready dict (NaN stays NaN; :func:`json.dumps` writes it as ``NaN``)."""
+        """A JSON-ready dict: non-finite numbers (χ̂ and σ while disarmed) become None, so strict
+        JSON parsers read it."""
         home = self.home
-        return {
+        return _json_safe({
             "sim_time_s": self.sim_time_s,
             "system_id": self.system_id,
             "armed": self.armed,
@@ -426,7 +427,17 @@ class Telemetry:
             "overruns": self.overruns,
             "setpoint_ned_m": list(self.setpoint_ned_m) if self.setpoint_ned_m else None,
             "last_statustext": self.last_statustext.text if self.last_statustext else None,
-        }
+        })
+
+
+def _json_safe(v: Any) -> Any:
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, dict):
+        return {k: _json_safe(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_json_safe(x) for x in v]
+    return v
 
 
 # ----------------------------------------------------------------------------------- mission items

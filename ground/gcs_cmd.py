@@ -266,7 +266,7 @@ def _status(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
         pass
     t = vehicle.telemetry
     if args.json:
-        out.write(json.dumps(t.as_dict()) + "\n")
+        out.write(json.dumps(t.as_dict(), allow_nan=False) + "\n")
     else:
         out.write(render_status(t) + "\n")
     return EXIT_OK

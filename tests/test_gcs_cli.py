@@ -165,12 +165,13 @@ def test_no_vehicle_exits_1_naming_where_it_listened(tmp_path: Path) -> None:
 def test_status_json(fc_url: str) -> None:
     r = gcs("status", "--json", connect=fc_url)
     assert r.returncode == 0, r.stderr
-    st = json.loads(r.stdout)
+    st = json.loads(r.stdout, parse_constant=lambda c: pytest.fail(f"not strict JSON: {c}"))
     assert st["mode"] == "GUIDED" and st["armed"] is False and st["system_id"] == 1
     assert st["landed_state"] == "ON_GROUND"
     assert st["home"]["lat_deg"] == pytest.approx(-35.363261, abs=1e-6)
     assert len(st["position_ned_m"]) == 3 and st["sim_time_s"] > 0
     assert set(st["chi"]) == {"PHI", "THETA", "PSI", "Z"}
+    assert st["chi"]["PHI"] is None  # disarmed: no chi_hat (NaN on the wire), null in JSON
 
 
 def test_status_text(fc_url: str) -> None:
