@@ -400,7 +400,7 @@ class Telemetry:
         """A JSON-ready dict: non-finite numbers (χ̂ and σ while disarmed) become None, so strict
         JSON parsers read it."""
         home = self.home
-        return _json_safe({
+        return json_safe({
             "sim_time_s": self.sim_time_s,
             "system_id": self.system_id,
             "armed": self.armed,
@@ -430,13 +430,14 @@ class Telemetry:
         })
 
 
-def _json_safe(v: Any) -> Any:
+def json_safe(v: Any) -> Any:
+    """``v`` with every non-finite float replaced by None (for strict JSON)."""
     if isinstance(v, float):
         return v if math.isfinite(v) else None
     if isinstance(v, dict):
-        return {k: _json_safe(x) for k, x in v.items()}
+        return {k: json_safe(x) for k, x in v.items()}
     if isinstance(v, (list, tuple)):
-        return [_json_safe(x) for x in v]
+        return [json_safe(x) for x in v]
     return v
 
 

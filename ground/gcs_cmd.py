@@ -45,6 +45,7 @@ from ground.client import (
     UnknownModeError,
     Vehicle,
     VehicleError,
+    json_safe,
     mode_number,
 )
 from ground.missions import ItemSpec, MissionFileError, items_to_toml, load_mission
@@ -363,7 +364,7 @@ def _mission_download(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -
     items = vehicle.download_mission()
     home = None if args.latlon else vehicle.get_home()
     if args.json:
-        text = json.dumps([_entry(item, k, home) for k, item in enumerate(items, start=1)]) + "\n"
+        text = json.dumps(json_safe([_entry(item, k, home) for k, item in enumerate(items, start=1)]), allow_nan=False) + "\n"
     else:
         where = "lat_deg/lon_deg" if home is None else "north_m/east_m from the vehicle's home"
         text = items_to_toml(items, home, header=f"mission downloaded by smcpilot gcs ({len(items)} items; home, item 0, not listed; positions as {where})")
