@@ -32,6 +32,7 @@ import math
 from typing import Sequence
 
 from sim_bridge.environment import Environment
+from sim_bridge.plants.base import PlantBase
 from sim_bridge.plants.paper import STATE_NAMES, PaperPlant
 from sim_bridge.sensors import VehicleObservation
 from smcpilot.actuators import commands_to_omega_sq
@@ -48,7 +49,7 @@ _sqrt = math.sqrt
 _ceil = math.ceil
 
 
-class PaperVehiclePlant:
+class PaperVehiclePlant(PlantBase):
     """The paper plant (ideal actuators, Euler-rate dynamics) with the rigid-body plant's API.
 
     Args:
@@ -68,19 +69,11 @@ class PaperVehiclePlant:
         ground_contact: bool = True,
         typos: frozenset[str] | str | None = None,
     ) -> None:
-        if not (isinstance(max_step_s, (int, float)) and _isfinite(max_step_s) and max_step_s > 0.0):
-            raise ConfigError(f"max_step_s must be a positive number of seconds, got {max_step_s!r}")
-        self.vehicle = vehicle
-        self.env = env if env is not None else Environment()
-        self.max_step_s = float(max_step_s)
-        self.ground_contact = bool(ground_contact)
+        super().__init__(vehicle, env, max_step_s=max_step_s, ground_contact=ground_contact)
         self.model = PaperModel.from_vehicle(vehicle, typos)
         self.plant = PaperPlant(self.model, disturbance=self.env.paper_disturbance)
         self._y: list[float] = [0.0] * 12
         self._w_sq: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
-        self._t_s = 0.0
-        self._accel = (0.0, 0.0, 0.0)
-        self._obs_cache: VehicleObservation | None = None
         #: inputs (u_phi, u_theta, u_psi, u_z) held over the current step
         self._u: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
         #: environment accelerations (phi'', theta'', psi'', z'', x'', y'') held over the substep
@@ -129,11 +122,6 @@ class PaperVehiclePlant:
         self._accel = (0.0, 0.0, 0.0)
         self._obs_cache = None
         self.env.reset()
-
-    @property
-    def t_s(self) -> float:
-        """Simulation time [s] at the end of the last step."""
-        return self._t_s
 
     @property
     def state(self) -> tuple[float, ...]:
@@ -194,11 +182,3 @@ class PaperVehiclePlant:
             ),
             quaternion=quat_from_euler(phi, th, psi),
         )
-
-    def observe(self) -> VehicleObservation:
-        """The observation with the environment's sensor noise (if any), drawn once per step."""
-        obs = self._obs_cache
-        if obs is None:
-            obs = self.env.measure(self.truth())
-            self._obs_cache = obs
-        return obs

@@ -69,6 +69,7 @@ from typing import Sequence
 
 from sim_bridge.environment import Environment
 from sim_bridge.disturbances import paper_disturbance
+from sim_bridge.plants.base import PlantBase
 from sim_bridge.sensors import VehicleObservation
 from smcpilot.actuators import sanitize_command
 from smcpilot.errors import ConfigError, DivergenceError
@@ -94,7 +95,7 @@ _isfinite = math.isfinite
 _ceil = math.ceil
 
 
-class RigidBodyPlant:
+class RigidBodyPlant(PlantBase):
     """Full rigid-body quadrotor plant with the same step/observe API as the paper plant adapter.
 
     Args:
@@ -112,12 +113,7 @@ class RigidBodyPlant:
         max_step_s: float = DEFAULT_MAX_STEP_S,
         ground_contact: bool = True,
     ) -> None:
-        if not (isinstance(max_step_s, (int, float)) and _isfinite(max_step_s) and max_step_s > 0.0):
-            raise ConfigError(f"max_step_s must be a positive number of seconds, got {max_step_s!r}")
-        self.vehicle = vehicle
-        self.env = env if env is not None else Environment()
-        self.max_step_s = float(max_step_s)
-        self.ground_contact = bool(ground_contact)
+        super().__init__(vehicle, env, max_step_s=max_step_s, ground_contact=ground_contact)
         v = vehicle
         self._idle_sq = v.rotor_speed_idle_rad_s**2
         self._span_sq = v.rotor_speed_max_rad_s**2 - self._idle_sq
@@ -127,9 +123,6 @@ class RigidBodyPlant:
         self._e_half = 0.0
         self._e_full = 0.0
         self._s: list[float] = [0.0] * 17
-        self._t_s = 0.0
-        self._accel = (0.0, 0.0, 0.0)
-        self._obs_cache: VehicleObservation | None = None
         inv_m = 1.0 / v.mass_kg
         kp = v.thrust_coeff_n_s2
         #: per-step constants: Kp/m, d Kp/Ix, d Kp/Iy, Cd/Iz, 1/m, 1/Ix, 1/Iy, 1/Iz
@@ -182,11 +175,6 @@ class RigidBodyPlant:
         self._accel = (0.0, 0.0, 0.0)
         self._obs_cache = None
         self.env.reset()
-
-    @property
-    def t_s(self) -> float:
-        """Simulation time [s] at the end of the last step."""
-        return self._t_s
 
     @property
     def state(self) -> tuple[float, ...]:
@@ -397,15 +385,3 @@ class RigidBodyPlant:
             rotor_speed_radps=(w1, w2, w3, w4),
             quaternion=(qw, qx, qy, qz),
         )
-
-    def observe(self) -> VehicleObservation:
-        """The observation with the environment's sensor noise (if any).
-
-        The noise is drawn once per step: calling this again before the next :meth:`step`
-        returns the same object.
-        """
-        obs = self._obs_cache
-        if obs is None:
-            obs = self.env.measure(self.truth())
-            self._obs_cache = obs
-        return obs

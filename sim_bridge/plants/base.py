@@ -1,0 +1,55 @@
+"""What every simulator plant shares: the environment, the step limit, time, and the cached
+noisy observation. Plants implement ``reset``, ``step`` and ``truth``."""
+
+from __future__ import annotations
+
+import math
+
+from sim_bridge.environment import Environment
+from sim_bridge.sensors import VehicleObservation
+from smcpilot.errors import ConfigError
+from smcpilot.vehicle import VehicleParams
+
+
+class PlantBase:
+    """Common state and :meth:`observe` of the plants (see :mod:`sim_bridge.plants.rigid_body`).
+
+    Args:
+        vehicle: physical parameters.
+        env: wind, gusts, paper disturbances and sensor noise; None is a clean environment.
+        max_step_s: largest integration step [s]; ``step`` splits longer intervals.
+        ground_contact: model the ground at z = 0.
+    """
+
+    def __init__(
+        self, vehicle: VehicleParams, env: Environment | None, *, max_step_s: float, ground_contact: bool
+    ) -> None:
+        if not (isinstance(max_step_s, (int, float)) and math.isfinite(max_step_s) and max_step_s > 0.0):
+            raise ConfigError(f"max_step_s must be a positive number of seconds, got {max_step_s!r}")
+        self.vehicle = vehicle
+        self.env = env if env is not None else Environment()
+        self.max_step_s = float(max_step_s)
+        self.ground_contact = bool(ground_contact)
+        self._t_s = 0.0
+        self._accel = (0.0, 0.0, 0.0)
+        self._obs_cache: VehicleObservation | None = None
+
+    @property
+    def t_s(self) -> float:
+        """Simulation time [s] at the end of the last step."""
+        return self._t_s
+
+    def truth(self) -> VehicleObservation:  # pragma: no cover - implemented by each plant
+        raise NotImplementedError
+
+    def observe(self) -> VehicleObservation:
+        """The observation with the environment's sensor noise (if any).
+
+        The noise is drawn once per step: calling this again before the next step returns the
+        same object.
+        """
+        obs = self._obs_cache
+        if obs is None:
+            obs = self.env.measure(self.truth())
+            self._obs_cache = obs
+        return obs
