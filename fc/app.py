@@ -68,6 +68,10 @@ class WatchdogError(RuntimeError):
     """The simulator went silent."""
 
 
+class RateMismatchError(RuntimeError):
+    """Lockstep: the simulator's state period is not this FC's control period."""
+
+
 @dataclass
 class FcStats:
     """Counters reported at exit (and summarised from the log by ``smcpilot log summary``)."""
@@ -194,6 +198,7 @@ class FlightControllerApp:
         self._state_ms = -1
         self._state_wall_s = -math.inf
         self._last_tick_ms = -1
+        self._odd_steps = 0
         self._last_actuator: mavlink.MAVLink_message | None = None
         self.last_out: TickOutput | None = None
         self.failsafe = False
@@ -227,6 +232,9 @@ class FlightControllerApp:
         except WatchdogError as exc:
             self.say(f"fc: error: {exc}")
             self._exit_code = EXIT_WATCHDOG
+        except RateMismatchError as exc:
+            self.say(f"fc: error: {exc}")
+            self._exit_code = EXIT_CONFIG
         finally:
             summary = self.stats.summary()
             summary["sim_time_s"] = self.clock.now_s()
@@ -346,6 +354,17 @@ class FlightControllerApp:
                     if t_ms < self._last_tick_ms:
                         self.stats.out_of_order_states += 1
                         continue
+                    step_ms = t_ms - self._last_tick_ms
+                    if self._last_tick_ms >= 0 and abs(step_ms * 1000 - self.cfg.period_us) > 500:
+                        # One odd step is a dropped state; three in a row is a simulator at another rate.
+                        self._odd_steps += 1
+                        if self._odd_steps >= 3:
+                            raise RateMismatchError(
+                                f"the simulator steps {step_ms} ms per state but this FC runs at {self.cfg.rate_hz:g} Hz"
+                                f" ({self.cfg.period_us / 1000:g} ms): give both the same rate (--rate-hz; FC_RATE_HZ)"
+                            )
+                    else:
+                        self._odd_steps = 0
                 self.state, self.body_rates = conv
                 self._state_ms = t_ms
                 self._state_wall_s = self._mono()

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Sequence
 
@@ -29,18 +30,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--gcs", default="udp:127.0.0.1:14550", metavar="URL",
                    help="ground link: udp:HOST:PORT sends telemetry there and answers whoever writes to our"
                    " port; udpin:HOST:PORT listens there (default udp:127.0.0.1:14550; 'none' for no ground link)")
-    p.add_argument("--controller", choices=FC_CONTROLLERS, default=d.controller, help=f"control law (default {d.controller})")
-    p.add_argument("--rate-hz", type=float, default=d.rate_hz, metavar="HZ", help=f"control rate (default {d.rate_hz:g})")
+    p.add_argument("--controller", choices=FC_CONTROLLERS, default=None,
+                   help=f"control law (default {d.controller}, or FC_CONTROLLER from the parameter file)")
+    p.add_argument("--rate-hz", type=float, default=None, metavar="HZ",
+                   help=f"control rate (default {d.rate_hz:g}, or FC_RATE_HZ from the parameter file)")
     p.add_argument("--lockstep", action="store_true", help="one tick per simulator state message (simulated time)")
     p.add_argument("--vehicle", type=Path, metavar="FILE", help="vehicle TOML (default: the spec's parameters)")
     p.add_argument("--plan", type=Path, metavar="FILE", help="timed set-point plan (TOML) executed in simulated time")
     p.add_argument("--duration", type=float, metavar="SIM_S", help="stop after this many simulated seconds")
     p.add_argument("--log-dir", type=Path, default=Path("logs"), metavar="DIR", help="where the .tlog goes (default logs/)")
     p.add_argument("--tlog", type=Path, metavar="PATH", help="exact .tlog path (overrides --log-dir)")
-    p.add_argument("--telemetry-rate-hz", type=float, default=d.telemetry_rate_hz, metavar="HZ",
-                   help=f"ground telemetry rate incl. CHI_*/SIG_* (default {d.telemetry_rate_hz:g})")
-    p.add_argument("--watchdog-s", type=float, default=d.watchdog_s, metavar="S",
-                   help=f"exit if the simulator is silent this long, wall seconds (default {d.watchdog_s:g})")
+    p.add_argument("--telemetry-rate-hz", type=float, default=None, metavar="HZ",
+                   help=f"ground telemetry rate incl. CHI_*/SIG_* (default {d.telemetry_rate_hz:g}, or TELEM_RATE_HZ)")
+    p.add_argument("--watchdog-s", type=float, default=None, metavar="S",
+                   help=f"exit if the simulator is silent this long, wall seconds (default {d.watchdog_s:g}, or FS_WATCHDOG)")
     p.add_argument("--startup-timeout-s", type=float, default=30.0, metavar="S",
                    help="exit if no simulator state arrives within this many wall seconds (default 30)")
     p.add_argument("--param-file", type=Path, metavar="PATH",
@@ -48,24 +51,33 @@ def build_parser() -> argparse.ArgumentParser:
                    " PARAM_SET (default: fc-params.parm in --log-dir)")
     p.add_argument("--home", default=None, metavar="LAT,LON,ALT",
                    help="home position for global coordinates (default -35.363261,149.165230,584: ArduPilot's SITL field)")
-    p.add_argument("--sysid", type=int, default=d.system_id, metavar="N", help=f"MAVLink system id (default {d.system_id})")
+    p.add_argument("--sysid", type=int, default=None, metavar="N",
+                   help=f"MAVLink system id (default {d.system_id}, or SYSID_THISMAV from the parameter file)")
     return p
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        cfg = FcConfig(
-            rate_hz=args.rate_hz,
-            controller=args.controller,
-            telemetry_rate_hz=args.telemetry_rate_hz,
-            watchdog_s=args.watchdog_s,
-            system_id=args.sysid,
-        )
         param_file = args.param_file if args.param_file is not None else args.log_dir / "fc-params.parm"
-        params = ParamStore(cfg, param_file)
+        params = ParamStore(FcConfig(), param_file)
         for warning in params.load():
             print(f"fc: warning: {warning}", file=sys.stderr)
+        # What the command line says explicitly wins over the parameter file, for this run.
+        explicit = {
+            name: value
+            for name, value in (
+                ("rate_hz", args.rate_hz),
+                ("controller", args.controller),
+                ("telemetry_rate_hz", args.telemetry_rate_hz),
+                ("watchdog_s", args.watchdog_s),
+                ("system_id", args.sysid),
+            )
+            if value is not None
+        }
+        if explicit:
+            params.config = replace(params.config, **explicit)
+            params.pending = replace(params.pending, **explicit)
         home = Home.parse(args.home) if args.home else Home()
         vehicle = VehicleParams.from_toml(args.vehicle) if args.vehicle else DEFAULT_VEHICLE
         plan = load_plan(args.plan) if args.plan else ()
@@ -78,7 +90,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         else:
             tlog.parent.mkdir(parents=True, exist_ok=True)
         app = FlightControllerApp(
-            cfg,
+            params.config,
             vehicle,
             sim_url=args.sim,
             gcs_url=None if args.gcs == "none" else args.gcs,
@@ -89,7 +101,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             home=home,
             duration_s=args.duration,
             startup_timeout_s=args.startup_timeout_s,
-            sim_system_id=args.sysid,
+            sim_system_id=args.sysid if args.sysid is not None else 1,
         )
     except (SmcpilotError, OSError) as exc:
         print(f"fc: error: {exc}", file=sys.stderr)

@@ -259,3 +259,49 @@ def test_realtime_state_loss_failsafe_then_watchdog(tmp_path: Path) -> None:
         assert not m.flags & 1, "real-time FC must not set the lockstep flag"
     f = load_flight(tlog)
     assert len(f.t) > 50, "the fed states are not in the log"
+
+
+def test_lockstep_rate_mismatch_is_a_clear_error(lockstep_fc) -> None:
+    """A simulator stepping 4 ms per state against a 500 Hz FC would fly the law with the wrong dt."""
+    fc, sim = lockstep_fc
+    _assert_normal_answer(sim.exchange(0), 0)
+    _assert_normal_answer(sim.exchange(4), 4)  # one odd step: a dropped state, tolerated
+    _assert_normal_answer(sim.exchange(8), 8)
+    sim.send_state(12)  # the third 4 ms step in a row: a 250 Hz simulator
+    assert fc.wait(timeout_s=30.0) == 2
+    assert any("steps 4 ms per state" in ln and "500 Hz" in ln for ln in fc.all_lines), fc.all_lines
+
+
+def test_command_line_beats_the_parameter_file(tmp_path: Path) -> None:
+    """A stored FC_CONTROLLER/FC_RATE_HZ must not silently override what the command line asks for."""
+    pf = tmp_path / "p.parm"
+    pf.write_text("FC_CONTROLLER 2\nFC_RATE_HZ 250\n")  # cascade_pid at 250 Hz stored
+    fc = FcProcess(["--sim", "udpin:127.0.0.1:0", "--gcs", "none", "--lockstep", "--param-file", str(pf),
+                    "--controller", "pid_smc", "--rate-hz", "500", "--tlog", str(tmp_path / "x.tlog")], cwd=tmp_path)  # fmt: skip
+    try:
+        host, port = fc.listening()["sim"].rsplit(":", 1)
+        sim = FakeSim((host, int(port)))
+        try:
+            for t in (0, 2, 4, 6):
+                assert sim.exchange(t).time_usec == t * 1000  # 2 ms steps answered: 500 Hz in force
+        finally:
+            sim.close()
+        ready = [ln for ln in fc.all_lines if ln.startswith("FC_READY")]
+        assert ready and "controller=pid_smc" in ready[0], fc.all_lines
+    finally:
+        fc.kill()
+    # Without the flags, the file's values are used.
+    fc = FcProcess(["--sim", "udpin:127.0.0.1:0", "--gcs", "none", "--lockstep", "--param-file", str(pf),
+                    "--tlog", str(tmp_path / "y.tlog")], cwd=tmp_path)  # fmt: skip
+    try:
+        host, port = fc.listening()["sim"].rsplit(":", 1)
+        sim = FakeSim((host, int(port)))
+        try:
+            for t in (0, 4, 8, 12):
+                assert sim.exchange(t).time_usec == t * 1000  # 4 ms steps answered: 250 Hz from the file
+        finally:
+            sim.close()
+        ready = [ln for ln in fc.all_lines if ln.startswith("FC_READY")]
+        assert ready and "controller=cascade_pid" in ready[0], fc.all_lines
+    finally:
+        fc.kill()
