@@ -47,7 +47,7 @@ from fc.plan import PlanRunner, PlanStep
 from fc.streams import StreamScheduler
 from smcpilot.geo import Home
 from smcpilot.clock import SimClock, WallClock
-from smcpilot.fastcodec import encode_debug_float_array
+from smcpilot.fastcodec import encode_debug_float_array, encode_hil_actuator_controls
 from smcpilot.frames import body_rates_to_euler_rates, euler_frd_to_flu, ned_to_nwu, rates_frd_to_flu
 from smcpilot.link import MavlinkUdp
 from smcpilot.tlog import TlogWriter
@@ -199,7 +199,7 @@ class FlightControllerApp:
         self._state_wall_s = -math.inf
         self._last_tick_ms = -1
         self._odd_steps = 0
-        self._last_actuator: mavlink.MAVLink_message | None = None
+        self._last_actuator: bytes | None = None
         self.last_out: TickOutput | None = None
         self.failsafe = False
         self._stop = False
@@ -349,7 +349,7 @@ class FlightControllerApp:
                 if self.lockstep:
                     if t_ms == self._last_tick_ms and self._last_actuator is not None:
                         self.stats.duplicate_states += 1  # the simulator re-sent: answer again
-                        self.sim.send(self._last_actuator)
+                        self.sim.send_packets((self._last_actuator,))
                         continue
                     if t_ms < self._last_tick_ms:
                         self.stats.out_of_order_states += 1
@@ -424,8 +424,11 @@ class FlightControllerApp:
         self.last_out = out
         armed_flag = mavlink.MAV_MODE_FLAG_SAFETY_ARMED if flight.armed else 0
         controls = [out.motors[0], out.motors[1], out.motors[2], out.motors[3]] + [0.0] * 12
-        act = self.sim.mav.hil_actuator_controls_encode(t_us, controls, armed_flag, 1 if self.lockstep else 0)
-        self.sim.send(act)
+        sim = self.sim
+        act = encode_hil_actuator_controls(
+            sim.take_seq(), *sim.source, t_us, controls, armed_flag, 1 if self.lockstep else 0
+        )
+        sim.send_packets((act,))
         self._last_actuator = act
         self._last_tick_ms = self._state_ms
         if self.tlog is not None:

@@ -53,6 +53,7 @@ class StreamScheduler:
         self._telemetry_rate_hz = telemetry_rate_hz
         self._override: dict[int, int] = {}
         self._next_us: dict[int, int] = {}
+        self._earliest_us = 0
         self.interval_us: dict[int, int] = {}
         self._recompute()
 
@@ -66,6 +67,7 @@ class StreamScheduler:
     def set_telemetry_rate(self, rate_hz: float) -> None:
         self._telemetry_rate_hz = rate_hz
         self._recompute()
+        self._earliest_us = 0
 
     def set_interval(self, msg_id: int, interval_us: float) -> bool:
         """MAV_CMD_SET_MESSAGE_INTERVAL semantics: -1 off, 0 default, else µs. False if unknown id."""
@@ -81,6 +83,7 @@ class StreamScheduler:
             self._override[msg_id] = max(1000, int(interval_us))  # at most 1 kHz
         self._recompute()
         self._next_us.pop(msg_id, None)
+        self._earliest_us = 0
         return True
 
     def request_stream(self, stream_id: int, rate_hz: int, start: bool) -> None:
@@ -90,6 +93,8 @@ class StreamScheduler:
             self.set_interval(mid, int(1e6 / rate_hz) if start and rate_hz > 0 else -1)
 
     def due(self, t_us: int) -> list[int]:
+        if t_us < self._earliest_us:
+            return []  # nothing due before the earliest next time (the common case, per tick)
         out: list[int] = []
         nxt = self._next_us
         for mid, interval in self.interval_us.items():
@@ -101,4 +106,6 @@ class StreamScheduler:
                 # keep the phase: next = previous due time + interval (but never in the past)
                 base = when if when is not None and t_us - when < interval else t_us
                 nxt[mid] = base + interval
+        active = [nxt.get(m, t_us) for m, i in self.interval_us.items() if i > 0]
+        self._earliest_us = min(active) if active else 2**63
         return out

@@ -28,6 +28,7 @@ from typing import Callable, Protocol, TextIO
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from sim_bridge.sensors import VehicleObservation
+from smcpilot.fastcodec import encode_attitude, encode_local_position_ned
 from smcpilot.frames import euler_flu_to_frd, nwu_to_ned, rates_flu_to_frd
 from smcpilot.link import MavlinkUdp
 
@@ -116,16 +117,18 @@ class SimBridgeApp:
     # -- wire ------------------------------------------------------------------------------------
     def _send_state(self) -> None:
         obs = self.plant.observe()
-        mav = self.link.mav
+        link = self.link
+        sysid, comp = link.source
         t_ms = (self._t_us // 1000) & 0xFFFFFFFF
         roll, pitch, yaw = euler_flu_to_frd(*obs.euler_rad)
         p, q, r = rates_flu_to_frd(*obs.body_rates_radps)
         x, y, z = nwu_to_ned(obs.position_m)
         vx, vy, vz = nwu_to_ned(obs.velocity_mps)
-        self.link.send_many(
+        # The per-tick pair, encoded straight to bytes (smcpilot.fastcodec; the same bytes as pymavlink).
+        link.send_packets(
             (
-                mav.attitude_encode(t_ms, roll, pitch, yaw, p, q, r),
-                mav.local_position_ned_encode(t_ms, x, y, z, vx, vy, vz),
+                encode_attitude(link.take_seq(), sysid, comp, t_ms, roll, pitch, yaw, p, q, r),
+                encode_local_position_ned(link.take_seq(), sysid, comp, t_ms, x, y, z, vx, vy, vz),
             )
         )
 

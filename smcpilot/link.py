@@ -351,6 +351,30 @@ class MavlinkUdp:
         if self._tlog is not None:
             self._tlog.write_many(self._clock_us(), packets)
 
+    def take_seq(self) -> int:
+        """The next sequence number, consumed: for packets encoded by :mod:`smcpilot.fastcodec`
+        directly (no message object) and sent with :meth:`send_packets`."""
+        mav = self._mav
+        seq = mav.seq
+        mav.seq = (seq + 1) & 0xFF
+        self.counters.tx_messages += 1
+        return seq
+
+    @property
+    def source(self) -> tuple[int, int]:
+        """(source system, source component) this link sends as."""
+        return self._mav.srcSystem, self._mav.srcComponent
+
+    def send_packets(self, packets: Sequence[bytes]) -> None:
+        """Send already-encoded packets (numbered with :meth:`take_seq`) to every peer in as few
+        datagrams as fit, then log them: the hot-path variant of :meth:`send_many`."""
+        if self._closed:
+            raise LinkClosedError(f"link {self._endpoint.url} is closed")
+        for datagram in self._datagrams(packets) if len(packets) > 1 else packets:
+            self._send_datagram_to_peers(datagram)
+        if self._tlog is not None:
+            self._tlog.write_many(self._clock_us(), packets)
+
     def send_many_to(self, msgs: Iterable[mavlink.MAVLink_message], addr: Address) -> None:
         """Like :meth:`send_many`, to ``addr`` only (e.g. a parameter list to the station that asked)."""
         encode = self._encode

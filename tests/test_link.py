@@ -539,3 +539,28 @@ def test_counters_snapshot_and_reset() -> None:
         assert fc.counters.as_dict()["tx_messages"] == 1
         fc.counters.reset()
         assert set(fc.counters.as_dict().values()) == {0}
+
+
+def test_send_packets_with_take_seq_numbers_like_send_and_logs(tmp_path) -> None:
+    """The hot-path pair (fastcodec bytes + take_seq) keeps one gap-free sequence with send()."""
+    from smcpilot import fastcodec
+
+    path = tmp_path / "seq.tlog"
+    with TlogWriter(path) as tlog, listener() as rx, MavlinkUdp(url_of(rx), source_system=3, source_component=7, tlog=tlog, clock_us=lambda: 42) as tx:
+        tx.send(heartbeat(tx.mav))
+        sysid, comp = tx.source
+        tx.send_packets(
+            (
+                fastcodec.encode_attitude(tx.take_seq(), sysid, comp, 1, 0.1, 0.2, 0.3, 0.0, 0.0, 0.0),
+                fastcodec.encode_local_position_ned(tx.take_seq(), sysid, comp, 1, 1.0, 2.0, 3.0, 0.0, 0.0, 0.0),
+            )
+        )
+        tx.send(heartbeat(tx.mav))
+        got = recv_messages(rx, 4)
+        assert [m.get_seq() for m, _ in got] == [0, 1, 2, 3]
+        assert [m.get_type() for m, _ in got] == ["HEARTBEAT", "ATTITUDE", "LOCAL_POSITION_NED", "HEARTBEAT"]
+        assert {(m.get_srcSystem(), m.get_srcComponent()) for m, _ in got} == {(3, 7)}
+        assert tx.counters.tx_messages == 4 and tx.counters.tx_datagrams == 3  # the pair in one datagram
+    assert [(t, m.get_type()) for t, m in read_tlog(path)] == [
+        (42, "HEARTBEAT"), (42, "ATTITUDE"), (42, "LOCAL_POSITION_NED"), (42, "HEARTBEAT")
+    ]
