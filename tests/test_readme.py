@@ -94,3 +94,21 @@ def test_readme_pytest_example_passes(pytester: pytest.Pytester) -> None:
     pytester.makepyfile(test_readme_example=examples[0])
     result = pytester.runpytest_subprocess(timeout=300)
     result.assert_outcomes(passed=1)
+
+
+def test_readme_client_example_flies(tmp_path: Path) -> None:
+    """The README's `Vehicle` example, run against a real lockstep SITL (on a free port)."""
+    import socket
+
+    from ground.sitl import Sitl, SitlOptions
+
+    example = next(b for b in _code_blocks("python") if "from ground.client import Vehicle" in b)
+    assert "udpin:127.0.0.1:14550" in example
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    port = s.getsockname()[1]
+    s.close()
+    opts = SitlOptions(lockstep=True, speed=5.0, duration_s=300.0, gcs=f"udp:127.0.0.1:{port}",
+                       tlog=tmp_path / "readme.tlog", param_file=tmp_path / "readme.parm")  # fmt: skip
+    with Sitl(opts):
+        exec(compile(example.replace("udpin:127.0.0.1:14550", f"udpin:127.0.0.1:{port}"), "README.md", "exec"), {})
