@@ -90,7 +90,8 @@ class IntegratingBaseline:
 
     state_names: tuple[str, ...]
     #: the last (meas, ref, state) objects and their output: command() then derivatives() on the
-    #: same objects (what an ODE right-hand side does) computes the law once.
+    #: same objects (what an ODE right-hand side does) computes the law once. Keyed on identity,
+    #: so callers must pass new sequences rather than mutate one in place (tuples, or fresh slices).
     _memo: tuple = (None, None, None, None)
 
     def initial_state(self, meas: Meas) -> tuple[float, ...]:
