@@ -232,8 +232,9 @@ class Sitl:
             if deadline is not None and time.monotonic() > deadline:
                 raise SitlError(f"SITL did not finish within {timeout_s:g} s")
             time.sleep(0.05)
-        # One side ended: give the other a moment to end by itself (lockstep duration), then stop it.
-        self.stop(grace_s=3.0)
+        # One side ended. In lockstep the other ends by itself at the same simulated time: give it a
+        # moment. In real time the FC would only fly on into its state-loss failsafe: stop it now.
+        self.stop(grace_s=3.0 if self.options.lockstep else 0.0)
         fc_rc = self.fc.proc.returncode
         sim_rc = self.sim.proc.returncode
         for child, rc in ((self.sim, sim_rc), (self.fc, fc_rc)):
