@@ -39,37 +39,34 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from fc import telemetry
 from fc.config import FcConfig
-from fc.flight import FlightControl, TickOutput, VehicleState
+from fc.core import FlightCore, TickOutput
+from fc.flight import VehicleState
 from fc.gcs import GcsHandler
-from fc.commander import Commander
-from fc.params import ParamStore
-from fc.plan import PlanRunner, PlanStep
+from fc.params import ParamStore, param_messages
+from smcpilot.plan import PlanStep
 from fc.streams import StreamScheduler
 from smcpilot.geo import Home
 from smcpilot.clock import SimClock, WallClock
 from smcpilot.fastcodec import encode_debug_float_array, encode_hil_actuator_controls
 from smcpilot.frames import body_rates_to_euler_rates, euler_frd_to_flu, ned_to_nwu, rates_frd_to_flu
+from smcpilot.errors import RateMismatchError, WatchdogError
 from smcpilot.link import MavlinkUdp
 from smcpilot.tlog import TlogWriter
+from smcpilot.protocol import ACTUATOR_FLAG_LOCKSTEP, FC_COMPONENT_ID, SMC_ARRAY_ID, SMC_ARRAY_NAME
 from smcpilot.vehicle import VehicleParams
 
-#: Component id of the flight controller (MAV_COMP_ID_AUTOPILOT1).
-FC_COMPONENT = 1
+FC_COMPONENT = FC_COMPONENT_ID
 
 EXIT_OK = 0
 EXIT_CONFIG = 2
 EXIT_WATCHDOG = 3
 
 _isfinite = math.isfinite
+_ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+_ZEROS12 = [0.0] * 12
 _yield = getattr(os, "sched_yield", lambda: None)
 
 
-class WatchdogError(RuntimeError):
-    """The simulator went silent."""
-
-
-class RateMismatchError(RuntimeError):
-    """Lockstep: the simulator's state period is not this FC's control period."""
 
 
 @dataclass
@@ -82,7 +79,6 @@ class FcStats:
     rx_invalid_state: int = 0
     duplicate_states: int = 0
     out_of_order_states: int = 0
-    failsafe_events: int = 0
 
     def summary(self) -> dict:
         late = sorted(self.lateness_s)
@@ -101,7 +97,6 @@ class FcStats:
             "rx_invalid_state": self.rx_invalid_state,
             "duplicate_states": self.duplicate_states,
             "out_of_order_states": self.out_of_order_states,
-            "failsafe_events": self.failsafe_events,
         }
 
 
@@ -154,7 +149,6 @@ class FlightControllerApp:
         self.spin_s = spin_s
         self.out = out
         self._mono = monotonic
-        self.flight = FlightControl(config, vehicle)
         self.stats = FcStats()
         self.clock: SimClock | WallClock = SimClock() if lockstep else WallClock(1.0, monotonic)
         self.tlog = TlogWriter(tlog_path) if tlog_path is not None else None
@@ -181,17 +175,19 @@ class FlightControllerApp:
             raise
         # Log-only messages have their own sequence numbers: the links' numbering stays gap-free.
         self._logmav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=FC_COMPONENT)
-        self.gcs_handler = GcsHandler(self, monotonic)
         gcs = self.gcs
-        self.commander = Commander(
-            self.flight, home, self.event,
+        #: the flight core: the one control tick (plan, modes, failsafes, pipeline, events).
+        self.core = FlightCore(
+            config, vehicle, home=home, plan=plan, event=self.event,
             mav=gcs.mav if gcs is not None else None,
             send_to=gcs.send_to if gcs is not None else None,
             broadcast=gcs.send if gcs is not None else None,
         )  # fmt: skip
+        self.flight = self.core.flight
+        self.commander = self.core.commander
         self.mission = self.commander.mission
+        self.gcs_handler = GcsHandler(self, monotonic)
         self.streams = StreamScheduler(config.telemetry_rate_hz)
-        self.plan = PlanRunner(plan)
         self._att: mavlink.MAVLink_attitude_message | None = None
         self.state: VehicleState | None = None
         self.body_rates: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -201,10 +197,13 @@ class FlightControllerApp:
         self._odd_steps = 0
         self._last_actuator: bytes | None = None
         self.last_out: TickOutput | None = None
-        self.failsafe = False
         self._stop = False
         self._exit_code = EXIT_OK
-        self.t0_us = 0
+
+    @property
+    def failsafe(self) -> bool:
+        """In the state-loss failsafe."""
+        return self.core.failsafe
 
     # -- lifecycle -----------------------------------------------------------------------------
     def say(self, line: str) -> None:
@@ -224,6 +223,9 @@ class FlightControllerApp:
         sim_addr = "%s:%d" % self.sim.local_address
         gcs_addr = "%s:%d" % self.gcs.local_address if self.gcs else "-"
         self.say(f"FC_LISTENING sim={sim_addr} gcs={gcs_addr} pid={os.getpid()}")
+        if self.tlog is not None:  # the configuration this flight flies, for the log's readers
+            lm = self._logmav
+            self.tlog.write_many(self.clock.now_us(), [m.pack(lm) for m in param_messages(lm, self.cfg)])
         try:
             if self.lockstep:
                 self._run_lockstep()
@@ -237,6 +239,7 @@ class FlightControllerApp:
             self._exit_code = EXIT_CONFIG
         finally:
             summary = self.stats.summary()
+            summary["failsafe_events"] = self.core.failsafe_events
             summary["sim_time_s"] = self.clock.now_s()
             summary["links"] = {"sim": self.sim.counters.as_dict(), "gcs": self.gcs.counters.as_dict() if self.gcs else None}
             summary["gcs_rejected"] = dict(self.gcs_handler.rejected)
@@ -385,68 +388,33 @@ class FlightControllerApp:
     def apply_config(self, cfg: FcConfig) -> None:
         """Live parameter change: takes effect from the next control step."""
         self.cfg = cfg
-        self.flight.reconfigure(cfg)
+        self.core.reconfigure(cfg)
         self.streams.set_telemetry_rate(cfg.telemetry_rate_hz)
 
     def _tick(self, t_us: int, *, stale: bool) -> None:
+        """One tick of the flight core, its answer to the simulator, its log record, telemetry."""
         stats = self.stats
-        if stats.ticks == 0:
-            self.t0_us = t_us
+        core = self.core
+        if core.ticks == 0:
             self.say(f"FC_READY t={t_us * 1e-6:.3f}s controller={self.cfg.controller} lockstep={self.lockstep}")
         stats.ticks += 1
-        st = self.state
-        flight = self.flight
-        commander = self.commander
-        commander.state = st
-        commander.state_fresh = not stale and st is not None
-        commander.failsafe_active = self.failsafe
-        self._run_plan(t_us)
-        dt = self.cfg.period_s
-        if stale or st is None:
-            if not self.failsafe and flight.armed:
-                self.failsafe = True
-                stats.failsafe_events += 1
-                self.event(mavlink.MAV_SEVERITY_CRITICAL, "FAILSAFE: state lost, level and descend")
-            out = flight.failsafe_step()
-        else:
-            if self.failsafe:
-                # The state is back: stay in failsafe, now closed loop: land where we are.
-                self.event(mavlink.MAV_SEVERITY_WARNING, "State back: failsafe landing")
-                self.failsafe = False
-                if flight.armed:
-                    commander.land()
-            commander.on_tick((t_us - self.t0_us) * 1e-6, dt)
-            was_armed = flight.armed
-            out = flight.step(st, dt)
-            if was_armed and not flight.armed:
-                commander.on_disarmed()
-                self.event(mavlink.MAV_SEVERITY_INFO, "Landed: disarmed")
+        out = core.tick(t_us, self.state, fresh=not stale, wall_s=self._mono() if self.gcs is not None else None)
         self.last_out = out
-        armed_flag = mavlink.MAV_MODE_FLAG_SAFETY_ARMED if flight.armed else 0
-        controls = [out.motors[0], out.motors[1], out.motors[2], out.motors[3]] + [0.0] * 12
+        m = out.motors
         sim = self.sim
         act = encode_hil_actuator_controls(
-            sim.take_seq(), *sim.source, t_us, controls, armed_flag, 1 if self.lockstep else 0
-        )
+            sim.take_seq(), *sim.source, t_us, [m[0], m[1], m[2], m[3]] + _ZEROS12,
+            _ARMED if out.armed else 0, ACTUATOR_FLAG_LOCKSTEP if self.lockstep else 0,
+        )  # fmt: skip
         sim.send_packets((act,))
         self._last_actuator = act
         self._last_tick_ms = self._state_ms
         if self.tlog is not None:
-            flags = (
-                (telemetry.FLAG_ARMED if flight.armed else 0)
-                | (telemetry.FLAG_LANDING if flight.landing else 0)
-                | (telemetry.FLAG_FAILSAFE if self.failsafe else 0)
-                | (telemetry.FLAG_POSITION_HOLD if flight.position_hold else 0)
-            )
-            data = telemetry.smc_data(out, flight.target, flight.yaw_target_rad, flags, int(commander.mode))
+            data = telemetry.smc_record(core, out)
             lm = self._logmav
-            self.tlog.write(t_us, encode_debug_float_array(lm.seq, lm.srcSystem, FC_COMPONENT, t_us, b"SMC", telemetry.SMC_ARRAY_ID, data))
+            self.tlog.write(t_us, encode_debug_float_array(lm.seq, lm.srcSystem, FC_COMPONENT, t_us, SMC_ARRAY_NAME, SMC_ARRAY_ID, data))
             lm.seq = (lm.seq + 1) & 0xFF
         self.gcs_handler.on_tick(t_us)
-
-    def _run_plan(self, t_us: int) -> None:
-        for step in self.plan.due((t_us - self.t0_us) * 1e-6):
-            self.commander.apply_plan_step(step)
 
     def event(self, severity: int, text: str) -> None:
         """A STATUSTEXT to ground stations (and the log), and a line on stdout."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from dataclasses import replace
@@ -10,10 +11,12 @@ from pathlib import Path
 from typing import Sequence
 
 from fc.app import EXIT_CONFIG, FlightControllerApp, install_signal_handlers
-from fc.config import FC_CONTROLLERS, FcConfig
-from fc.params import ParamStore
-from fc.plan import load_plan
+from fc.config import FcConfig
+from smcpilot.protocol import FC_CONTROLLERS
+from fc.params import ParamStore, apply_scenario
+from smcpilot.plan import load_plan
 from smcpilot.geo import Home
+from smcpilot.scenario import Scenario
 from smcpilot.errors import SmcpilotError
 from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
 
@@ -51,6 +54,11 @@ def build_parser() -> argparse.ArgumentParser:
                    " PARAM_SET (default: fc-params.parm in --log-dir)")
     p.add_argument("--home", default=None, metavar="LAT,LON,ALT",
                    help="home position for global coordinates (default -35.363261,149.165230,584: ArduPilot's SITL field)")
+    p.add_argument("--scenario", type=Path, metavar="FILE",
+                   help="scenario TOML (smcpilot.scenario): vehicle, controller, rate, home, parameters, plan and"
+                   " duration come from it; the explicit flags above still win")
+    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                   help="set a parameter for this run, over the parameter file and the scenario (repeatable)")
     p.add_argument("--sysid", type=int, default=None, metavar="N",
                    help=f"MAVLink system id (default {d.system_id}, or SYSID_THISMAV from the parameter file)")
     return p
@@ -63,6 +71,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         params = ParamStore(FcConfig(), param_file)
         for warning in params.load():
             print(f"fc: warning: {warning}", file=sys.stderr)
+        scenario = Scenario.from_toml(args.scenario) if args.scenario is not None else None
+        if scenario is not None:
+            apply_scenario(params, scenario)
         # What the command line says explicitly wins over the parameter file, for this run.
         explicit = {
             name: value
@@ -78,9 +89,30 @@ def main(argv: Sequence[str] | None = None) -> int:
         if explicit:
             params.config = replace(params.config, **explicit)
             params.pending = replace(params.pending, **explicit)
-        home = Home.parse(args.home) if args.home else Home()
-        vehicle = VehicleParams.from_toml(args.vehicle) if args.vehicle else DEFAULT_VEHICLE
-        plan = load_plan(args.plan) if args.plan else ()
+        for item in args.param:
+            name, sep, text = item.partition("=")
+            try:
+                value = float(text)
+            except ValueError:
+                value = math.nan
+            if not sep or not name.strip() or not math.isfinite(value):
+                raise SmcpilotError(f"--param expects NAME=VALUE with a finite number, got {item!r}")
+            params.set(name.strip(), value, persist=False)
+        params.config = params.pending  # start-up: restart parameters apply now
+        if args.home:
+            home = Home.parse(args.home)
+        elif scenario is not None and scenario.home is not None:
+            home = Home(*scenario.home)
+        else:
+            home = Home()
+        if args.vehicle:
+            vehicle = VehicleParams.from_toml(args.vehicle)
+        else:
+            vehicle = scenario.vehicle if scenario is not None else DEFAULT_VEHICLE
+        if args.plan:
+            plan = load_plan(args.plan)
+        else:
+            plan = scenario.plan if scenario is not None else ()
         if args.duration is not None and not args.duration > 0:
             raise SmcpilotError(f"--duration must be > 0 simulated seconds, got {args.duration}")
         tlog = args.tlog

@@ -27,14 +27,13 @@ from fc.mission import (
     MissionItem,
     MissionProtocol,
 )
-from fc.modes import ARMABLE, Mode, mode_name
-from fc.plan import PlanStep
+from smcpilot.plan import PlanStep
 from smcpilot.frames import euler_frd_to_flu, ned_to_nwu
 from smcpilot.geo import Home, global_to_ned
+from smcpilot.protocol import ARMABLE_MODES, Mode, mode_name
 
 Result = tuple[int, str | None]
 ACCEPTED: Result = (mavlink.MAV_RESULT_ACCEPTED, None)
-FORCE_MAGIC = 21196.0
 
 #: a take-off counts as done within this height of its target, m.
 TAKEOFF_DONE_M = 0.3
@@ -175,7 +174,7 @@ class Commander:
                 return "PreArm: in failsafe"
             if not self.on_ground():
                 return "PreArm: vehicle is not on the ground"
-            if self.mode not in ARMABLE:
+            if self.mode not in ARMABLE_MODES:
                 return f"PreArm: cannot arm in {self.mode.name}"
             if self.mode == Mode.AUTO and len(self.mission.items) < 2:
                 return "PreArm: AUTO without a mission"

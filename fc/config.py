@@ -15,8 +15,8 @@ from fc.control.gains import PAPER_GAINS, Gains4
 from fc.control.pid_smc import AdaptationBounds
 from fc.position import PositionGains
 from smcpilot.errors import ConfigError
+from smcpilot.protocol import FC_CONTROLLERS
 
-FC_CONTROLLERS = ("adaptive_pid_smc", "pid_smc", "cascade_pid")
 
 
 @dataclass(frozen=True)

@@ -48,8 +48,8 @@ class VehicleState(NamedTuple):
     psi_dot_radps: float
 
 
-class TickOutput(NamedTuple):
-    """What one control tick produced."""
+class PipelineOutput(NamedTuple):
+    """What one step of the flight pipeline produced."""
 
     #: motor commands c1..c4 in [0, 1] (rotors 1 right, 2 front, 3 left, 4 rear).
     motors: tuple[float, float, float, float]
@@ -152,10 +152,10 @@ class FlightControl:
         return self._law_state
 
     # -- the tick -------------------------------------------------------------------------------
-    def step(self, st: VehicleState, dt_s: float) -> TickOutput:
+    def step(self, st: VehicleState, dt_s: float) -> PipelineOutput:
         """One control tick of ``dt_s`` seconds. Disarmed: motors stopped."""
         if not self.armed:
-            return TickOutput((0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0), (False,) * 4, None, (_NAN,) * 4)
+            return PipelineOutput((0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0), (False,) * 4, None, (_NAN,) * 4)
         if not self._law_state:
             self._law_state = tuple(self.law.initial_state((st.phi_rad, 0.0, st.theta_rad, 0.0, st.psi_rad, 0.0, st.z_m, 0.0)))
         cfg = self.config
@@ -233,13 +233,13 @@ class FlightControl:
                     self.disarm()
             else:
                 self.landed_s = 0.0
-        return TickOutput(motors, realised, limited, diag, (phi_r, th_r, psi_r, z_r))
+        return PipelineOutput(motors, realised, limited, diag, (phi_r, th_r, psi_r, z_r))
 
-    def failsafe_step(self) -> TickOutput:
+    def failsafe_step(self) -> PipelineOutput:
         """Open loop (no state): level, thrust a fraction of hover, no yaw. Used when the state is lost."""
         if not self.armed:
-            return TickOutput((0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0), (False,) * 4, None, (_NAN,) * 4)
+            return PipelineOutput((0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0), (False,) * 4, None, (_NAN,) * 4)
         thrust = self.config.failsafe_thrust_fraction * self.vehicle.weight_n
         motors, realised, limited = self.mixer.mix(0.0, 0.0, 0.0, thrust)
-        return TickOutput(motors, realised, limited, None, (0.0, 0.0, _NAN, _NAN))
+        return PipelineOutput(motors, realised, limited, None, (0.0, 0.0, _NAN, _NAN))
 

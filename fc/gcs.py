@@ -17,13 +17,13 @@ from typing import TYPE_CHECKING, Callable
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from fc import telemetry
-from fc.commander import FORCE_MAGIC, Result
+from fc.commander import Result
 from fc.mission import RELATIVE_FRAMES
-from fc.modes import Mode
 from fc.params import PARAM_INDEX, PARAMS, ParamError
 from smcpilot import __version__
 from smcpilot.frames import euler_flu_to_frd, euler_frd_to_flu, ned_to_nwu, nwu_to_ned
 from smcpilot.geo import ned_to_global
+from smcpilot.protocol import FORCE_ARM_MAGIC, OVERRUN_NAME, Mode
 
 if TYPE_CHECKING:  # pragma: no cover
     from fc.app import FlightControllerApp
@@ -133,7 +133,7 @@ class GcsHandler:
     def _heartbeat(self, m: mavlink.MAVLink_message, addr: Address) -> None:
         if m.type == M.MAV_TYPE_GCS:
             self.gcs_heartbeats += 1
-            self.app.commander.on_gcs_heartbeat(self.wall_s())
+            self.app.core.on_gcs_heartbeat(self.wall_s())
 
     def _ack(self, addr: Address, m: mavlink.MAVLink_message, command: int, result: Result) -> None:
         code, reason = result
@@ -158,7 +158,7 @@ class GcsHandler:
     def _command(self, cmd: int, p: tuple[float, ...], frame: int | None, addr: Address, m) -> Result:
         c = self.app.commander
         if cmd == M.MAV_CMD_COMPONENT_ARM_DISARM:
-            force = p[1] == FORCE_MAGIC
+            force = p[1] == FORCE_ARM_MAGIC
             if p[0] == 1.0:
                 return c.arm(force)
             if p[0] == 0.0:
@@ -371,9 +371,9 @@ class GcsHandler:
             mask = 0xFFF & ~(_IGNORE_POS | _IGNORE_YAW)  # position and yaw are the set-point
             return [mav.position_target_local_ned_encode(t_ms, M.MAV_FRAME_LOCAL_NED, mask, tn, te, td, 0, 0, 0, 0, 0, 0, yaw_ned, 0)]
         if msg_id == M.MAVLINK_MSG_ID_NAMED_VALUE_INT:
-            return [mav.named_value_int_encode(t_ms, b"OVERRUN", app.stats.overruns)]
+            return [mav.named_value_int_encode(t_ms, OVERRUN_NAME.encode(), app.stats.overruns)]
         if msg_id == M.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT:
-            return telemetry.named_values(mav, t_ms, app.last_out)
+            return telemetry.named_values(mav, t_ms, app.last_out.pipeline if app.last_out is not None else None)
         if msg_id == M.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
             return [
                 mav.autopilot_version_encode(
@@ -422,10 +422,9 @@ class GcsHandler:
         return []
 
     def on_tick(self, t_us: int) -> None:
-        """Per control tick: protocol timeouts (wall clock) and the telemetry streams."""
+        """Per control tick: mission-protocol timeouts (wall clock) and the telemetry streams."""
         now = self.wall_s()
         self.app.mission.tick(now)
-        self.app.commander.check_gcs(now)
         self.stream(t_us)
 
 

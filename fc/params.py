@@ -16,8 +16,10 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
-from fc.config import FC_CONTROLLERS, FcConfig
+from fc.config import FcConfig
+from smcpilot.protocol import FC_CONTROLLERS
 from smcpilot.errors import ConfigError, InvalidGainError
+from smcpilot.scenario import Scenario, ScenarioError
 
 
 class ParamError(ConfigError):
@@ -266,3 +268,34 @@ def defaults_table() -> list[dict[str, object]]:
         for p in PARAMS
     ]
 
+
+
+def apply_scenario(store: ParamStore, scenario: Scenario) -> FcConfig:
+    """Start-up: the scenario's controller, rate and parameter values over what ``store`` holds
+    (defaults, or a loaded parameter file); restart parameters apply at once. Errors name the key."""
+    base = {"controller": scenario.controller, "rate_hz": scenario.rate_hz}
+    store.config = replace(store.config, **base)
+    store.pending = replace(store.pending, **base)
+    for name, value in scenario.params:
+        try:
+            store.set(name, value, persist=False)
+        except ParamError as exc:
+            raise ScenarioError(f"fc.params.{name}: {exc}") from None
+    store.config = store.pending
+    return store.config
+
+
+def config_for(scenario: Scenario) -> FcConfig:
+    """The FC configuration a scenario flies (defaults, then the scenario's settings)."""
+    return apply_scenario(ParamStore(FcConfig()), scenario)
+
+
+def param_messages(mav, config: FcConfig) -> list:
+    """``PARAM_VALUE`` of every parameter as ``config`` holds it: the FC logs them once at start,
+    so a log says what configuration flew it (as ArduPilot's logs carry PARM records)."""
+    out = []
+    n = len(PARAMS)
+    for i, p in enumerate(PARAMS):
+        ptype = 6 if p.is_int else 9  # MAV_PARAM_TYPE_INT32 / REAL32
+        out.append(mav.param_value_encode(p.name.encode(), float(p.get(config)), ptype, n, i))
+    return out

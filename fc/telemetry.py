@@ -12,39 +12,21 @@ To ground stations (every control tick decides, by simulated or wall time, what 
 - ``STATUSTEXT`` for events (failsafe, arming, landing).
 
 To the log only (lockstep): a ``DEBUG_FLOAT_ARRAY`` named ``SMC`` every control tick, carrying
-the law's internals at full rate; :data:`SMC_FIELDS` names its entries.
+the law's internals at full rate; :data:`smcpilot.protocol.SMC_FIELDS` names its entries.
 """
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from fc.flight import TickOutput, VehicleState
+from fc.flight import PipelineOutput, VehicleState
 from smcpilot.frames import euler_flu_to_frd, nwu_to_ned, rates_flu_to_frd
+from smcpilot.protocol import CHI_NAMES, SIG_NAMES, SMC_FIELDS
 
-CHANNEL_TAGS = ("PHI", "THETA", "PSI", "Z")
-CHI_NAMES = tuple(f"CHI_{c}" for c in CHANNEL_TAGS)
-SIG_NAMES = tuple(f"SIG_{c}" for c in CHANNEL_TAGS)
-
-#: Entries of the per-tick DEBUG_FLOAT_ARRAY "SMC" (paper frame, channel order phi, theta, psi, z).
-SMC_FIELDS: tuple[str, ...] = (
-    ("chi_phi", "chi_theta", "chi_psi", "chi_z")
-    + ("sigma_phi", "sigma_theta", "sigma_psi", "sigma_z")
-    + ("s_phi", "s_theta", "s_psi", "s_z")
-    + ("u_phi", "u_theta", "u_psi", "u_z")
-    + ("ref_phi", "ref_theta", "ref_psi", "ref_z")
-    + ("motor1", "motor2", "motor3", "motor4")
-    + ("target_x", "target_y", "target_z", "target_yaw")
-    + ("limited_mask", "flags", "mode")
-)
-#: bits of the "flags" entry of the SMC array
-FLAG_ARMED = 1
-FLAG_LANDING = 2
-FLAG_FAILSAFE = 4
-FLAG_POSITION_HOLD = 8
-SMC_ARRAY_ID = 1
+if TYPE_CHECKING:  # pragma: no cover
+    from fc.core import FlightCore, TickOutput
 
 # Health bits MAVSDK and MAVProxy look at (gcs-interop-notes.md).
 _SENSORS = (
@@ -108,7 +90,7 @@ def local_position(mav: mavlink.MAVLink, time_boot_ms: int, st: VehicleState) ->
     return mav.local_position_ned_encode(time_boot_ms & 0xFFFFFFFF, x, y, z, vx, vy, vz)
 
 
-def named_values(mav: mavlink.MAVLink, time_boot_ms: int, out: TickOutput | None) -> list[mavlink.MAVLink_message]:
+def named_values(mav: mavlink.MAVLink, time_boot_ms: int, out: PipelineOutput | None) -> list[mavlink.MAVLink_message]:
     d = out.diag if out is not None else None
     chi = d.chi_hat if d is not None and d.chi_hat is not None else (_NAN,) * 4
     sig = d.sigma if d is not None and d.sigma is not None else (_NAN,) * 4
@@ -123,7 +105,7 @@ def statustext(mav: mavlink.MAVLink, severity: int, text: str) -> mavlink.MAVLin
     return mav.statustext_encode(severity, text[:50].encode("ascii", "replace"))
 
 
-def smc_data(out: TickOutput, target: Sequence[float], yaw_target: float, flags: int = 0, mode: int = 0) -> list[float]:
+def smc_data(out: PipelineOutput, target: Sequence[float], yaw_target: float, flags: int = 0, mode: int = 0) -> list[float]:
     """The 58 floats of the per-tick ``DEBUG_FLOAT_ARRAY`` "SMC" (see :data:`SMC_FIELDS`)."""
     d = out.diag
     # Unused slots stay 0.0 so MAVLink 2 trims them off the wire; unknown values are NaN.
@@ -146,3 +128,9 @@ def smc_data(out: TickOutput, target: Sequence[float], yaw_target: float, flags:
     data[29] = float(flags)
     data[30] = float(mode)
     return data
+
+
+def smc_record(core: "FlightCore", out: "TickOutput") -> list[float]:
+    """The per-tick ``SMC`` record of a flight-core tick (every runner logs the same one)."""
+    f = core.flight
+    return smc_data(out.pipeline, f.target, f.yaw_target_rad, out.flags, out.mode)

@@ -67,6 +67,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from smcpilot.errors import ConfigError, LinkClosedError, SmcpilotError
 from smcpilot.link import Address, MavlinkUdp
+from smcpilot.protocol import COPTER_MODE_NAMES, COPTER_MODES, FORCE_ARM_MAGIC
 
 __all__ = [
     "COPTER_MODES",
@@ -95,39 +96,6 @@ log = logging.getLogger(__name__)
 #: Our MAVLink identity: a ground station (MAV_COMP_ID_MISSIONPLANNER).
 GCS_SYSTEM_ID = 255
 GCS_COMPONENT_ID = mavlink.MAV_COMP_ID_MISSIONPLANNER  # 190
-
-#: ArduCopter custom-mode numbers by name (all of them; the FC flies a subset and refuses the rest).
-COPTER_MODES: dict[str, int] = {
-    "STABILIZE": 0,
-    "ACRO": 1,
-    "ALT_HOLD": 2,
-    "AUTO": 3,
-    "GUIDED": 4,
-    "LOITER": 5,
-    "RTL": 6,
-    "CIRCLE": 7,
-    "LAND": 9,
-    "DRIFT": 11,
-    "SPORT": 13,
-    "FLIP": 14,
-    "AUTOTUNE": 15,
-    "POSHOLD": 16,
-    "BRAKE": 17,
-    "THROW": 18,
-    "AVOID_ADSB": 19,
-    "GUIDED_NOGPS": 20,
-    "SMART_RTL": 21,
-    "FLOWHOLD": 22,
-    "FOLLOW": 23,
-    "ZIGZAG": 24,
-    "SYSTEMID": 25,
-    "AUTOROTATE": 26,
-    "AUTO_RTL": 27,
-}
-_MODE_NAMES = {number: name for name, number in COPTER_MODES.items()}
-
-#: ``param2`` of COMPONENT_ARM_DISARM that forces arming/disarming (ArduPilot's magic number).
-FORCE_ARM_MAGIC = 21196.0
 
 _NAN = float("nan")
 _T = TypeVar("_T")
@@ -287,7 +255,7 @@ def mode_name(number: int | None) -> str | None:
     """ArduCopter mode name of a custom-mode number (``"MODE_<n>"`` if unknown, None for None)."""
     if number is None:
         return None
-    return _MODE_NAMES.get(number, f"MODE_{number}")
+    return COPTER_MODE_NAMES.get(number, f"MODE_{number}")
 
 
 # ------------------------------------------------------------------------------------- telemetry

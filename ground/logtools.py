@@ -5,7 +5,7 @@ MAVLink NED convention; :func:`summarize` reduces it to a JSON-ready dict of hea
 (:func:`print_summary` prints them); :func:`plot_log` writes PNG figures. The CLI pieces
 (:func:`add_plot_arguments` / :func:`plot_main` for ``smcpilot plot LOG`` and
 :func:`add_log_arguments` / :func:`log_main` for ``smcpilot log summary LOG``) are wired into
-:mod:`ground.cli`.
+:mod:`lab.cli`.
 
 What the flight controller logs (see :mod:`fc.app` and :mod:`fc.telemetry`):
 
@@ -14,7 +14,7 @@ What the flight controller logs (see :mod:`fc.app` and :mod:`fc.telemetry`):
 - to the simulator, every tick: ``HIL_ACTUATOR_CONTROLS`` (controls[0..3] = motor commands in
   [0, 1]; mode bit 128 = armed; flags bit 0 = lockstep);
 - log-only, every tick: ``DEBUG_FLOAT_ARRAY`` "SMC" (array_id 1) whose entries
-  :data:`fc.telemetry.SMC_FIELDS` names, in the paper's frames (NWU world, FLU body);
+  :data:`smcpilot.protocol.SMC_FIELDS` names, in the paper's frames (NWU world, FLU body);
 - to ground stations, if one was attached: ``HEARTBEAT``, ``SYS_STATUS``, ``NAMED_VALUE_INT``
   "OVERRUN", 10 Hz copies of ``ATTITUDE`` / ``LOCAL_POSITION_NED`` (component 1) and
   ``NAMED_VALUE_FLOAT`` ``CHI_*`` / ``SIG_*``; ``STATUSTEXT`` events.
@@ -50,7 +50,7 @@ from typing import Any, Callable, TextIO
 
 import numpy as np
 
-from fc.telemetry import (
+from smcpilot.protocol import (
     CHANNEL_TAGS,
     CHI_NAMES,
     FLAG_ARMED,
@@ -62,6 +62,7 @@ from fc.telemetry import (
 )
 from smcpilot.errors import SmcpilotError, TlogError, TlogFormatError
 from smcpilot.frames import euler_flu_to_frd, nwu_to_ned
+from smcpilot.protocol import SIM_COMPONENT_ID
 from smcpilot.tlog import read_tlog
 
 __all__ = [
@@ -89,8 +90,7 @@ DEFAULT_SETTLE_S = 8.0
 #: Length of the window over which sigma's RMS is taken: the last seconds of flight before landing.
 DEFAULT_SIGMA_WINDOW_S = 5.0
 
-#: Source component of the simulator bridge (sim_bridge.app.SIM_COMPONENT).
-SIM_COMPONENT = 200
+SIM_COMPONENT = SIM_COMPONENT_ID
 _ARMED_BIT = 128  # MAV_MODE_FLAG_SAFETY_ARMED in HIL_ACTUATOR_CONTROLS.mode
 _LOCKSTEP_FLAG = 1  # HIL_ACTUATOR_CONTROLS.flags bit 0
 _SMC_USED = len(SMC_FIELDS)  # 29 of the 58 floats carry data
@@ -192,7 +192,7 @@ class FlightLog:
 
     # DEBUG_FLOAT_ARRAY "SMC": the law's internals every tick.
     smc_t_s: np.ndarray = field(default_factory=_empty)
-    #: raw SMC columns by :data:`fc.telemetry.SMC_FIELDS` name, paper frame, as logged.
+    #: raw SMC columns by :data:`smcpilot.protocol.SMC_FIELDS` name, paper frame, as logged.
     smc: dict[str, np.ndarray] = field(default_factory=dict)
     #: sliding variable S and law output u per channel (phi, theta, psi, z), shape (n, 4).
     s: np.ndarray = field(default_factory=lambda: _empty(4))
@@ -220,6 +220,8 @@ class FlightLog:
     #: every NAMED_VALUE_FLOAT / NAMED_VALUE_INT by name.
     named_floats: dict[str, TimeSeries] = field(default_factory=dict)
     named_ints: dict[str, TimeSeries] = field(default_factory=dict)
+    #: FC parameters logged in the flight (PARAM_VALUE: the start-up configuration, later changes), last value wins.
+    params: dict[str, float] = field(default_factory=dict)
     #: STATUSTEXT events in file order.
     events: list[LogEvent] = field(default_factory=list)
     #: last NAMED_VALUE_INT "OVERRUN" (cumulative missed deadlines), None if never sent.
@@ -326,6 +328,10 @@ def load_log(path: str | os.PathLike[str]) -> FlightLog:
             elif mtype == "LOCAL_POSITION_NED":
                 key = (msg.get_srcSystem(), msg.get_srcComponent())
                 pos.setdefault(key, []).append((time_us, msg.time_boot_ms, msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz))
+            elif mtype == "PARAM_VALUE":
+                pid = msg.param_id
+                name = (pid.decode("ascii", "replace") if isinstance(pid, bytes) else str(pid)).split("\x00", 1)[0]
+                log.params[name] = float(msg.param_value)
             elif mtype == "HIL_ACTUATOR_CONTROLS":
                 c = msg.controls
                 act.append((time_us, c[0], c[1], c[2], c[3], msg.mode & _ARMED_BIT))
@@ -715,15 +721,12 @@ def _pyplot():  # type: ignore[no-untyped-def]
     return plt
 
 
-def _fc_adaptation_defaults() -> tuple[tuple[float, float] | None, float | None]:
-    """The FC's default chi_hat projection bounds (min, max) and sigma dead zone (None if unknown)."""
-    try:
-        from fc.config import FcConfig
-
-        a = FcConfig().adaptation
-        return (float(a.chi_hat_min), float(a.chi_hat_max)), float(a.dead_zone)
-    except Exception:  # noqa: BLE001 - a plotting nicety must never break plotting
-        return None, None
+def _logged_adaptation(log: FlightLog) -> tuple[tuple[float, float] | None, float | None]:
+    """chi_hat's projection bounds (min, max) and sigma's dead zone as the flight's log records
+    them (the FC logs its parameters at start); None where the log does not say."""
+    p = log.params
+    bounds = (p["SMC_CHI_MIN"], p["SMC_CHI_MAX"]) if "SMC_CHI_MIN" in p and "SMC_CHI_MAX" in p else None
+    return bounds, p.get("SMC_CHI_DZ")
 
 
 def _armed_spans(t: np.ndarray, armed: np.ndarray) -> list[tuple[float, float]]:
@@ -837,8 +840,9 @@ def plot_log(
     titled with the log's file name.
 
     ``chi_bounds`` = (min, max) names chi_hat's projection bounds (drawn when near the data, else
-    written in the panel); the default uses the FC's default bounds and also shades the FC's
-    default sigma dead zone (labelled so: the log does not record the configuration); None: neither.
+    written in the panel); the default uses the bounds the log records (the FC logs its parameters
+    at start: SMC_CHI_MIN/MAX) and also shades the logged sigma dead zone (SMC_CHI_DZ); an older
+    log without them gets neither; None: neither.
     """
     plt = _pyplot()
     out = Path(out_dir)
@@ -846,9 +850,9 @@ def plot_log(
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise LogError(f"cannot create plot directory {out}: {exc.strerror}") from exc
-    fc_bounds, dead_zone = _fc_adaptation_defaults()
+    logged_bounds, dead_zone = _logged_adaptation(log)
     if chi_bounds == "default":
-        bounds, bounds_source = fc_bounds, "FC default"
+        bounds, bounds_source = logged_bounds, "logged"
     else:
         bounds, bounds_source, dead_zone = chi_bounds, "given", None  # type: ignore[assignment]
 

@@ -168,12 +168,13 @@ from typing import Any, ClassVar, TextIO
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from fc.config import FC_CONTROLLERS
-from fc.telemetry import CHI_NAMES
 from ground.client import HomePosition, MissionItem, Vehicle, VehicleError
 from ground.sitl import Sitl, SitlError, SitlOptions
 from smcpilot.errors import ConfigError, LinkError, SmcpilotError, TlogError
 from smcpilot.geo import Home, global_to_ned, ned_to_global
+from smcpilot.protocol import CHI_NAMES, FC_CONTROLLERS
+from smcpilot.scenario import EnvironmentSpec, Scenario
+from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
 
 __all__ = [
     "CHANNELS",
@@ -936,25 +937,26 @@ class SitlSettings:
     #: simulated seconds of flight after the mission start before the runner stops waiting.
     max_duration_s: float = DEFAULT_MAX_DURATION_S
 
-    def options(self, *, gcs: str, log_dir: Path, tlog: Path, param_file: Path) -> SitlOptions:
-        """Lockstep :class:`ground.sitl.SitlOptions` for these settings."""
-        home = None if self.home is None else f"{self.home.lat_deg!r},{self.home.lon_deg!r},{self.home.alt_m!r}"
-        return SitlOptions(
-            lockstep=True,
-            vehicle=self.vehicle,
+    def scenario(self, name: str = "mission") -> Scenario:
+        """The flight these settings describe (no plan: the mission is uploaded and started)."""
+        return Scenario(
+            name=name,
+            vehicle=VehicleParams.from_toml(self.vehicle) if self.vehicle is not None else DEFAULT_VEHICLE,
+            vehicle_file=self.vehicle,
             controller=self.controller,
             seed=self.seed,
-            gcs=gcs,
-            log_dir=log_dir,
-            tlog=tlog,
-            param_file=param_file,
-            home=home,
             plant=self.plant,
-            noise=self.noise,
-            noise_scale=self.noise_scale,
-            wind_force_ned_n=self.wind_force_ned_n,
-            gust_std_n=self.gust_std_n,
+            home=None if self.home is None else (self.home.lat_deg, self.home.lon_deg, self.home.alt_m),
+            environment=EnvironmentSpec(
+                noise=self.noise, noise_scale=self.noise_scale,
+                wind_force_ned_n=self.wind_force_ned_n if self.wind_force_ned_n is not None else (0.0, 0.0, 0.0),
+                gust_std_n=self.gust_std_n,
+            ),  # fmt: skip
         )
+
+    def options(self, *, gcs: str, log_dir: Path, tlog: Path, param_file: Path, name: str = "mission") -> SitlOptions:
+        """Lockstep :class:`ground.sitl.SitlOptions` for these settings."""
+        return SitlOptions(scenario=self.scenario(name), lockstep=True, gcs=gcs, log_dir=log_dir, tlog=tlog, param_file=param_file)
 
     def describe(self) -> str:
         parts = [f"controller {self.controller}", f"plant {self.plant}", f"seed {self.seed}"]
@@ -1782,7 +1784,7 @@ def _raise_terminated(*_: object) -> None:
 
 
 def _run_main(args: argparse.Namespace) -> int:
-    mission = load_mission(args.file)  # MissionFileError -> exit 2 (ground.cli)
+    mission = load_mission(args.file)  # MissionFileError -> exit 2 (lab.cli)
     out = args.out if args.out is not None else Path("out") / "missions" / args.file.stem
     old = None
     if threading.current_thread() is threading.main_thread():

@@ -16,7 +16,9 @@ run once the package is installed. It provides:
 - the marker ``@pytest.mark.sitl_options(...)``: per-test :class:`~ground.sitl.SitlOptions`
   fields, e.g. ``controller="pid_smc"``, ``wind_force_ned_n=(2, 0, 0)``, ``noise=True``,
   ``seed=3``, ``vehicle="heavy.toml"``, ``gust_std_n=0.5``, ``home="47.0,8.0,400"``,
-  ``param_file="tuned.parm"`` (the FC loads it, and rewrites it on every PARAM_SET).
+  ``param_file="tuned.parm"`` (the FC loads it, and rewrites it on every PARAM_SET), or a whole
+  scenario, ``scenario="examples/scenarios/gusty-hold.toml"`` (a path or a
+  :class:`~smcpilot.scenario.Scenario`; the other keywords change it).
 
 The telemetry log (``.tlog``) of a test is kept when the test fails — its path (and the last
 lines the FC and simulator printed) appear in the failure report, section "smcpilot sitl" — and
@@ -51,7 +53,8 @@ from typing import Any, Iterator
 import pytest
 
 from ground.client import Vehicle
-from ground.sitl import Sitl, SitlOptions
+from ground.sitl import SCENARIO_KEYWORDS, Sitl, SitlOptions
+from smcpilot.scenario import Scenario
 
 #: SitlOptions fields the marker may not set (the fixture owns them).
 _RESERVED = frozenset({"gcs", "tlog", "log_dir", "lockstep"})
@@ -103,6 +106,8 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) ->
     run.failed = True
     started = run.sitl is not None and run.sitl.fc is not None
     lines = [f"tlog kept: {run.tlog}" if started else "no tlog: SITL did not start"]
+    if started and run.sitl is not None and run.sitl.scenario_file is not None:
+        lines.append(f"its scenario: {run.sitl.scenario_file} (fly it again: smcpilot run FILE)")
     if run.output:
         lines.append("last output of the FC and the simulator:")
         lines.extend(f"  {line}" for line in run.output)
@@ -123,7 +128,7 @@ def _options(request: pytest.FixtureRequest, log_dir: Path, tlog: Path, param_fi
         if not speed > 0:
             raise pytest.UsageError(f"--sitl-speed must be > 0, got {speed}")
         kw["speed"] = speed
-    valid = {f.name for f in dataclasses.fields(SitlOptions)} - _RESERVED
+    valid = ({f.name for f in dataclasses.fields(SitlOptions)} | SCENARIO_KEYWORDS) - _RESERVED - {"timed"}
     # Markers closest to the test win (a test's marker over its class's over its module's).
     for marker in reversed(list(request.node.iter_markers(_MARKER))):
         if marker.args:
@@ -133,7 +138,9 @@ def _options(request: pytest.FixtureRequest, log_dir: Path, tlog: Path, param_fi
                 pytest.fail(
                     f"@pytest.mark.{_MARKER}: unknown option {key!r}; valid: {', '.join(sorted(valid))}", pytrace=False
                 )
-            if key in ("vehicle", "plan", "param_file") and value is not None:
+            if key == "scenario" and value is not None and not isinstance(value, Scenario):
+                value = Scenario.from_toml(value)  # a path: the scenario file
+            elif key in ("vehicle", "plan", "param_file") and value is not None:
                 value = Path(value)
             elif key in ("wind_force_ned_n", "fc_args", "sim_args") and value is not None:
                 value = tuple(value)
@@ -144,7 +151,7 @@ def _options(request: pytest.FixtureRequest, log_dir: Path, tlog: Path, param_fi
         kw["param_file"] = param_file
     else:
         kw["param_file"] = Path(kw["param_file"])
-    return SitlOptions(lockstep=True, gcs=gcs_url, log_dir=log_dir, tlog=tlog, **kw)
+    return SitlOptions.of(lockstep=True, gcs=gcs_url, log_dir=log_dir, tlog=tlog, **kw)
 
 
 def _safe_name(nodeid: str) -> str:
@@ -185,7 +192,8 @@ def sitl(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactor
         # report, made after this, carries the section.
         keep = cfg.getoption("sitl_keep_logs") or run.failed or not yielded
         if not keep:
-            for path in (run.tlog, run.param_file):  # a marker's own param_file is the user's: kept
+            scenario_file = run.tlog.with_name(run.tlog.stem + ".scenario.toml")
+            for path in (run.tlog, run.param_file, scenario_file):  # a marker's own param_file is the user's: kept
                 try:
                     path.unlink()
                 except FileNotFoundError:

@@ -20,47 +20,126 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable, TextIO
+from typing import Any, Callable, TextIO
 
 from smcpilot.errors import SmcpilotError
+from smcpilot.geo import Home
+from smcpilot.plan import load_plan
+from smcpilot.scenario import Scenario
+from smcpilot.vehicle import VehicleParams
 
 
 class SitlError(SmcpilotError):
     """SITL could not start, or a child process failed."""
 
 
+#: SitlOptions keywords that describe the flight (they build its Scenario).
+SCENARIO_KEYWORDS = frozenset(
+    {"controller", "seed", "plant", "rate_hz", "physics_hz", "vehicle", "plan", "home", "duration_s", "noise",
+     "noise_scale", "wind_force_ned_n", "gust_std_n", "paper_disturbance"}
+)  # fmt: skip
+
+
 @dataclass(frozen=True)
 class SitlOptions:
-    """What to launch. Paths may be None (defaults of the child processes)."""
+    """What to launch: the flight (a :class:`~smcpilot.scenario.Scenario`) and how to launch it.
 
+    Build with ``SitlOptions.of(scenario=..., lockstep=...)`` or, for the flat keywords of earlier
+    versions and the pytest marker, :meth:`of` (``SitlOptions.of(controller="pid_smc", seed=3)``).
+    """
+
+    #: the flight: vehicle, plant, environment, seed, controller, rates, home, parameters, plan.
+    scenario: Scenario = field(default_factory=Scenario)
+    #: stop after the scenario's ``duration_s`` (False: run until stopped).
+    timed: bool = False
     lockstep: bool = True
     speed: float | None = None
-    duration_s: float | None = None
-    vehicle: Path | None = None
-    controller: str = "adaptive_pid_smc"
-    seed: int = 0
     gcs: str | None = "udp:127.0.0.1:14550"
     log_dir: Path = Path("logs")
     tlog: Path | None = None
     #: FC parameter file (default: fc-params.parm in log_dir).
     param_file: Path | None = None
-    #: home for global coordinates "LAT,LON,ALT" (default: the FC's).
-    home: str | None = None
-    plan: Path | None = None
-    plant: str = "rigid-body"
-    rate_hz: float = 500.0
-    physics_hz: float = 1000.0
-    noise: bool = False
-    noise_scale: float = 1.0
-    wind_force_ned_n: tuple[float, float, float] | None = None
-    gust_std_n: float = 0.0
-    paper_disturbance: bool = False
     watchdog_s: float = 5.0
     #: extra arguments for the FC / the bridge (advanced use, tests).
     fc_args: tuple[str, ...] = ()
     sim_args: tuple[str, ...] = ()
+
+    @classmethod
+    def of(cls, **kw: Any) -> "SitlOptions":
+        """Options from flat keywords: the flight's (:data:`SCENARIO_KEYWORDS`: ``vehicle`` and
+        ``plan`` as file paths, ``home`` as ``"LAT,LON,ALT"``, ``duration_s`` None for "until
+        stopped") and the launch's (the other fields). A ``scenario`` keyword is the base."""
+        flight = {k: kw.pop(k) for k in list(kw) if k in SCENARIO_KEYWORDS}
+        base: Scenario = kw.pop("scenario", None) or Scenario()
+        duration = flight.pop("duration_s", None)
+        changes: dict[str, Any] = {}
+        if duration is not None:
+            changes["duration_s"] = float(duration)
+            kw.setdefault("timed", True)
+        vehicle = flight.pop("vehicle", None)
+        if vehicle is not None:
+            changes["vehicle"] = VehicleParams.from_toml(vehicle)
+            changes["vehicle_file"] = Path(vehicle)
+        plan = flight.pop("plan", None)
+        if plan is not None:
+            changes["plan"] = load_plan(plan)
+        home = flight.pop("home", None)
+        if home is not None:
+            h = Home.parse(home) if isinstance(home, str) else Home(*home)
+            changes["home"] = (h.lat_deg, h.lon_deg, h.alt_m)
+        env_keys = {"noise", "noise_scale", "wind_force_ned_n", "gust_std_n", "paper_disturbance"}
+        env = {k: flight.pop(k) for k in list(flight) if k in env_keys}
+        if env.get("wind_force_ned_n", 0) is None:
+            env.pop("wind_force_ned_n")
+        if env:
+            if "wind_force_ned_n" in env:
+                env["wind_force_ned_n"] = tuple(float(v) for v in env["wind_force_ned_n"])
+            changes["environment"] = replace(base.environment, **env)
+        changes.update(flight)
+        return cls(scenario=replace(base, **changes) if changes else base, **kw)
+
+    # The flat names of earlier versions, read-only (tests written against them keep working).
+    @property
+    def controller(self) -> str:
+        return self.scenario.controller
+
+    @property
+    def seed(self) -> int:
+        return self.scenario.seed
+
+    @property
+    def plant(self) -> str:
+        return self.scenario.plant
+
+    @property
+    def rate_hz(self) -> float:
+        return self.scenario.rate_hz
+
+    @property
+    def physics_hz(self) -> float:
+        return self.scenario.physics_hz
+
+    @property
+    def duration_s(self) -> float | None:
+        return self.scenario.duration_s if self.timed else None
+
+    @property
+    def vehicle(self) -> Path | None:
+        return self.scenario.vehicle_file
+
+    @property
+    def noise(self) -> bool:
+        return self.scenario.environment.noise
+
+    @property
+    def wind_force_ned_n(self) -> tuple[float, float, float]:
+        return self.scenario.environment.wind_force_ned_n
+
+    @property
+    def gust_std_n(self) -> float:
+        return self.scenario.environment.gust_std_n
 
 
 def _pdeathsig() -> None:  # pragma: no cover - runs in the child
@@ -96,6 +175,8 @@ class Sitl:
         self.sim_port: int | None = None
         self.gcs_address: str | None = None
         self.tlog: Path | None = None
+        #: the scenario file both processes were started with (beside the tlog).
+        self.scenario_file: Path | None = None
         self.started_wall = 0.0
 
     # -- start -----------------------------------------------------------------------------------
@@ -166,20 +247,19 @@ class Sitl:
             o.log_dir.mkdir(parents=True, exist_ok=True)
             tlog = o.log_dir / time.strftime(f"sitl-%Y%m%d-%H%M%S-{os.getpid()}.tlog")
         self.tlog = tlog
-        fc_args = ["fc", "--sim", "udpin:127.0.0.1:0", "--gcs", o.gcs or "none", "--controller", o.controller,
-                   "--rate-hz", f"{o.rate_hz:g}", "--tlog", str(tlog), "--watchdog-s", f"{o.watchdog_s:g}"]  # fmt: skip
+        sc = o.scenario
+        # The flight goes to both processes as one file, kept beside the log: `smcpilot run FILE`
+        # flies it again (in-process, or with --sitl as here).
+        self.scenario_file = sc.save(tlog.with_name(tlog.stem + ".scenario.toml"))
+        timed = ["--duration", repr(sc.duration_s)] if o.timed else []
+        fc_args = ["fc", "--sim", "udpin:127.0.0.1:0", "--gcs", o.gcs or "none", "--scenario", str(self.scenario_file),
+                   "--tlog", str(tlog), "--watchdog-s", f"{o.watchdog_s:g}"]  # fmt: skip
         if o.lockstep:
             fc_args.append("--lockstep")
-        if o.vehicle is not None:
-            fc_args += ["--vehicle", str(o.vehicle)]
-        if o.plan is not None:
-            fc_args += ["--plan", str(o.plan)]
         param_file = o.param_file if o.param_file is not None else tlog.parent / "fc-params.parm"
         fc_args += ["--param-file", str(param_file)]
-        if o.home is not None:
-            fc_args += ["--home", o.home]
-        if o.duration_s is not None and o.lockstep:
-            fc_args += ["--duration", f"{o.duration_s!r}"]
+        if o.lockstep:
+            fc_args += timed
         fc_args += list(o.fc_args)
         self.started_wall = time.monotonic()
         self.fc = self._spawn("fc", fc_args)
@@ -187,24 +267,13 @@ class Sitl:
         fields = dict(part.split("=", 1) for part in listening.split()[1:] if "=" in part)
         self.sim_port = int(fields["sim"].rsplit(":", 1)[1])
         self.gcs_address = fields.get("gcs")
-        sim_args = ["sim_bridge", "--fc", f"udp:127.0.0.1:{self.sim_port}", "--plant", o.plant, "--seed", str(o.seed),
-                    "--rate-hz", f"{o.rate_hz:g}", "--physics-hz", f"{o.physics_hz:g}", "--watchdog-s", f"{o.watchdog_s:g}"]  # fmt: skip
+        sim_args = ["sim_bridge", "--fc", f"udp:127.0.0.1:{self.sim_port}", "--scenario", str(self.scenario_file),
+                    "--watchdog-s", f"{o.watchdog_s:g}"]  # fmt: skip
         if o.lockstep:
             sim_args.append("--lockstep")
         if o.speed is not None:
             sim_args += ["--speed", f"{o.speed:g}"]
-        if o.duration_s is not None:
-            sim_args += ["--duration", f"{o.duration_s!r}"]
-        if o.vehicle is not None:
-            sim_args += ["--vehicle", str(o.vehicle)]
-        if o.noise:
-            sim_args += ["--noise", "--noise-scale", f"{o.noise_scale:g}"]
-        if o.wind_force_ned_n is not None:
-            sim_args += ["--wind-force", ",".join(f"{v:g}" for v in o.wind_force_ned_n)]
-        if o.gust_std_n > 0:
-            sim_args += ["--gust-std", f"{o.gust_std_n:g}"]
-        if o.paper_disturbance:
-            sim_args.append("--paper-disturbance")
+        sim_args += timed
         sim_args += list(o.sim_args)
         self.sim = self._spawn("sim", sim_args)
         self._await_line(self.fc, "FC_READY", ready_timeout_s)
@@ -294,7 +363,7 @@ class Sitl:
 
 def print_connect_help(sitl: Sitl, out: TextIO = sys.stdout) -> None:
     o = sitl.options
-    print(f"SITL running: {'lockstep' if o.lockstep else 'real time'}, controller {o.controller}, plant {o.plant},"
+    print(f"SITL running: {'lockstep' if o.lockstep else 'real time'}, controller {o.scenario.controller}, plant {o.scenario.plant},"
           f" log {sitl.tlog}", file=out)  # fmt: skip
     if o.gcs and o.gcs.startswith(("udp:", "udpout:")):
         target = o.gcs.split(":", 1)[1]

@@ -12,9 +12,9 @@ from importlib import resources
 from pathlib import Path
 from typing import Any, Callable
 
-from fc.config import FC_CONTROLLERS
 from ground.sitl import Sitl, SitlError, SitlOptions, print_connect_help
 from smcpilot.errors import ConfigError
+from smcpilot.protocol import FC_CONTROLLERS
 
 
 def _ned_triple(text: str) -> tuple[float, float, float]:
@@ -74,7 +74,7 @@ def _options(args: argparse.Namespace, **extra: Any) -> SitlOptions:
         gust_std_n=args.gust_std,
     )
     kw.update(extra)
-    return SitlOptions(**kw)
+    return SitlOptions.of(**kw)
 
 
 class _Terminated(Exception):

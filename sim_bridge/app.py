@@ -30,10 +30,12 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from sim_bridge.sensors import VehicleObservation
 from smcpilot.fastcodec import encode_attitude, encode_local_position_ned
 from smcpilot.frames import euler_flu_to_frd, nwu_to_ned, rates_flu_to_frd
+from smcpilot.errors import DivergenceError, WatchdogError
 from smcpilot.link import MavlinkUdp
+from smcpilot.protocol import SIM_COMPONENT_ID
 
 #: Component id the bridge sends from (a sensor-ish component of the vehicle's system).
-SIM_COMPONENT = 200
+SIM_COMPONENT = SIM_COMPONENT_ID
 EXIT_OK = 0
 EXIT_WATCHDOG = 3
 EXIT_DIVERGED = 4
@@ -71,10 +73,6 @@ class BridgeTiming:
     @property
     def period_us(self) -> int:
         return int(round(1e6 / self.rate_hz))
-
-
-class WatchdogError(RuntimeError):
-    pass
 
 
 class SimBridgeApp:
@@ -163,7 +161,7 @@ class SimBridgeApp:
         except WatchdogError as exc:
             self.say(f"sim_bridge: error: {exc}")
             self._exit = EXIT_WATCHDOG
-        except ArithmeticError as exc:  # DivergenceError and friends
+        except (ArithmeticError, DivergenceError) as exc:
             self.say(f"sim_bridge: error: the simulation diverged at t = {self._t_us * 1e-6:.3f} s: {exc}")
             self._exit = EXIT_DIVERGED
         finally:

@@ -3,28 +3,17 @@
 from __future__ import annotations
 
 import argparse
-import random
 import sys
 from pathlib import Path
 from typing import Sequence
 
 from sim_bridge.app import BridgeTiming, SimBridgeApp, install_signal_handlers
-from sim_bridge.environment import Environment, EnvironmentParams
-from sim_bridge.plants.paper_vehicle import PaperVehiclePlant
-from sim_bridge.plants.rigid_body import RigidBodyPlant
-from sim_bridge.sensors import SensorNoiseParams
+from sim_bridge.build import make_plant, plant_for
 from smcpilot.errors import ConfigError, SmcpilotError
-from smcpilot.frames import ned_to_nwu
+from smcpilot.scenario import PLANTS, EnvironmentSpec, Scenario, ScenarioError
 from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
 
 EXIT_CONFIG = 2
-PLANTS = ("rigid-body", "paper")
-
-#: ``--noise``: a small IMU/estimator-grade noise level (1-sigma per axis).
-DEFAULT_NOISE = SensorNoiseParams(
-    attitude_std_rad=0.002, body_rate_std_radps=0.01, position_std_m=0.01, velocity_std_mps=0.02
-)
-
 
 def _triple(text: str) -> tuple[float, float, float]:
     try:
@@ -61,36 +50,34 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--paper-disturbance", action="store_true", help="add the paper's disturbances fs1..fs4")
     p.add_argument("--watchdog-s", type=float, default=t.watchdog_s, metavar="S", help=f"exit if the FC is silent this long (default {t.watchdog_s:g})")
     p.add_argument("--startup-timeout-s", type=float, default=t.startup_timeout_s, metavar="S", help="exit if the FC never answers within this many seconds (default 30)")
+    p.add_argument("--scenario", type=Path, metavar="FILE",
+                   help="scenario TOML (smcpilot.scenario): plant, vehicle, environment, seed and rates come from it"
+                   " (their flags are then ignored)")
     p.add_argument("--sysid", type=int, default=1, metavar="N", help="MAVLink system id of the vehicle (default 1)")
     return p
 
 
 def build_plant(args: argparse.Namespace, vehicle: VehicleParams):
-    noise = SensorNoiseParams()
-    if args.noise:
-        if not args.noise_scale >= 0:
-            raise ConfigError("--noise-scale must be >= 0")
-        k = args.noise_scale
-        n = DEFAULT_NOISE
-        noise = SensorNoiseParams(n.attitude_std_rad * k, n.body_rate_std_radps * k, n.position_std_m * k, n.velocity_std_mps * k)
-    wind = ned_to_nwu(args.wind_force) if args.wind_force else (0.0, 0.0, 0.0)
-    env_params = EnvironmentParams(
-        wind_force_n=tuple(float(v) for v in wind),  # type: ignore[arg-type]
-        gust_force_std_xy_n=args.gust_std,
-        gust_time_constant_s=args.gust_tau,
-        paper_disturbance=args.paper_disturbance,
-        sensor_noise=noise,
-    )
-    env = Environment(env_params, random.Random(args.seed))
-    if args.plant == "paper":
-        return PaperVehiclePlant(vehicle, env)
-    return RigidBodyPlant(vehicle, env)
+    """The plant the command line describes (built as a scenario's is: :mod:`sim_bridge.build`)."""
+    try:
+        env = EnvironmentSpec(
+            noise=args.noise, noise_scale=args.noise_scale,
+            wind_force_ned_n=tuple(args.wind_force) if args.wind_force else (0.0, 0.0, 0.0),
+            gust_std_n=args.gust_std, gust_tau_s=args.gust_tau, paper_disturbance=args.paper_disturbance,
+        )  # fmt: skip
+    except ScenarioError as exc:  # name the command-line flag, not the scenario key
+        msg = str(exc).replace("environment.noise_scale", "--noise-scale").replace("environment.gust_std_n", "--gust-std")
+        raise ConfigError(msg.replace("environment.gust_tau_s", "--gust-tau").replace("environment.wind_force_ned_n", "--wind-force")) from None
+    return make_plant(args.plant, vehicle, env, args.seed)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         vehicle = VehicleParams.from_toml(args.vehicle) if args.vehicle else DEFAULT_VEHICLE
+        scenario = Scenario.from_toml(args.scenario) if args.scenario is not None else None
+        if scenario is not None:
+            args.physics_hz, args.rate_hz, vehicle = scenario.physics_hz, scenario.rate_hz, scenario.vehicle
         if not (args.physics_hz > 0 and args.rate_hz > 0):
             raise ConfigError("--physics-hz and --rate-hz must be > 0")
         ratio = args.physics_hz / args.rate_hz
@@ -111,7 +98,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             watchdog_s=args.watchdog_s,
             startup_timeout_s=args.startup_timeout_s,
         )
-        plant = build_plant(args, vehicle)
+        plant = plant_for(scenario) if scenario is not None else build_plant(args, vehicle)
         app = SimBridgeApp(plant, fc_url=args.fc, timing=timing, system_id=args.sysid)
     except (SmcpilotError, OSError) as exc:
         print(f"sim_bridge: error: {exc}", file=sys.stderr)

@@ -49,3 +49,11 @@ class TlogError(SmcpilotError):
 
 class TlogFormatError(TlogError):
     """A ``.tlog`` file is not a sequence of (8-byte timestamp, valid MAVLink packet) records."""
+
+
+class WatchdogError(SmcpilotError):
+    """A peer (the simulator, the flight controller) went silent for longer than its watchdog."""
+
+
+class RateMismatchError(ConfigError):
+    """Lockstep: the simulator's state period is not the flight controller's control period."""

@@ -502,7 +502,7 @@ def sitl_run(tmp_path: Path, name: str = "fc", *, speed: float | None = 5.0, par
     if params:
         write_params(param_file, params)
     port = gcs_port if gcs_port is not None else gcs.port
-    opts = SitlOptions(lockstep=True, speed=speed, gcs=f"udp:{LOOPBACK}:{port}", tlog=tmp_path / f"{name}.tlog",
+    opts = SitlOptions.of(lockstep=True, speed=speed, gcs=f"udp:{LOOPBACK}:{port}", tlog=tmp_path / f"{name}.tlog",
                        param_file=param_file, log_dir=tmp_path, watchdog_s=10.0)  # fmt: skip
     out: deque = deque(maxlen=60)
     try:

@@ -4,7 +4,7 @@
   returns the parsed FC log (:class:`Flight`).
 - :class:`Flight` holds the FC's ``.tlog`` as numpy arrays: the simulator's state (source
   component 200, NED, simulated time from ``time_boot_ms``), the actuator commands, the per-tick
-  ``DEBUG_FLOAT_ARRAY`` "SMC" columns (:data:`fc.telemetry.SMC_FIELDS`) and the STATUSTEXT events.
+  ``DEBUG_FLOAT_ARRAY`` "SMC" columns (:data:`smcpilot.protocol.SMC_FIELDS`) and the STATUSTEXT events.
 - :class:`FcProcess` runs ``python -m fc`` with its output read on a thread; :class:`FakeSim` is a
   UDP socket that plays the simulator (sysid 1, component 200) for the bad-input tests.
 
@@ -30,13 +30,13 @@ from typing import Iterable, Sequence
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from fc.telemetry import SMC_ARRAY_ID, SMC_FIELDS
+from smcpilot.protocol import SIM_COMPONENT_ID, SMC_ARRAY_ID, SMC_FIELDS
 from ground.sitl import Sitl, SitlOptions
 from smcpilot.tlog import read_tlog
 
 PYTHON = sys.executable
 LOOPBACK = "127.0.0.1"
-SIM_COMPONENT = 200
+SIM_COMPONENT = SIM_COMPONENT_ID
 #: Generous wall-clock limits: only to turn a hang into a failure, never to measure speed.
 HANG_TIMEOUT_S = 120.0
 
@@ -160,7 +160,7 @@ def sitl_options(tmp_path: Path, name: str, *, plan: Sequence[dict] | None = TAK
     plan_path = write_plan(run_dir / f"{name}-plan.toml", plan) if plan else None
     kw.setdefault("gcs", None)
     kw.setdefault("lockstep", True)
-    return SitlOptions(tlog=run_dir / f"{name}.tlog", log_dir=run_dir, plan=plan_path, **kw)
+    return SitlOptions.of(tlog=run_dir / f"{name}.tlog", log_dir=run_dir, plan=plan_path, **kw)
 
 
 def fly_sitl(tmp_path: Path, name: str, duration_s: float, **kw) -> tuple[Sitl, Flight]:

@@ -1,4 +1,4 @@
-"""The real ``smcpilot`` entry point (``python -m ground.cli``) in subprocesses.
+"""The real ``smcpilot`` entry point (``python -m lab.cli``) in subprocesses.
 
 All commands are started together by one module fixture (they are independent processes) so the
 slow ones overlap; each test then checks its own command's result.
@@ -17,7 +17,7 @@ from pathlib import Path
 import jsonschema
 import pytest
 
-from ground.paper.metrics import METRICS_SCHEMA
+from lab.paper.metrics import METRICS_SCHEMA
 from smcpilot.model import CHANNELS
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -104,7 +104,7 @@ def runs(work):
     env["PYTHONPATH"] = os.pathsep.join([root] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
     for c in cmds.values():
         c.proc = subprocess.Popen(
-            [sys.executable, "-m", "ground.cli", *c.args],
+            [sys.executable, "-m", "lab.cli", *c.args],
             cwd=work,  # nothing lands in the repository (default --out is relative)
             env=env,
             stdout=subprocess.PIPE,

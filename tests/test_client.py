@@ -57,13 +57,13 @@ def sitl_vehicle(tmp_path: Path, *, via: str = "udpin", vehicle_kw: dict[str, An
     if via == "udpin":
         vehicle = Vehicle(f"udpin:{LOOPBACK}:0", **kw).open()
         try:
-            with Sitl(SitlOptions(gcs=f"udp:{LOOPBACK}:{vehicle.local_address[1]}", **common)) as sitl:
+            with Sitl(SitlOptions.of(gcs=f"udp:{LOOPBACK}:{vehicle.local_address[1]}", **common)) as sitl:
                 vehicle.wait_heartbeat(20.0)
                 yield sitl, vehicle
         finally:
             vehicle.close()
     else:
-        with Sitl(SitlOptions(gcs=f"udpin:{LOOPBACK}:0", **common)) as sitl:
+        with Sitl(SitlOptions.of(gcs=f"udpin:{LOOPBACK}:0", **common)) as sitl:
             assert sitl.gcs_address
             with Vehicle(f"udpout:{sitl.gcs_address}", connect_timeout_s=20.0, **kw) as vehicle:
                 yield sitl, vehicle

@@ -9,14 +9,13 @@ from pathlib import Path
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from fc.commander import Commander
 from fc.config import FcConfig
-from fc.flight import FlightControl
+from fc.core import FlightCore
 from fc.mission import MissionItem, validate
-from fc.modes import Mode
+from smcpilot.protocol import Mode
 from fc.params import PARAMS, ParamError, ParamStore, defaults_table
 from fc.streams import StreamScheduler
-from ground.inprocess import wire_state
+from lab.runner import wire_state
 from sim_bridge.environment import Environment, EnvironmentParams
 from sim_bridge.plants.rigid_body import RigidBodyPlant
 from smcpilot.geo import Home, ned_to_global
@@ -170,44 +169,42 @@ def test_mission_items_are_validated_with_the_protocol_codes(item: MissionItem, 
 
 # -- the commander, flying in-process ----------------------------------------------------------------
 class Rig:
-    """FlightControl + Commander + rigid-body plant, stepped at 500 Hz in simulated time."""
+    """The flight core on the rigid-body plant, ticked at 500 Hz in simulated time."""
 
     def __init__(self, config: FcConfig = FcConfig(), env: EnvironmentParams | None = None) -> None:
-        self.flight = FlightControl(config, DEFAULT_VEHICLE)
         self.events: list[str] = []
         self.reached: list[int] = []
         mav = mavlink.MAVLink(None)
-        self.commander = Commander(
-            self.flight, HOME, lambda sev, text: self.events.append(text), mav=mav,
+        self.core = FlightCore(
+            config, DEFAULT_VEHICLE, home=HOME, event=lambda sev, text: self.events.append(text), mav=mav,
             broadcast=lambda m: self.reached.append(m.seq) if m.get_type() == "MISSION_ITEM_REACHED" else None,
         )  # fmt: skip
+        self.flight = self.core.flight
+        self.commander = self.core.commander
         self.plant = RigidBodyPlant(DEFAULT_VEHICLE, Environment(env) if env else None)
-        self.t_s = 0.0
+        self.t_us = 0
         self.wall_s = 0.0
         self.observe()
 
     def observe(self):
         st = wire_state(self.plant.observe())
-        self.commander.state = st
-        self.commander.state_fresh = True
+        self.core.set_state(st)
         return st
+
+    @property
+    def t_s(self) -> float:
+        return self.t_us * 1e-6
 
     def run(self, seconds: float, gcs_heartbeats: bool = False) -> None:
         dt = 0.002
         for _ in range(int(round(seconds / dt))):
             st = self.observe()
-            c = self.commander
-            c.on_tick(self.t_s, dt)
-            was = self.flight.armed
-            out = self.flight.step(st, dt)
-            if was and not self.flight.armed:
-                c.on_disarmed()
-            self.plant.step(self.t_s, dt, out.motors, self.flight.armed)
-            self.t_s += dt
-            self.wall_s += dt
             if gcs_heartbeats and int(self.wall_s * 500) % 500 == 0:
-                c.on_gcs_heartbeat(self.wall_s)
-            c.check_gcs(self.wall_s)
+                self.core.on_gcs_heartbeat(self.wall_s)
+            out = self.core.tick(self.t_us, st, wall_s=self.wall_s)
+            self.plant.step(self.t_s, dt, out.motors, out.armed)
+            self.t_us += 2000
+            self.wall_s += dt
 
     @property
     def pos(self) -> tuple[float, float, float]:

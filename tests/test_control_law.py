@@ -23,8 +23,8 @@ from fc.control import (
     make_controller,
 )
 from fc.control.gains import gains_with_overrides
-from ground.closed_loop import simulate
-from ground.paper.scenario import PaperScenario
+from lab.closed_loop import simulate
+from lab.paper.scenario import PaperScenario
 from sim_bridge.plants.paper import PaperPlant
 from smcpilot.errors import ConfigError, InvalidGainError
 from smcpilot.model import PaperModel

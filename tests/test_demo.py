@@ -12,7 +12,7 @@ def test_demo_flies_and_writes_results(tmp_path: Path) -> None:
     out = tmp_path / "plots"
     result_path = tmp_path / "demo.json"
     r = subprocess.run(
-        [sys.executable, "-m", "ground.cli", "demo", "--json", str(result_path), "--out", str(out),
+        [sys.executable, "-m", "lab.cli", "demo", "--json", str(result_path), "--out", str(out),
          "--log-dir", str(tmp_path / "logs")],  # fmt: skip
         capture_output=True,
         text=True,

@@ -13,10 +13,10 @@ from hypothesis import strategies as st
 from fc.config import FcConfig
 from fc.flight import FlightControl, VehicleState
 from fc.mixer import Mixer
-from fc.plan import PlanError, PlanStep, parse_plan
+from smcpilot.plan import PlanError, PlanStep, parse_plan
 from fc.position import PositionGains, position_step
 from fc.prefilter import prefilter_step
-from ground.inprocess import fly
+from lab.runner import fly
 from sim_bridge.environment import Environment
 from sim_bridge.plants.rigid_body import RigidBodyPlant
 from smcpilot.frames import rotation_matrix_from_euler, wrap_pi

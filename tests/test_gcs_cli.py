@@ -1,4 +1,4 @@
-"""``smcpilot gcs`` as a user runs it: ``python -m ground.cli gcs ...`` subprocesses against the real
+"""``smcpilot gcs`` as a user runs it: ``python -m lab.cli gcs ...`` subprocesses against the real
 flight controller (lockstep SITL, FC ground port on 127.0.0.1), plus pure tests of the mission-file
 reader and the ``watch`` rendering."""
 
@@ -15,7 +15,7 @@ from typing import Iterator
 
 import pytest
 
-from ground.cli import build_parser
+from lab.cli import build_parser
 from ground.client import StatusText, Telemetry
 from ground.gcs_cmd import render_frame, render_line
 from ground.missions import load_mission
@@ -53,15 +53,15 @@ type = "land"
 
 
 def gcs(*args: str, connect: str | None = None, cwd: Path | None = None, timeout_s: float = RUN_TIMEOUT_S) -> subprocess.CompletedProcess[str]:
-    """Run ``python -m ground.cli gcs [--connect URL] ARGS``."""
-    cmd = [sys.executable, "-m", "ground.cli", "gcs"]
+    """Run ``python -m lab.cli gcs [--connect URL] ARGS``."""
+    cmd = [sys.executable, "-m", "lab.cli", "gcs"]
     if connect is not None:
         cmd += ["--connect", connect]
     return subprocess.run([*cmd, *args], capture_output=True, text=True, timeout=timeout_s, cwd=cwd, stdin=subprocess.DEVNULL)
 
 
 def _sitl(tmp_path: Path, speed: float | None = None) -> Sitl:
-    return Sitl(SitlOptions(lockstep=True, speed=speed, gcs=f"udpin:{LOOPBACK}:0", log_dir=tmp_path, tlog=tmp_path / "sitl.tlog"))
+    return Sitl(SitlOptions.of(lockstep=True, speed=speed, gcs=f"udpin:{LOOPBACK}:0", log_dir=tmp_path, tlog=tmp_path / "sitl.tlog"))
 
 
 @pytest.fixture(scope="module")
@@ -225,7 +225,7 @@ def test_watch_once_prints_one_frame(fc_url: str) -> None:
 
 def test_watch_without_a_tty_prints_one_line_per_update_and_ends_on_ctrl_c(fc_url: str) -> None:
     proc = subprocess.Popen(
-        [sys.executable, "-m", "ground.cli", "gcs", "--connect", fc_url, "watch", "--rate-hz", "20"],
+        [sys.executable, "-m", "lab.cli", "gcs", "--connect", fc_url, "watch", "--rate-hz", "20"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -340,7 +340,7 @@ def test_render_handles_empty_telemetry() -> None:
 def test_watch_on_a_tty_redraws_in_place(fc_url: str) -> None:
     master, slave = os.openpty()
     proc = subprocess.Popen(
-        [sys.executable, "-m", "ground.cli", "gcs", "--connect", fc_url, "watch", "--rate-hz", "20"],
+        [sys.executable, "-m", "lab.cli", "gcs", "--connect", fc_url, "watch", "--rate-hz", "20"],
         stdout=slave,
         stderr=subprocess.PIPE,
         stdin=subprocess.DEVNULL,

@@ -509,7 +509,7 @@ def test_sysid_set_by_a_gcs_survives_a_restart(fc, tmp_path):
     assert pv.param_value == 2.0 and pv.param_type == M.MAV_PARAM_TYPE_INT32
     run.sitl.terminate()
     g = Gcs()
-    opts = SitlOptions(lockstep=True, speed=5.0, gcs=f"udp:{LOOPBACK}:{g.port}", tlog=tmp_path / "sysid-b.tlog",
+    opts = SitlOptions.of(lockstep=True, speed=5.0, gcs=f"udp:{LOOPBACK}:{g.port}", tlog=tmp_path / "sysid-b.tlog",
                        param_file=pf, log_dir=tmp_path)  # fmt: skip
     sitl = Sitl(opts)
     try:
@@ -906,7 +906,7 @@ def test_default_telemetry_streams(fc):
 
 
 def test_fc_listening_with_udpin_answers_a_gcs_that_writes(tmp_path):
-    opts = SitlOptions(lockstep=True, speed=5.0, gcs=f"udpin:{LOOPBACK}:0", tlog=tmp_path / "udpin.tlog",
+    opts = SitlOptions.of(lockstep=True, speed=5.0, gcs=f"udpin:{LOOPBACK}:0", tlog=tmp_path / "udpin.tlog",
                        param_file=tmp_path / "udpin.parm", log_dir=tmp_path)  # fmt: skip
     with Sitl(opts) as sitl:
         g = Gcs(f"udpout:{sitl.gcs_address}")

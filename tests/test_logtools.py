@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from fc.telemetry import FLAG_ARMED, FLAG_LANDING, FLAG_POSITION_HOLD, SMC_ARRAY_ID, SMC_FIELDS
+from smcpilot.protocol import FLAG_ARMED, FLAG_LANDING, FLAG_POSITION_HOLD, SMC_ARRAY_ID, SMC_FIELDS
 from ground import logtools
 from ground.logtools import LogError, load_log, plot_log, print_summary, summarize
 from smcpilot.errors import SmcpilotError

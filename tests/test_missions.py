@@ -176,8 +176,9 @@ def test_good_file_parses_every_item_type_expectation_and_setting(tmp_path: Path
     assert m.expectations[2].channels == ("phi", "z") and m.expectations[2].min == 0.1
     assert m.expectations[5].until_s == 15.0
     opts = s.options(gcs="udp:127.0.0.1:1", log_dir=tmp_path, tlog=tmp_path / "x.tlog", param_file=tmp_path / "p.parm")
-    assert opts.lockstep and opts.controller == "pid_smc" and opts.wind_force_ned_n == (0.5, -0.25, 0.0)
-    assert opts.home is not None and [float(v) for v in opts.home.split(",")] == [47.0, 8.0, 400.0]
+    sc = opts.scenario
+    assert opts.lockstep and sc.controller == "pid_smc" and sc.environment.wind_force_ned_n == (0.5, -0.25, 0.0)
+    assert sc.home is not None and [float(v) for v in sc.home] == [47.0, 8.0, 400.0]
 
 
 def test_minimal_file_defaults(tmp_path: Path) -> None:
@@ -472,7 +473,7 @@ def test_telemetry_record_uses_the_streamed_set_point_else_the_planned_one() -> 
 # ------------------------------------------------------------------------------------ end to end
 def run_cli(*args: str | Path, cwd: Path) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "ground.cli", "mission", *map(str, args)],
+        [sys.executable, "-m", "lab.cli", "mission", *map(str, args)],
         cwd=cwd, capture_output=True, text=True, timeout=RUN_TIMEOUT_S, check=False,
     )  # fmt: skip
 
@@ -560,7 +561,7 @@ def test_usage_error_exits_2(tmp_path: Path) -> None:
 
 def test_connect_flies_a_running_vehicle_and_judges_from_telemetry(tmp_path: Path) -> None:
     mission = write(tmp_path, SHORT + '\n[[expect]]\nkind = "max_error_after"\nt_s = 6.0\nuntil_s = 10.0\nmax_m = 0.3\n', "short.toml")
-    opts = SitlOptions(gcs="udpin:127.0.0.1:0", log_dir=tmp_path, tlog=tmp_path / "sitl.tlog", param_file=tmp_path / "p.parm")
+    opts = SitlOptions.of(gcs="udpin:127.0.0.1:0", log_dir=tmp_path, tlog=tmp_path / "sitl.tlog", param_file=tmp_path / "p.parm")
     report = tmp_path / "r.json"
     with Sitl(opts) as sitl:
         r = run_cli("run", mission, "--connect", f"udpout:{sitl.gcs_address}", "--json", report, "--out", tmp_path / "out", cwd=tmp_path)

@@ -12,10 +12,10 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from fc.control import PAPER_GAINS
-from ground.closed_loop import simulate
-from ground.paper.metrics import METRICS_SCHEMA, overshoot, settle_time
-from ground.paper.run import PaperRunOptions, build_controller, run_paper
-from ground.paper.scenario import PaperScenario
+from lab.closed_loop import simulate
+from lab.paper.metrics import METRICS_SCHEMA, overshoot, settle_time
+from lab.paper.run import PaperRunOptions, build_controller, run_paper
+from lab.paper.scenario import PaperScenario
 from sim_bridge.plants.paper import PaperPlant
 from smcpilot.errors import ConfigError
 from smcpilot.model import CHANNELS, PaperModel
@@ -48,7 +48,7 @@ def sampled_run():
 
 
 def _closed_loop_rhs(ctrl, plant, ref):
-    """The same closed loop as ground.closed_loop.simulate's continuous form, for solve_ivp."""
+    """The same closed loop as lab.closed_loop.simulate's continuous form, for solve_ivp."""
     n = len(plant.state_names)
 
     def rhs(t, y):
@@ -431,7 +431,7 @@ def test_schema_rejects_violations(short_metrics, mutate):
 
 
 def test_run_diverged_at_start_still_has_metrics():
-    from ground.paper.metrics import trajectory_metrics
+    from lab.paper.metrics import trajectory_metrics
 
     x0 = list(SC.plant_x0)
     x0[1] = 5.0e3  # roll rate above the divergence limit from the start

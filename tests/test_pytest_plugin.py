@@ -79,7 +79,9 @@ def test_passing_test_deletes_its_log_failing_test_keeps_it_and_reports_the_path
     assert "[fc] fc: Armed" in out
     # Only the failed test's log (and its parameter file) is left.
     assert _tlogs(logs) == [kept_path]
-    assert {p.name for p in logs.iterdir()} <= {kept_path.name, kept_path.with_suffix(".parm").name}
+    scenario_file = kept_path.with_name(kept_path.stem + ".scenario.toml")  # what flew, re-runnable with `smcpilot run`
+    assert scenario_file.is_file()
+    assert {p.name for p in logs.iterdir()} <= {kept_path.name, kept_path.with_suffix(".parm").name, scenario_file.name}
     # A bad marker is a clear set-up error (no SITL was started, so no log).
     result.stdout.fnmatch_lines(
         ["*@pytest.mark.sitl_options: unknown option 'colour'; valid: *controller*", "*smcpilot sitl*", "no tlog: SITL did not start"]

@@ -46,7 +46,7 @@ def _smcpilot_invocations() -> list[list[str]]:
 
 
 def _help(path: list[str]) -> str:
-    r = subprocess.run([sys.executable, "-m", "ground.cli", *path, "--help"], capture_output=True, text=True, timeout=60)
+    r = subprocess.run([sys.executable, "-m", "lab.cli", *path, "--help"], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, (path, r.stderr)
     return r.stdout
 
@@ -108,7 +108,7 @@ def test_readme_client_example_flies(tmp_path: Path) -> None:
     s.bind(("127.0.0.1", 0))
     port = s.getsockname()[1]
     s.close()
-    opts = SitlOptions(lockstep=True, speed=5.0, duration_s=300.0, gcs=f"udp:127.0.0.1:{port}",
+    opts = SitlOptions.of(lockstep=True, speed=5.0, duration_s=300.0, gcs=f"udp:127.0.0.1:{port}",
                        tlog=tmp_path / "readme.tlog", param_file=tmp_path / "readme.parm")  # fmt: skip
     with Sitl(opts):
         exec(compile(example.replace("udpin:127.0.0.1:14550", f"udpin:127.0.0.1:{port}"), "README.md", "exec"), {})

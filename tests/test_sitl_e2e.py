@@ -26,8 +26,8 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from fc.config import FcConfig
-from fc.plan import PlanStep
-from ground.inprocess import fly
+from smcpilot.plan import PlanStep
+from lab.runner import fly
 from ground.sitl import Sitl, SitlError
 from sim_bridge.environment import Environment
 from sim_bridge.plants.rigid_body import RigidBodyPlant
@@ -301,7 +301,7 @@ def test_paper_plant_takeoff_and_hold(tmp_path: Path) -> None:
 # -- 8. the launcher command --------------------------------------------------------------------
 #: the installed console script next to this interpreter (else the same entry point via -c).
 _SCRIPT = Path(sys.executable).parent / "smcpilot"
-SMCPILOT = [str(_SCRIPT)] if _SCRIPT.exists() else [sys.executable, "-c", "import sys; from ground.cli import main; sys.exit(main())"]
+SMCPILOT = [str(_SCRIPT)] if _SCRIPT.exists() else [sys.executable, "-c", "import sys; from lab.cli import main; sys.exit(main())"]
 
 
 def test_smcpilot_sitl_lockstep_duration_exits_0_and_names_the_log(tmp_path: Path) -> None:

@@ -14,9 +14,8 @@ from fc.control.pid_smc import AdaptationBounds, PidSmc, PidSmcParams
 from fc.control.sign_smc import SignSmc, SignSmcParams
 from smcpilot.errors import ConfigError
 from smcpilot.model import PaperModel
+from smcpilot.protocol import CONTROLLER_NAMES
 
-#: Controller names, in the order reports list them.
-CONTROLLER_NAMES: tuple[str, ...] = ("pid_smc", "adaptive_pid_smc", "sign_smc", "cascade_pid")
 
 
 def make_controller(name: str, model: PaperModel, **options: Any) -> Controller:

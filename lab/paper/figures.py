@@ -10,7 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ground.paper.run import PaperRun  # noqa: E402
+from lab.paper.run import PaperRun  # noqa: E402
 from smcpilot.model import CHANNELS, INPUT_UNITS, STATE_UNITS  # noqa: E402
 
 LABELS = {

@@ -37,9 +37,9 @@ def _best_us(fn: Callable[[], object], number: int, repeat: int) -> float:
 
 def bench_control(args: argparse.Namespace) -> int:
     from fc.control.base import constant_reference
-    from ground.paper.run import PaperRunOptions, build_controller
-    from ground.paper.scenario import PAPER_TARGETS, PAPER_X0, PaperScenario
-    from ground.closed_loop import simulate
+    from lab.paper.run import PaperRunOptions, build_controller
+    from lab.paper.scenario import PAPER_TARGETS, PAPER_X0, PaperScenario
+    from lab.closed_loop import simulate
     from sim_bridge.plants.paper import PaperPlant
     from smcpilot.integrate import rk4_step
     from smcpilot.model import PaperModel
@@ -101,8 +101,8 @@ def bench_sitl(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from fc.config import FcConfig
-    from fc.plan import load_plan
-    from ground.inprocess import fly
+    from smcpilot.plan import load_plan
+    from lab.runner import fly
     from ground.sitl import Sitl, SitlOptions
     from ground.sitl_cmd import demo_plan_path
     from sim_bridge.plants.rigid_body import RigidBodyPlant
@@ -125,7 +125,7 @@ def bench_sitl(args: argparse.Namespace) -> int:
     print(f"\nin-process loop (FC pipeline + plant, no MAVLink): {ceiling:6.1f}× real time ({inproc * 1e6 / (args.duration * 500):.1f} µs per control tick)")
 
     with tempfile.TemporaryDirectory() as tmp:
-        opts = SitlOptions(lockstep=True, duration_s=args.duration, controller=args.controller, gcs=None,
+        opts = SitlOptions.of(lockstep=True, duration_s=args.duration, controller=args.controller, gcs=None,
                            plan=plan_path, tlog=Path(tmp) / "bench.tlog")  # fmt: skip
         sitl = Sitl(opts)
         t0 = time.perf_counter()
@@ -141,7 +141,7 @@ def bench_sitl(args: argparse.Namespace) -> int:
         )
         print("  targets (issue 4): ≥ 20× over UDP on 2 cores, 40× wanted")
         if args.realtime_s > 0:
-            opts = SitlOptions(lockstep=False, duration_s=args.realtime_s, controller=args.controller, gcs=None,
+            opts = SitlOptions.of(lockstep=False, duration_s=args.realtime_s, controller=args.controller, gcs=None,
                                plan=plan_path, tlog=Path(tmp) / "bench-rt.tlog")  # fmt: skip
             print(f"\nreal time, {args.realtime_s:g} s at 500 Hz (takes {args.realtime_s:g} s) ...", flush=True)
             sitl = Sitl(opts)

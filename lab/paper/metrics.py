@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from ground.closed_loop import Trajectory
+from lab.closed_loop import Trajectory
 from smcpilot.model import CHANNELS
 
 BAND = 0.01

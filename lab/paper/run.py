@@ -8,9 +8,9 @@ from typing import Any, Callable, Literal
 
 from fc.control import CONTROLLER_NAMES, make_controller
 from fc.control.gains import PAPER_GAINS, Gains4
-from ground.closed_loop import Trajectory, simulate
-from ground.paper.metrics import metrics_document, trajectory_metrics
-from ground.paper.scenario import PaperScenario
+from lab.closed_loop import Trajectory, simulate
+from lab.paper.metrics import metrics_document, trajectory_metrics
+from lab.paper.scenario import PaperScenario
 from sim_bridge.plants.paper import PaperPlant
 from smcpilot.errors import ConfigError
 from smcpilot.model import CHANNELS, PaperModel

@@ -11,7 +11,7 @@ from typing import Any
 
 from fc.control import CONTROLLER_NAMES
 from fc.control.gains import PAPER_GAINS, gains_with_overrides
-from ground.paper.run import PaperRunOptions, run_paper
+from lab.paper.run import PaperRunOptions, run_paper
 from smcpilot.errors import ConfigError
 from smcpilot.model import CHANNELS
 from smcpilot.typos import TYPOS
@@ -113,7 +113,7 @@ def print_table(metrics: dict[str, Any], walls: dict[str, float], duration_s: fl
 
 def main(args: argparse.Namespace) -> int:
     vehicle = VehicleParams.from_toml(args.vehicle) if args.vehicle else DEFAULT_VEHICLE
-    from ground.paper.scenario import PaperScenario
+    from lab.paper.scenario import PaperScenario
 
     if not (args.duration > 0 and math.isfinite(args.duration)):
         raise ConfigError(f"--duration must be a positive number of seconds, got {args.duration}")
@@ -161,7 +161,7 @@ def main(args: argparse.Namespace) -> int:
             args.json.write_text(json.dumps(metrics, indent=2, allow_nan=False) + "\n", encoding="utf-8")
             print(f"metrics: {args.json}")
         if not args.no_figures:
-            from ground.paper.figures import write_figures
+            from lab.paper.figures import write_figures
 
             paths = write_figures(run, args.out)
     except OSError as exc:

@@ -16,7 +16,7 @@ Handler = Callable[[argparse.Namespace], int]
 
 
 def _paper(sub: argparse._SubParsersAction) -> None:
-    from ground.paper import report
+    from lab.paper import report
 
     p = sub.add_parser(
         "paper",
@@ -30,7 +30,7 @@ def _paper(sub: argparse._SubParsersAction) -> None:
 
 
 def _bench(sub: argparse._SubParsersAction) -> None:
-    from ground import bench
+    from lab import bench
 
     p = sub.add_parser("bench", help="measure speed (prints figures; never pass/fail)")
     bench.add_arguments(p)
@@ -61,6 +61,22 @@ def _demo(sub: argparse._SubParsersAction) -> None:
     )
     sitl_cmd.add_demo_arguments(p)
     p.set_defaults(handler=sitl_cmd.demo_main)
+
+
+def _run(sub: argparse._SubParsersAction) -> None:
+    from lab import run
+
+    p = sub.add_parser(
+        "run",
+        help="fly one scenario (TOML): in-process on the flight core, or --sitl as the two processes over UDP",
+        description="Fly a scenario file (vehicle, plant, environment, seed, controller, parameters, plan, duration;"
+        " examples in examples/scenarios/). In-process by default (the FC's own control tick and the simulator's"
+        " plant in one loop, no UDP, as fast as the machine allows); --sitl runs the real FC and simulator processes"
+        " in lockstep on free ports. Both write the same .tlog and print the same summary. Exit codes: 0 flown,"
+        " 1 the flight diverged or SITL failed, 2 broken file or usage.",
+    )
+    run.add_arguments(p)
+    p.set_defaults(handler=run.main)
 
 
 def _plot(sub: argparse._SubParsersAction) -> None:
@@ -114,7 +130,7 @@ def _mission(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=missions.main)
 
 
-SUBCOMMANDS = (_paper, _sitl, _demo, _bench, _plot, _log, _gcs, _mission)
+SUBCOMMANDS = (_run, _paper, _sitl, _demo, _bench, _plot, _log, _gcs, _mission)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,183 @@
+"""The flight core: one control tick of the flight controller, with no I/O.
+
+Every runner calls :meth:`FlightCore.tick` and nothing else flies the vehicle: the FC process
+(:mod:`fc.app`, in lockstep and in real time), the in-process scenario runner (:mod:`lab.runner`)
+and the tests. One tick, in order:
+
+1. the timed plan's due steps (simulated time since the first tick), carried out as a ground
+   station would command them;
+2. **state-loss failsafe**: no state, or a stale one (real time), while armed -> open loop, level,
+   a fraction of hover thrust, ``STATUSTEXT``; when the state comes back: land where we are;
+3. otherwise the mode logic (:class:`fc.commander.Commander`: AUTO, RTL, disarm delay) and the
+   flight pipeline (:class:`fc.flight.FlightControl`: prefilters, position loop, law, mixer,
+   anti-windup); **touchdown** while landing disarms, and the commander hears of it;
+4. **GCS-loss failsafe** on the wall clock the caller passes (a ground station lives in real time).
+
+Inputs are arguments (time in microseconds, the state in the paper frame or None, whether it is
+fresh, the wall clock for the GCS link); the output is a :class:`TickOutput`. Events (arming,
+failsafes, landings) go to the ``event`` sink the runner gives, as ``(severity, text)``; the FC
+process turns them into ``STATUSTEXT``, the in-process runner records them.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, NamedTuple, Sequence
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from fc.commander import Commander
+from fc.config import FcConfig
+from fc.flight import FlightControl, PipelineOutput, VehicleState
+from smcpilot.plan import PlanRunner, PlanStep
+from smcpilot.geo import Home
+from smcpilot.protocol import FLAG_ARMED, FLAG_FAILSAFE, FLAG_LANDING, FLAG_POSITION_HOLD
+from smcpilot.vehicle import VehicleParams
+
+EventSink = Callable[[int, str], None]
+_NO_EVENTS: tuple[tuple[int, str], ...] = ()
+
+
+class TickOutput(NamedTuple):
+    """What one tick of the flight core produced."""
+
+    #: motor commands c1..c4 in [0, 1] (rotors 1 right, 2 front, 3 left, 4 rear).
+    motors: tuple[float, float, float, float]
+    #: the motors spin (SAFETY_ARMED in HIL_ACTUATOR_CONTROLS.mode).
+    armed: bool
+    #: ``FLAG_*`` bits of :mod:`smcpilot.protocol` (armed, landing, failsafe, position hold).
+    flags: int
+    #: the mode after this tick (ArduCopter custom-mode number).
+    mode: int
+    #: the pipeline's output: realised inputs, limits, the law's diagnostics, references.
+    pipeline: PipelineOutput
+    #: events raised during this tick, ``(MAV_SEVERITY, text)``, in order.
+    events: tuple[tuple[int, str], ...]
+
+
+class FlightCore:
+    """The flight controller without sockets: plan, modes, failsafes, pipeline, events."""
+
+    def __init__(
+        self,
+        config: FcConfig,
+        vehicle: VehicleParams,
+        *,
+        home: Home = Home(),
+        plan: Sequence[PlanStep] = (),
+        event: EventSink | None = None,
+        mav: mavlink.MAVLink | None = None,
+        send_to: Callable[[mavlink.MAVLink_message, tuple[str, int]], None] | None = None,
+        broadcast: Callable[[mavlink.MAVLink_message], None] | None = None,
+    ) -> None:
+        """``event`` receives every event as it happens; ``mav``/``send_to``/``broadcast`` reach
+        ground stations for the mission protocol (None: no ground link)."""
+        self.config = config
+        self.vehicle = vehicle
+        self.home = home
+        self._sink: EventSink = event if event is not None else (lambda severity, text: None)
+        self._tick_events: list[tuple[int, str]] | None = None
+        self.flight = FlightControl(config, vehicle)
+        self.commander = Commander(self.flight, home, self.event, mav=mav, send_to=send_to, broadcast=broadcast)
+        self.plan = PlanRunner(plan)
+        #: the latest state (paper frame), None before the first one.
+        self.state: VehicleState | None = None
+        #: in the state-loss failsafe.
+        self.failsafe = False
+        self.failsafe_events = 0
+        self.ticks = 0
+        #: time of the first tick, µs (plan times count from it).
+        self.t0_us = 0
+        self.last: TickOutput | None = None
+
+    # -- events and configuration ---------------------------------------------------------------
+    def event(self, severity: int, text: str) -> None:
+        """Raise an event: to the sink now, and into the current tick's output."""
+        if self._tick_events is not None:
+            self._tick_events.append((severity, text))
+        self._sink(severity, text)
+
+    def reconfigure(self, config: FcConfig) -> None:
+        """Live parameter change: takes effect from the next tick (the one listener for changes)."""
+        self.config = config
+        self.flight.reconfigure(config)
+
+    @property
+    def mode(self) -> int:
+        return int(self.commander.mode)
+
+    def flags(self) -> int:
+        """The ``FLAG_*`` bits of the current condition."""
+        f = self.flight
+        return (
+            (FLAG_ARMED if f.armed else 0)
+            | (FLAG_LANDING if f.landing else 0)
+            | (FLAG_FAILSAFE if self.failsafe else 0)
+            | (FLAG_POSITION_HOLD if f.position_hold else 0)
+        )
+
+    # -- inputs between ticks -------------------------------------------------------------------
+    def set_state(self, state: VehicleState | None, fresh: bool = True) -> None:
+        """Tell the commander the latest state (before a command is judged, e.g. arming)."""
+        if state is not None:
+            self.state = state
+        c = self.commander
+        c.state = self.state
+        c.state_fresh = fresh and self.state is not None
+        c.failsafe_active = self.failsafe
+
+    def on_gcs_heartbeat(self, wall_s: float) -> None:
+        """A ground station's heartbeat at wall time ``wall_s``: keeps the GCS-loss failsafe away."""
+        self.commander.on_gcs_heartbeat(wall_s)
+
+    # -- the tick -------------------------------------------------------------------------------
+    def tick(self, t_us: int, state: VehicleState | None, *, fresh: bool = True, wall_s: float | None = None) -> TickOutput:
+        """One control tick at simulated time ``t_us``.
+
+        ``state`` is the latest state (None: none yet); ``fresh`` False marks it stale (real time:
+        older than ``failsafe_state_timeout_s``). ``wall_s`` is the wall clock for the GCS-loss
+        failsafe (None: not checked this tick).
+        """
+        if self.ticks == 0:
+            self.t0_us = t_us
+        self.ticks += 1
+        events: list[tuple[int, str]] = []
+        self._tick_events = events
+        try:
+            out = self._step(t_us, state, fresh)
+            if wall_s is not None:
+                self.commander.check_gcs(wall_s)
+        finally:
+            self._tick_events = None
+        f = self.flight
+        result = TickOutput(out.motors, f.armed, self.flags(), int(self.commander.mode), out, tuple(events) if events else _NO_EVENTS)
+        self.last = result
+        return result
+
+    def _step(self, t_us: int, state: VehicleState | None, fresh: bool) -> PipelineOutput:
+        self.set_state(state, fresh)
+        st = self.state
+        c = self.commander
+        t_s = (t_us - self.t0_us) * 1e-6
+        for step in self.plan.due(t_s):
+            c.apply_plan_step(step)
+        flight = self.flight
+        dt = self.config.period_s
+        if not fresh or st is None:
+            if not self.failsafe and flight.armed:
+                self.failsafe = True
+                self.failsafe_events += 1
+                self.event(mavlink.MAV_SEVERITY_CRITICAL, "FAILSAFE: state lost, level and descend")
+            return flight.failsafe_step()
+        if self.failsafe:
+            # The state is back: stay in failsafe, now closed loop: land where we are.
+            self.event(mavlink.MAV_SEVERITY_WARNING, "State back: failsafe landing")
+            self.failsafe = False
+            if flight.armed:
+                c.land()
+        c.on_tick(t_s, dt)
+        was_armed = flight.armed
+        out = flight.step(st, dt)
+        if was_armed and not flight.armed:
+            c.on_disarmed()
+            self.event(mavlink.MAV_SEVERITY_INFO, "Landed: disarmed")
+        return out

@@ -1,0 +1,288 @@
+"""``smcpilot run SCENARIO.toml``: fly one scenario in-process (default) or as the two SITL processes.
+
+Both ways fly the same flight core (:class:`fc.core.FlightCore`) on the same plant
+(:func:`sim_bridge.build.plant_for`) and write the same ``.tlog`` (state, motor commands, the
+per-tick ``SMC`` record, events), from which the same summary is computed
+(:func:`ground.logtools.summarize`): in-process has no UDP and no second process, so it runs as
+fast as the machine allows; ``--sitl`` runs the real processes in lockstep on free ports. A
+lockstep flight is deterministic: the two ways give the same motor commands tick for tick.
+
+Output (``--out DIR``, default ``out/run/<scenario name>``): ``<name>.tlog``, the effective
+scenario ``<name>.scenario.toml`` (re-runnable), the figures of ``smcpilot plot``, and with
+``--json PATH`` the results.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from fc import telemetry
+from fc.core import FlightCore, TickOutput
+from fc.flight import VehicleState
+from fc.params import config_for, param_messages
+from lab.runner import simulate
+from sim_bridge.build import plant_for
+from smcpilot.errors import DivergenceError, SmcpilotError
+from smcpilot.fastcodec import (
+    encode_attitude,
+    encode_debug_float_array,
+    encode_hil_actuator_controls,
+    encode_local_position_ned,
+)
+from smcpilot.geo import Home
+from smcpilot.protocol import (
+    ACTUATOR_FLAG_LOCKSTEP,
+    FC_COMPONENT_ID,
+    SIM_COMPONENT_ID,
+    SMC_ARRAY_ID,
+    SMC_ARRAY_NAME,
+)
+from smcpilot.protocol import FC_CONTROLLERS
+from smcpilot.scenario import Scenario
+from smcpilot.tlog import TlogWriter
+
+MODES = ("in-process", "sitl")
+_ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+_ZEROS12 = [0.0] * 12
+
+
+@dataclass
+class FlightResult:
+    """One flown scenario: where its log is, how it went, its summary."""
+
+    scenario: Scenario
+    mode: str
+    tlog: Path
+    ticks: int
+    sim_s: float
+    wall_s: float
+    #: "ok", or "diverged" / "error" with ``message``.
+    status: str = "ok"
+    message: str = ""
+    events: list[tuple[float, str]] = field(default_factory=list)
+    summary: dict[str, Any] = field(default_factory=dict)
+
+    def as_json(self) -> dict[str, Any]:
+        s = self.summary
+        chi = s.get("chi_hat_final")
+        return {
+            "scenario": self.scenario.name,
+            "mode": self.mode,
+            "status": self.status,
+            "message": self.message,
+            "controller": self.scenario.controller,
+            "seed": self.scenario.seed,
+            "ticks": self.ticks,
+            "sim_seconds": self.sim_s,
+            "wall_seconds": self.wall_s,
+            "speed": self.sim_s / self.wall_s if self.wall_s > 0 else None,
+            "chi_hat_final": dict(zip(("phi", "theta", "psi", "z"), chi)) if chi is not None else None,
+            "position_error_final_m": s.get("position_error_final_m"),
+            "position_error_rms_m": s.get("position_error_rms_m"),
+            "position_error_max_m": s.get("position_error_max_m"),
+            "yaw_error_final_deg": s.get("yaw_error_final_deg"),
+            "max_tilt_deg": s.get("max_tilt_deg"),
+            "events": [{"t_s": t, "text": text} for t, text in self.events],
+            "tlog": str(self.tlog),
+            "summary": s,
+        }
+
+
+# -- in-process ---------------------------------------------------------------------------------
+class _TlogRecorder:
+    """Writes an in-process flight's ``.tlog`` as the FC process writes its own: the simulator's
+    state messages, the actuator message and the ``SMC`` record of every tick, and the events."""
+
+    def __init__(self, path: Path, core: FlightCore, sysid: int = 1) -> None:
+        self.tlog = TlogWriter(path)
+        self.core = core
+        self.sysid = sysid
+        self._sim_seq = 0
+        self._fc_seq = 0
+        self._log_seq = 0
+        self._mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=FC_COMPONENT_ID)
+        self.t_us = 0
+        mav = self._mav
+        self.tlog.write_many(0, [m.pack(mav) for m in param_messages(mav, core.config)])
+
+    def event(self, severity: int, text: str) -> None:
+        self.tlog.write(self.t_us, telemetry.statustext(self._mav, severity, text).pack(self._mav))
+
+    def on_tick(self, k: int, t_us: int, w: tuple[float, ...], st: VehicleState, out: TickOutput, motors: tuple[float, ...]) -> None:
+        tl = self.tlog
+        sysid = self.sysid
+        t_ms = (t_us // 1000) & 0xFFFFFFFF
+        s = self._sim_seq
+        tl.write(t_us, encode_attitude(s, sysid, SIM_COMPONENT_ID, t_ms, w[0], w[1], w[2], w[3], w[4], w[5]))
+        tl.write(t_us, encode_local_position_ned((s + 1) & 0xFF, sysid, SIM_COMPONENT_ID, t_ms, w[6], w[7], w[8], w[9], w[10], w[11]))
+        self._sim_seq = (s + 2) & 0xFF
+        m = out.motors
+        tl.write(t_us, encode_hil_actuator_controls(
+            self._fc_seq, sysid, FC_COMPONENT_ID, t_us, [m[0], m[1], m[2], m[3]] + _ZEROS12,
+            _ARMED if out.armed else 0, ACTUATOR_FLAG_LOCKSTEP,
+        ))  # fmt: skip
+        self._fc_seq = (self._fc_seq + 1) & 0xFF
+        data = telemetry.smc_record(self.core, out)
+        tl.write(t_us, encode_debug_float_array(self._log_seq, sysid, FC_COMPONENT_ID, t_us, SMC_ARRAY_NAME, SMC_ARRAY_ID, data))
+        self._log_seq = (self._log_seq + 1) & 0xFF
+        self.t_us = t_us + self.core.config.period_us
+
+    def close(self) -> None:
+        self.tlog.close()
+
+
+def fly_in_process(scenario: Scenario, tlog_path: Path, *, echo=None) -> FlightResult:
+    """Fly ``scenario`` on the flight core in this process, logging to ``tlog_path``."""
+    config = config_for(scenario)
+    home = Home(*scenario.home) if scenario.home is not None else Home()
+    events: list[tuple[float, str]] = []
+    rec: list[_TlogRecorder] = []
+
+    def event(severity: int, text: str) -> None:
+        t_s = rec[0].t_us * 1e-6 if rec else 0.0
+        events.append((t_s, text))
+        if rec:
+            rec[0].event(severity, text)
+        if echo is not None:
+            echo(f"[{t_s:7.2f} s] {text}")
+
+    core = FlightCore(config, scenario.vehicle, home=home, plan=scenario.plan, event=event)
+    plant = plant_for(scenario)
+    tlog_path.parent.mkdir(parents=True, exist_ok=True)
+    recorder = _TlogRecorder(tlog_path, core)
+    rec.append(recorder)
+    status, message = "ok", ""
+    t0 = time.perf_counter()
+    ticks = 0
+    try:
+        ticks = simulate(core, plant, scenario.n_ticks, rate_hz=scenario.rate_hz, physics_hz=scenario.physics_hz, on_tick=recorder.on_tick)
+    except DivergenceError as exc:
+        status, message = "diverged", f"the simulation diverged at t = {exc.time_s:.3f} s: {exc}"
+        ticks = core.ticks
+    finally:
+        wall = time.perf_counter() - t0
+        recorder.close()
+    sim_s = (ticks - 1) / scenario.rate_hz if ticks else 0.0
+    return FlightResult(scenario, "in-process", tlog_path, ticks, sim_s, wall, status, message, events)
+
+
+# -- SITL ----------------------------------------------------------------------------------------
+def fly_sitl(scenario: Scenario, tlog_path: Path, *, echo=None) -> FlightResult:
+    """Fly ``scenario`` as the two SITL processes in lockstep on free ports (no ground link)."""
+    from ground.sitl import Sitl, SitlError, SitlOptions
+
+    param_file = tlog_path.with_name(tlog_path.stem + ".parm")
+    param_file.unlink(missing_ok=True)  # a fresh parameter file: nothing carried over from an earlier run
+    opts = SitlOptions(scenario=scenario, timed=True, lockstep=True, gcs=None, log_dir=tlog_path.parent,
+                       tlog=tlog_path, param_file=param_file)  # fmt: skip
+    t0 = time.perf_counter()
+    status, message = "ok", ""
+    sitl = Sitl(opts, echo=echo)
+    try:
+        with sitl:
+            rc = sitl.wait()
+        if rc != 0:
+            status, message = "error", f"SITL ended with exit code {rc}"
+    except SitlError as exc:
+        status, message = "error", str(exc)
+    wall = time.perf_counter() - t0
+    param_file.unlink(missing_ok=True)
+    fcs = sitl.fc_summary or {}
+    sims = sitl.sim_summary or {}
+    if sims.get("diverged"):
+        status = "diverged"
+    return FlightResult(scenario, "sitl", tlog_path, int(fcs.get("ticks", 0)), float(fcs.get("sim_time_s") or 0.0), wall, status, message)
+
+
+def fly(scenario: Scenario, out_dir: Path, *, sitl: bool = False, echo=None) -> FlightResult:
+    """Fly ``scenario`` one way or the other; write its log and scenario file into ``out_dir``,
+    and summarise the log."""
+    from ground import logtools
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    tlog = out_dir / f"{scenario.name}.tlog"
+    scenario.save(out_dir / f"{scenario.name}.scenario.toml")
+    result = (fly_sitl if sitl else fly_in_process)(scenario, tlog, echo=echo)
+    if tlog.exists() and tlog.stat().st_size > 0:
+        log = logtools.load_log(tlog)
+        result.summary = logtools.summarize(log)
+        if not result.events:
+            result.events = [(e.t_s, e.text) for e in log.events]
+    return result
+
+
+# -- command line --------------------------------------------------------------------------------
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("scenario", type=Path, metavar="SCENARIO.toml", help="the scenario file (see examples/scenarios/)")
+    p.add_argument("--sitl", action="store_true",
+                   help="fly the real two processes over MAVLink/UDP in lockstep (default: in-process, the same core, no UDP)")
+    p.add_argument("--out", type=Path, metavar="DIR", help="where the .tlog, the effective scenario and the plots go"
+                   " (default out/run/<scenario name>)")  # fmt: skip
+    p.add_argument("--json", type=Path, metavar="PATH", help="write the results as JSON")
+    p.add_argument("--no-plots", action="store_true", help="skip the figures")
+    p.add_argument("--controller", choices=FC_CONTROLLERS, help="fly this control law instead of the scenario's")
+    p.add_argument("--seed", type=int, metavar="N", help="use this seed instead of the scenario's")
+    p.add_argument("--duration", type=float, metavar="SIM_S", help="fly this many simulated seconds instead")
+    p.add_argument("--quiet", action="store_true", help="print only the summary")
+
+
+def main(args: argparse.Namespace) -> int:
+    from ground import logtools
+
+    scenario = Scenario.from_toml(args.scenario)
+    changes: dict[str, Any] = {}
+    if args.controller is not None:
+        changes["controller"] = args.controller
+    if args.seed is not None:
+        changes["seed"] = args.seed
+    if args.duration is not None:
+        changes["duration_s"] = args.duration
+    if changes:
+        scenario = scenario.with_changes(**changes)
+    out_dir = args.out if args.out is not None else Path("out") / "run" / scenario.name
+    mode = "sitl" if args.sitl else "in-process"
+    echo = None if args.quiet else (lambda line: print(line, flush=True))
+    if not args.quiet:
+        print(f"run: {scenario.name} ({mode}): {scenario.duration_s:g} s, {scenario.controller}, plant {scenario.plant},"
+              f" seed {scenario.seed}" + (f" — {scenario.description}" if scenario.description else ""), flush=True)  # fmt: skip
+    result = fly(scenario, out_dir, sitl=args.sitl, echo=echo)
+    if result.summary:
+        print()
+        logtools.print_summary(result.summary, sys.stdout)
+    speed = result.sim_s / result.wall_s if result.wall_s > 0 else math.nan
+    print(f"\nrun: {result.status}{': ' + result.message if result.message else ''};"
+          f" {result.ticks} ticks, {result.sim_s:.2f} simulated s in {result.wall_s:.2f} wall s ({speed:.1f}× real time)")  # fmt: skip
+    doc = result.as_json()
+    if not args.no_plots and result.summary:
+        paths = logtools.plot_log(logtools.load_log(result.tlog), out_dir)
+        doc["plots"] = [str(p) for p in paths]
+        print(f"plots: {len(paths)} PNG files in {out_dir}/")
+    print(f"log: {result.tlog}")
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(_finite(doc), indent=2, allow_nan=False) + "\n", encoding="utf-8")
+        print(f"results: {args.json}")
+    return 0 if result.status == "ok" else 1
+
+
+def _finite(v: Any) -> Any:
+    """JSON has no NaN: non-finite floats become null."""
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, dict):
+        return {k: _finite(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_finite(x) for x in v]
+    return v
+
+
+__all__ = ["FlightResult", "MODES", "SmcpilotError", "fly", "fly_in_process", "fly_sitl"]

@@ -1,0 +1,158 @@
+"""The SITL flight without processes or MAVLink: the flight core and a plant in one loop.
+
+The same pieces as the two processes — :class:`fc.core.FlightCore` (the one control tick), the
+simulator's plants and environment, the frame conversions — called directly, so it measures the
+ceiling that MAVLink and UDP take a share of (``smcpilot bench sitl``), lets tests fly many
+scenarios quickly, and is what ``smcpilot run`` uses by default. The state goes through the same
+NED/FRD float32 round trip the wire applies, and so do the motor commands (``HIL_ACTUATOR_CONTROLS``
+carries float32), so an in-process flight and a lockstep SITL flight of the same scenario give the
+same per-tick motor commands, bit for bit.
+
+:func:`simulate` is the loop (parts passed in, as rotorpy's ``simulate()``); :func:`fly` builds
+the core for a configuration and a plan.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass, field
+from typing import Callable, Protocol, Sequence
+
+from fc.config import FcConfig
+from fc.core import FlightCore, TickOutput
+from fc.flight import VehicleState
+from smcpilot.plan import PlanStep
+from sim_bridge.sensors import VehicleObservation
+from smcpilot.frames import (
+    body_rates_to_euler_rates,
+    euler_frd_to_flu,
+    euler_flu_to_frd,
+    ned_to_nwu,
+    nwu_to_ned,
+    rates_flu_to_frd,
+    rates_frd_to_flu,
+)
+from smcpilot.geo import Home
+from smcpilot.vehicle import VehicleParams
+
+_f32 = struct.Struct("<12f")
+_f32x4 = struct.Struct("<4f")
+
+
+class Plant(Protocol):
+    """What the loop needs of a plant: the simulator's ``step``/``observe``."""
+
+    def step(self, t_s: float, dt_s: float, motor_commands: Sequence[float], armed: bool) -> None: ...
+
+    def observe(self) -> VehicleObservation: ...
+
+
+def wire_values(obs: VehicleObservation) -> tuple[float, ...]:
+    """The 12 wire values of an observation, NED/FRD, rounded to float32 as MAVLink carries them:
+    roll, pitch, yaw, p, q, r (rad, rad/s), x, y, z (m), vx, vy, vz (m/s)."""
+    roll, pitch, yaw = euler_flu_to_frd(*obs.euler_rad)
+    p, q, r = rates_flu_to_frd(*obs.body_rates_radps)
+    xn, yn, zn = nwu_to_ned(obs.position_m)
+    vxn, vyn, vzn = nwu_to_ned(obs.velocity_mps)
+    return _f32.unpack(_f32.pack(roll, pitch, yaw, p, q, r, xn, yn, zn, vxn, vyn, vzn))
+
+
+def state_of_wire(v: Sequence[float]) -> VehicleState:
+    """The FC's state (paper frame) of the 12 wire values of :func:`wire_values`."""
+    phi, theta, psi = euler_frd_to_flu(v[0], v[1], v[2])
+    pf, qf, rf = rates_frd_to_flu(v[3], v[4], v[5])
+    phi_d, theta_d, psi_d = body_rates_to_euler_rates(phi, theta, pf, qf, rf)
+    x, y, z = ned_to_nwu((v[6], v[7], v[8]))
+    vx, vy, vz = ned_to_nwu((v[9], v[10], v[11]))
+    return VehicleState(x, y, z, vx, vy, vz, phi, theta, psi, phi_d, theta_d, psi_d)
+
+
+def wire_state(obs: VehicleObservation) -> VehicleState:
+    """The FC's view of an observation after the NED/FRD float32 wire round trip."""
+    return state_of_wire(wire_values(obs))
+
+
+#: called after each tick with (tick index, t_us, wire values, state, tick output, motors as sent).
+TickHook = Callable[[int, int, tuple[float, ...], VehicleState, TickOutput, tuple[float, ...]], None]
+
+
+def simulate(
+    core: FlightCore,
+    plant: Plant,
+    n_ticks: int,
+    *,
+    rate_hz: float,
+    physics_hz: float = 1000.0,
+    on_tick: TickHook | None = None,
+    stop: Callable[[], bool] | None = None,
+) -> int:
+    """Fly ``core`` on ``plant`` for ``n_ticks`` control ticks (lockstep semantics of the processes:
+    state at t, one tick, the motor commands held for one control period of physics); returns the
+    number of ticks flown (fewer if ``stop()`` said so)."""
+    substeps = int(round(physics_hz / rate_hz))
+    dt_phys = 1.0 / physics_hz
+    step_us = int(round(dt_phys * 1e6))
+    t_us = 0
+    tick = core.tick
+    pack, unpack = _f32x4.pack, _f32x4.unpack
+    observe = plant.observe
+    pstep = plant.step
+    for k in range(n_ticks):
+        wire = wire_values(observe())
+        st = state_of_wire(wire)
+        out = tick(t_us, st)
+        motors = unpack(pack(*out.motors))  # float32, as HIL_ACTUATOR_CONTROLS carries them
+        armed = out.armed
+        if on_tick is not None:
+            on_tick(k, t_us, wire, st, out, motors)
+        for _ in range(substeps):
+            pstep(t_us * 1e-6, dt_phys, motors, armed)
+            t_us += step_us
+        if stop is not None and stop():
+            return k + 1
+    return n_ticks
+
+
+@dataclass
+class InProcessRun:
+    """Samples of an in-process flight (every ``record_every`` ticks)."""
+
+    t_s: list[float] = field(default_factory=list)
+    states: list[VehicleState] = field(default_factory=list)
+    outputs: list[TickOutput] = field(default_factory=list)
+    targets: list[tuple[float, float, float]] = field(default_factory=list)
+    events: list[tuple[float, str]] = field(default_factory=list)
+    ticks: int = 0
+
+
+def fly(
+    config: FcConfig,
+    vehicle: VehicleParams,
+    plant: Plant,
+    plan: Sequence[PlanStep],
+    duration_s: float,
+    *,
+    physics_hz: float = 1000.0,
+    record_every: int = 0,
+    home: Home = Home(),
+) -> InProcessRun:
+    """Fly ``plan`` for ``duration_s`` simulated seconds (``duration_s`` × rate ticks).
+
+    ``record_every`` = 0 records nothing but the events (benchmarks).
+    """
+    run = InProcessRun()
+    t_now = [0.0]
+    core = FlightCore(config, vehicle, home=home, plan=plan, event=lambda severity, text: run.events.append((t_now[0], text)))
+    flight = core.flight
+
+    def record(k: int, t_us: int, wire: tuple[float, ...], st: VehicleState, out: TickOutput, motors: tuple[float, ...]) -> None:
+        t_now[0] = (t_us + core.config.period_us) * 1e-6  # events of the next tick carry its time
+        if record_every and k % record_every == 0:
+            run.t_s.append(t_us * 1e-6)
+            run.states.append(st)
+            run.outputs.append(out)
+            run.targets.append(flight.target)
+
+    n_ticks = int(round(duration_s * config.rate_hz))
+    run.ticks = simulate(core, plant, n_ticks, rate_hz=config.rate_hz, physics_hz=physics_hz, on_tick=record)
+    return run

@@ -1,0 +1,405 @@
+"""One scenario: everything that decides a flight, frozen, validated, loaded from and saved to TOML.
+
+A :class:`Scenario` is what ``smcpilot run`` flies (in-process on the flight core, or as the two
+SITL processes), what ``smcpilot sitl`` launches, what a mission file's ``[sitl]`` table and the
+pytest plugin's ``sitl_options`` marker describe, and what the lab's campaigns vary. Launch
+details that do not change the flight (ports, log paths, lockstep pacing) are not part of it.
+
+TOML (every table and key optional; units in the names; positions in the MAVLink local frame:
+north, east, altitude up)::
+
+    name = "step-yaw"
+    description = "step to (4, -3, 3) m with a heading change across ±180°"
+    duration_s = 25.0          # simulated seconds
+    seed = 0                   # seeds the noise and gust streams
+
+    [vehicle]
+    file = "../vehicles/heavy-quad.toml"   # relative to this file; or the vehicle keys inline
+    plant = "rigid-body"                   # or "paper" (the corrected eq. 10 model)
+
+    [environment]
+    noise = false              # sensor noise (0.002 rad, 0.01 rad/s, 0.01 m, 0.02 m/s 1-sigma)
+    noise_scale = 1.0
+    wind_force_ned_n = [0.0, 0.0, 0.0]
+    gust_std_n = 0.0           # horizontal gust force std, N
+    gust_tau_s = 1.0           # gust correlation time, s
+    paper_disturbance = false  # the paper's fs1..fs4
+
+    [fc]
+    controller = "adaptive_pid_smc"        # pid_smc, cascade_pid
+    rate_hz = 500.0
+    home = [-35.363261, 149.16523, 584.0]  # lat_deg, lon_deg, alt_m (default: ArduPilot's SITL field)
+    params = { SMC_CHI_DZ = 0.3 }          # FC parameters by name, as PARAM_SET would set them
+
+    [sim]
+    physics_hz = 1000.0
+
+    [[step]]                   # the timed plan (see smcpilot.plan); or plan = "file.toml"
+    t_s = 0.0
+    action = "takeoff"
+    alt_m = 3.0
+
+Errors name the file and the key (:class:`ScenarioError`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any, Mapping
+
+from smcpilot.errors import ConfigError
+from smcpilot.plan import PlanError, PlanStep, parse_plan
+from smcpilot.protocol import FC_CONTROLLERS
+from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
+
+PLANTS = ("rigid-body", "paper")
+#: ``--noise``: a small IMU/estimator-grade noise level (1-sigma per axis): attitude rad,
+#: body rate rad/s, position m, velocity m/s.
+DEFAULT_NOISE_STD = (0.002, 0.01, 0.01, 0.02)
+
+
+class ScenarioError(ConfigError):
+    """A scenario is invalid or its file is unreadable (the message names the file and key)."""
+
+
+@dataclass(frozen=True)
+class EnvironmentSpec:
+    """Sensor noise, wind, gusts and the paper's disturbances (NED forces in newtons)."""
+
+    noise: bool = False
+    noise_scale: float = 1.0
+    wind_force_ned_n: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    gust_std_n: float = 0.0
+    gust_tau_s: float = 1.0
+    paper_disturbance: bool = False
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.noise_scale) and self.noise_scale >= 0.0):
+            raise ScenarioError(f"environment.noise_scale must be >= 0, got {self.noise_scale!r}")
+        if len(self.wind_force_ned_n) != 3 or not all(math.isfinite(v) for v in self.wind_force_ned_n):
+            raise ScenarioError(f"environment.wind_force_ned_n must be three finite numbers N, E, D, got {self.wind_force_ned_n!r}")
+        if not (math.isfinite(self.gust_std_n) and self.gust_std_n >= 0.0):
+            raise ScenarioError(f"environment.gust_std_n must be >= 0 N, got {self.gust_std_n!r}")
+        if not (math.isfinite(self.gust_tau_s) and self.gust_tau_s > 0.0):
+            raise ScenarioError(f"environment.gust_tau_s must be > 0 s, got {self.gust_tau_s!r}")
+
+    @property
+    def noise_std(self) -> tuple[float, float, float, float]:
+        """1-sigma noise (attitude rad, body rate rad/s, position m, velocity m/s); zeros without noise."""
+        if not self.noise:
+            return (0.0, 0.0, 0.0, 0.0)
+        k = self.noise_scale
+        a, b, c, d = DEFAULT_NOISE_STD
+        return (a * k, b * k, c * k, d * k)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """Everything that decides a flight (see the module docstring for the TOML form)."""
+
+    name: str = "scenario"
+    description: str = ""
+    #: simulated seconds to fly.
+    duration_s: float = 30.0
+    #: seed of the simulator's noise and gust streams.
+    seed: int = 0
+    #: the vehicle's parameters.
+    vehicle: VehicleParams = DEFAULT_VEHICLE
+    #: where the vehicle came from (a TOML file), None for the defaults or inline keys.
+    vehicle_file: Path | None = None
+    #: simulated vehicle: "rigid-body" (6-DOF, motor lag, limits, drag) or "paper".
+    plant: str = "rigid-body"
+    environment: EnvironmentSpec = field(default_factory=EnvironmentSpec)
+    #: control law: adaptive_pid_smc, pid_smc or cascade_pid.
+    controller: str = "adaptive_pid_smc"
+    #: FC control rate, Hz (= the simulator's state rate).
+    rate_hz: float = 500.0
+    #: physics rate, Hz (a whole multiple of ``rate_hz``).
+    physics_hz: float = 1000.0
+    #: home (lat_deg, lon_deg, alt_m) of the local frame; None: the FC's default.
+    home: tuple[float, float, float] | None = None
+    #: FC parameter values by name (applied over the defaults, as PARAM_SET would).
+    params: tuple[tuple[str, float], ...] = ()
+    #: the timed plan, executed by the FC in simulated time.
+    plan: tuple[PlanStep, ...] = ()
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name:
+            raise ScenarioError(f"name must be a non-empty string, got {self.name!r}")
+        if not (isinstance(self.duration_s, (int, float)) and math.isfinite(self.duration_s) and self.duration_s > 0):
+            raise ScenarioError(f"duration_s must be > 0 simulated seconds, got {self.duration_s!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise ScenarioError(f"seed must be a whole number >= 0, got {self.seed!r}")
+        if self.plant not in PLANTS:
+            raise ScenarioError(f"vehicle.plant must be one of {', '.join(PLANTS)}, got {self.plant!r}")
+        if self.controller not in FC_CONTROLLERS:
+            raise ScenarioError(f"fc.controller must be one of {', '.join(FC_CONTROLLERS)}, got {self.controller!r}")
+        if not (math.isfinite(self.rate_hz) and 0 < self.rate_hz <= 1000):
+            raise ScenarioError(f"fc.rate_hz must lie in (0, 1000] Hz, got {self.rate_hz!r}")
+        ratio = self.physics_hz / self.rate_hz if math.isfinite(self.physics_hz) and self.physics_hz > 0 else 0.0
+        if ratio < 1 or abs(ratio - round(ratio)) > 1e-9:
+            raise ScenarioError(
+                f"sim.physics_hz ({self.physics_hz!r}) must be a whole multiple of fc.rate_hz ({self.rate_hz!r})"
+            )
+        if self.home is not None:
+            if len(self.home) != 3 or not all(math.isfinite(v) for v in self.home):
+                raise ScenarioError(f"fc.home must be [lat_deg, lon_deg, alt_m], got {self.home!r}")
+            if not (-90.0 <= self.home[0] <= 90.0 and -180.0 <= self.home[1] <= 180.0):
+                raise ScenarioError(f"fc.home latitude/longitude out of range: {self.home!r}")
+        for name, value in self.params:
+            if not isinstance(name, str) or not name:
+                raise ScenarioError(f"fc.params: parameter names must be strings, got {name!r}")
+            if not math.isfinite(value):
+                raise ScenarioError(f"fc.params.{name} must be a finite number, got {value!r}")
+
+    # -- derived ----------------------------------------------------------------------------------
+    @property
+    def n_ticks(self) -> int:
+        """Control ticks of a full flight: t = 0, one period, ..., ``duration_s`` (both ends)."""
+        return int(round(self.duration_s * self.rate_hz)) + 1
+
+    def with_changes(self, **changes: Any) -> "Scenario":
+        """A copy with some fields replaced (validated again)."""
+        return replace(self, **changes)
+
+    # -- TOML -------------------------------------------------------------------------------------
+    @classmethod
+    def from_toml(cls, path: str | Path) -> "Scenario":
+        p = Path(path)
+        try:
+            text = p.read_text(encoding="utf-8")
+        except OSError as exc:
+            raise ScenarioError(f"cannot read scenario {p}: {exc.strerror or exc}") from None
+        try:
+            doc = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise ScenarioError(f"{p}: not valid TOML: {exc}") from None
+        return cls.from_mapping(doc, source=str(p), base_dir=p.parent)
+
+    @classmethod
+    def from_mapping(cls, doc: Mapping[str, Any], *, source: str = "scenario", base_dir: Path | None = None) -> "Scenario":
+        """Build from a parsed TOML document; relative paths resolve against ``base_dir``."""
+        try:
+            return _parse(doc, source, base_dir)
+        except ScenarioError as exc:
+            msg = str(exc)
+            raise ScenarioError(msg if msg.startswith(source) else f"{source}: {msg}") from None
+
+    def to_mapping(self) -> dict[str, Any]:
+        """The TOML document (as a dict) that :meth:`from_mapping` reads back to an equal scenario."""
+        env = self.environment
+        vehicle: dict[str, Any] = {"plant": self.plant}
+        if self.vehicle != DEFAULT_VEHICLE:
+            vehicle.update(self.vehicle.to_dict())
+        fc: dict[str, Any] = {"controller": self.controller, "rate_hz": self.rate_hz}
+        if self.home is not None:
+            fc["home"] = list(self.home)
+        if self.params:
+            fc["params"] = dict(self.params)
+        doc: dict[str, Any] = {
+            "name": self.name,
+            "description": self.description,
+            "duration_s": self.duration_s,
+            "seed": self.seed,
+            "vehicle": vehicle,
+            "environment": {
+                "noise": env.noise,
+                "noise_scale": env.noise_scale,
+                "wind_force_ned_n": list(env.wind_force_ned_n),
+                "gust_std_n": env.gust_std_n,
+                "gust_tau_s": env.gust_tau_s,
+                "paper_disturbance": env.paper_disturbance,
+            },
+            "fc": fc,
+            "sim": {"physics_hz": self.physics_hz},
+        }
+        if self.plan:
+            doc["step"] = [
+                {k: v for k, v in (("t_s", s.t_s), ("action", s.action), ("north_m", s.north_m), ("east_m", s.east_m),
+                                   ("alt_m", s.alt_m), ("yaw_deg", s.yaw_deg)) if v is not None}  # fmt: skip
+                for s in self.plan
+            ]
+        return doc
+
+    def to_toml(self) -> str:
+        """TOML text that :meth:`from_toml` reads back to an equal scenario (vehicle inline)."""
+        return dumps_toml(self.to_mapping())
+
+    def save(self, path: str | Path) -> Path:
+        p = Path(path)
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_text(self.to_toml(), encoding="utf-8")
+        return p
+
+
+# -- parsing ---------------------------------------------------------------------------------------
+_TOP = {"name", "description", "duration_s", "seed", "vehicle", "environment", "fc", "sim", "step", "plan"}
+_ENV_KEYS = {f.name for f in fields(EnvironmentSpec)}
+_FC_KEYS = {"controller", "rate_hz", "home", "params"}
+_SIM_KEYS = {"physics_hz"}
+
+
+def _table(doc: Mapping[str, Any], key: str) -> dict[str, Any]:
+    value = doc.get(key, {})
+    if not isinstance(value, dict):
+        raise ScenarioError(f"[{key}] must be a table, got {value!r}")
+    return value
+
+
+def _check(table: Mapping[str, Any], known: set[str], where: str) -> None:
+    unknown = sorted(set(table) - known)
+    if unknown:
+        raise ScenarioError(f"unknown key {where}{unknown[0]!r} (known: {', '.join(sorted(known))})")
+
+
+def _number(value: Any, key: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ScenarioError(f"{key} must be a number, got {value!r}")
+    return float(value)
+
+
+def _numbers(value: Any, n: int, key: str) -> tuple[float, ...]:
+    if not isinstance(value, list) or len(value) != n:
+        raise ScenarioError(f"{key} must be a list of {n} numbers, got {value!r}")
+    return tuple(_number(v, key) for v in value)
+
+
+def _bool(value: Any, key: str) -> bool:
+    if not isinstance(value, bool):
+        raise ScenarioError(f"{key} must be true or false, got {value!r}")
+    return value
+
+
+def _parse(doc: Mapping[str, Any], source: str, base_dir: Path | None) -> Scenario:
+    _check(doc, _TOP, "")
+    kw: dict[str, Any] = {}
+    if "name" in doc:
+        kw["name"] = doc["name"]
+    elif source != "scenario":
+        kw["name"] = Path(source).stem
+    if "description" in doc:
+        if not isinstance(doc["description"], str):
+            raise ScenarioError(f"description must be a string, got {doc['description']!r}")
+        kw["description"] = doc["description"]
+    if "duration_s" in doc:
+        kw["duration_s"] = _number(doc["duration_s"], "duration_s")
+    if "seed" in doc:
+        kw["seed"] = doc["seed"]
+
+    veh = _table(doc, "vehicle")
+    vkeys = dict(veh)
+    if "plant" in vkeys:
+        kw["plant"] = vkeys.pop("plant")
+    vfile = vkeys.pop("file", None)
+    if vfile is not None:
+        if not isinstance(vfile, str):
+            raise ScenarioError(f"vehicle.file must be a path string, got {vfile!r}")
+        vpath = Path(vfile)
+        if base_dir is not None and not vpath.is_absolute():
+            vpath = base_dir / vpath
+        vehicle = VehicleParams.from_toml(vpath)
+        kw["vehicle_file"] = vpath
+    else:
+        vehicle = DEFAULT_VEHICLE
+    if vkeys:
+        vehicle = VehicleParams.from_mapping({**vehicle.to_dict(), **vkeys}, source="[vehicle]")
+        kw["vehicle_file"] = None
+    kw["vehicle"] = vehicle
+
+    env = _table(doc, "environment")
+    _check(env, _ENV_KEYS, "environment.")
+    ekw: dict[str, Any] = {}
+    for key, value in env.items():
+        where = f"environment.{key}"
+        if key in ("noise", "paper_disturbance"):
+            ekw[key] = _bool(value, where)
+        elif key == "wind_force_ned_n":
+            ekw[key] = _numbers(value, 3, where)
+        else:
+            ekw[key] = _number(value, where)
+    kw["environment"] = EnvironmentSpec(**ekw)
+
+    fc = _table(doc, "fc")
+    _check(fc, _FC_KEYS, "fc.")
+    if "controller" in fc:
+        kw["controller"] = fc["controller"]
+    if "rate_hz" in fc:
+        kw["rate_hz"] = _number(fc["rate_hz"], "fc.rate_hz")
+    if "home" in fc:
+        kw["home"] = _numbers(fc["home"], 3, "fc.home")
+    if "params" in fc:
+        params = fc["params"]
+        if not isinstance(params, dict):
+            raise ScenarioError(f"fc.params must be a table of NAME = value, got {params!r}")
+        kw["params"] = tuple((str(k), _number(v, f"fc.params.{k}")) for k, v in params.items())
+
+    sim = _table(doc, "sim")
+    _check(sim, _SIM_KEYS, "sim.")
+    if "physics_hz" in sim:
+        kw["physics_hz"] = _number(sim["physics_hz"], "sim.physics_hz")
+
+    if "plan" in doc and "step" in doc:
+        raise ScenarioError("give either plan = \"FILE\" or [[step]] tables, not both")
+    try:
+        if "step" in doc:
+            kw["plan"] = parse_plan({"step": doc["step"]}, "[[step]]")
+        elif "plan" in doc:
+            ppath = doc["plan"]
+            if not isinstance(ppath, str):
+                raise ScenarioError(f"plan must be a path string, got {ppath!r}")
+            from smcpilot.plan import load_plan
+
+            pp = Path(ppath)
+            kw["plan"] = load_plan(base_dir / pp if base_dir is not None and not pp.is_absolute() else pp)
+    except PlanError as exc:
+        raise ScenarioError(str(exc)) from None
+    return Scenario(**kw)
+
+
+# -- a small TOML writer for the documents above ----------------------------------------------------
+def _value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if math.isnan(v):
+            return "nan"
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        return repr(v)
+    if isinstance(v, str):
+        return json.dumps(v, ensure_ascii=False)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{_key(k)} = {_value(x)}" for k, x in v.items()) + " }"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def _key(k: str) -> str:
+    return k if k.replace("_", "").replace("-", "").isalnum() else json.dumps(k)
+
+
+def dumps_toml(doc: Mapping[str, Any]) -> str:
+    """TOML text of a document of scalars, lists, inline tables, tables and arrays of tables."""
+    lines: list[str] = []
+    tables: list[tuple[str, Mapping[str, Any]]] = []
+    arrays: list[tuple[str, list[Mapping[str, Any]]]] = []
+    for k, v in doc.items():
+        if isinstance(v, dict) and k != "params":
+            tables.append((k, v))
+        elif isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
+            arrays.append((k, v))
+        else:
+            lines.append(f"{_key(k)} = {_value(v)}")
+    for k, t in tables:
+        lines += ["", f"[{_key(k)}]"] + [f"{_key(a)} = {_value(b)}" for a, b in t.items()]
+    for k, items in arrays:
+        for t in items:
+            lines += ["", f"[[{_key(k)}]]"] + [f"{_key(a)} = {_value(b)}" for a, b in t.items()]
+    return "\n".join(lines) + "\n"
