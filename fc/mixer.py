@@ -34,8 +34,8 @@ class Mixer:
         self.vehicle = vehicle
         self._kp = vehicle.thrust_coeff_n_s2
         self._cd = vehicle.drag_coeff_n_m_s2
-        self._lo = vehicle.rotor_speed_idle_rad_s**2
-        self._hi = vehicle.rotor_speed_max_rad_s**2
+        self._lo = vehicle.rotor_speed_idle_radps**2
+        self._hi = vehicle.rotor_speed_max_radps**2
         self._span = self._hi - self._lo
 
     @property

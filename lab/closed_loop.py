@@ -32,8 +32,10 @@ DIVERGED_POSITION = 1.0e4
 DIVERGED_INPUT = 1.0e6
 
 
-class Plant(Protocol):
-    """What :func:`simulate` needs from a plant (see :class:`sim_bridge.plants.paper.PaperPlant`)."""
+class OdePlant(Protocol):
+    """The continuous-time form of a plant (its derivatives), what :func:`simulate` integrates together
+    with the controller's states; the stepping form every SITL runner uses is :class:`sim_bridge.plants.base.Plant`.
+    What :func:`simulate` needs from a plant (see :class:`sim_bridge.plants.paper.PaperPlant`)."""
 
     state_names: tuple[str, ...]
 
@@ -99,7 +101,7 @@ def _bad(y: Sequence[float], u: Sequence[float]) -> str | None:
 
 def simulate(
     controller: Controller,
-    plant: Plant,
+    plant: OdePlant,
     reference: Sequence[float] | RefFn,
     x0: Sequence[float],
     duration_s: float,

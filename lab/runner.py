@@ -16,12 +16,13 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass, field
-from typing import Callable, Protocol, Sequence
+from typing import Callable, Sequence
 
 from fc.config import FcConfig
 from fc.core import FlightCore, TickOutput
 from fc.flight import VehicleState
 from smcpilot.plan import PlanStep
+from sim_bridge.plants.base import Plant
 from sim_bridge.sensors import VehicleObservation
 from smcpilot.frames import (
     body_rates_to_euler_rates,
@@ -37,14 +38,6 @@ from smcpilot.vehicle import VehicleParams
 
 _f32 = struct.Struct("<12f")
 _f32x4 = struct.Struct("<4f")
-
-
-class Plant(Protocol):
-    """What the loop needs of a plant: the simulator's ``step``/``observe``."""
-
-    def step(self, t_s: float, dt_s: float, motor_commands: Sequence[float], armed: bool) -> None: ...
-
-    def observe(self) -> VehicleObservation: ...
 
 
 def wire_values(obs: VehicleObservation) -> tuple[float, ...]:

@@ -23,11 +23,11 @@ import signal
 import sys
 import time
 from dataclasses import dataclass
-from typing import Callable, Protocol, TextIO
+from typing import Callable, TextIO
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from sim_bridge.sensors import VehicleObservation
+from sim_bridge.plants.base import Plant
 from smcpilot.fastcodec import encode_attitude, encode_local_position_ned
 from smcpilot.frames import euler_flu_to_frd, nwu_to_ned, rates_flu_to_frd
 from smcpilot.errors import DivergenceError, WatchdogError
@@ -41,12 +41,6 @@ EXIT_WATCHDOG = 3
 EXIT_DIVERGED = 4
 _ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
 _yield = getattr(os, "sched_yield", lambda: None)
-
-
-class Plant(Protocol):
-    def step(self, t_s: float, dt_s: float, motor_commands, armed: bool) -> None: ...
-
-    def observe(self) -> VehicleObservation: ...
 
 
 @dataclass(frozen=True)

@@ -5,8 +5,8 @@ idle (thrust is ``Kp omega^2``)::
 
     omega^2 = omega_idle^2 + c (omega_max^2 - omega_idle^2)        [(rad/s)^2]
 
-with ``omega_idle`` = :attr:`VehicleParams.rotor_speed_idle_rad_s` and ``omega_max`` =
-:attr:`VehicleParams.rotor_speed_max_rad_s`. A disarmed vehicle commands omega = 0.
+with ``omega_idle`` = :attr:`VehicleParams.rotor_speed_idle_radps` and ``omega_max`` =
+:attr:`VehicleParams.rotor_speed_max_radps`. A disarmed vehicle commands omega = 0.
 
 A command outside [0, 1] is clamped (+inf -> 1, -inf -> 0) and NaN is treated as 0, so a bad
 float command never crashes the plant. Rotor numbering is the paper's (see
@@ -34,8 +34,8 @@ def sanitize_command(c: float) -> float:
 
 def command_to_omega_sq(c: float, vehicle: VehicleParams) -> float:
     """Armed motor command c (clamped to [0, 1], NaN -> 0) -> rotor speed squared, (rad/s)^2."""
-    idle_sq = vehicle.rotor_speed_idle_rad_s * vehicle.rotor_speed_idle_rad_s
-    max_sq = vehicle.rotor_speed_max_rad_s * vehicle.rotor_speed_max_rad_s
+    idle_sq = vehicle.rotor_speed_idle_radps * vehicle.rotor_speed_idle_radps
+    max_sq = vehicle.rotor_speed_max_radps * vehicle.rotor_speed_max_radps
     return idle_sq + sanitize_command(c) * (max_sq - idle_sq)
 
 
@@ -45,12 +45,12 @@ def omega_sq_to_command(w_sq: float, vehicle: VehicleParams) -> float:
     Inverse of :func:`command_to_omega_sq` inside [idle^2, max^2]; below idle gives 0, above max
     gives 1.
     """
-    idle_sq = vehicle.rotor_speed_idle_rad_s * vehicle.rotor_speed_idle_rad_s
-    max_sq = vehicle.rotor_speed_max_rad_s * vehicle.rotor_speed_max_rad_s
+    idle_sq = vehicle.rotor_speed_idle_radps * vehicle.rotor_speed_idle_radps
+    max_sq = vehicle.rotor_speed_max_radps * vehicle.rotor_speed_max_radps
     return sanitize_command((w_sq - idle_sq) / (max_sq - idle_sq))
 
 
-def command_to_omega_rad_s(c: float, vehicle: VehicleParams) -> float:
+def command_to_omega_radps(c: float, vehicle: VehicleParams) -> float:
     """Armed motor command c -> steady-state rotor speed [rad/s] in [idle, max]."""
     return _sqrt(command_to_omega_sq(c, vehicle))
 
@@ -59,8 +59,8 @@ def commands_to_omega_sq(commands: Sequence[float], vehicle: VehicleParams, arme
     """Four motor commands -> four rotor speeds squared [(rad/s)^2]; all zero when disarmed."""
     if not armed:
         return (0.0, 0.0, 0.0, 0.0)
-    idle_sq = vehicle.rotor_speed_idle_rad_s * vehicle.rotor_speed_idle_rad_s
-    span_sq = vehicle.rotor_speed_max_rad_s * vehicle.rotor_speed_max_rad_s - idle_sq
+    idle_sq = vehicle.rotor_speed_idle_radps * vehicle.rotor_speed_idle_radps
+    span_sq = vehicle.rotor_speed_max_radps * vehicle.rotor_speed_max_radps - idle_sq
     c1, c2, c3, c4 = commands
     return (
         idle_sq + sanitize_command(c1) * span_sq,
@@ -72,8 +72,8 @@ def commands_to_omega_sq(commands: Sequence[float], vehicle: VehicleParams, arme
 
 def omega_sq_to_commands(w_sq: Sequence[float], vehicle: VehicleParams) -> Quad:
     """Four rotor speeds squared [(rad/s)^2] -> four motor commands, each clamped to [0, 1]."""
-    idle_sq = vehicle.rotor_speed_idle_rad_s * vehicle.rotor_speed_idle_rad_s
-    inv_span = 1.0 / (vehicle.rotor_speed_max_rad_s * vehicle.rotor_speed_max_rad_s - idle_sq)
+    idle_sq = vehicle.rotor_speed_idle_radps * vehicle.rotor_speed_idle_radps
+    inv_span = 1.0 / (vehicle.rotor_speed_max_radps * vehicle.rotor_speed_max_radps - idle_sq)
     w1, w2, w3, w4 = w_sq
     return (
         sanitize_command((w1 - idle_sq) * inv_span),

@@ -185,7 +185,7 @@ class Scenario:
         """Build from a parsed TOML document; relative paths resolve against ``base_dir``."""
         try:
             return _parse(doc, source, base_dir)
-        except ScenarioError as exc:
+        except ConfigError as exc:  # also a vehicle file's or a plan's own error
             msg = str(exc)
             raise ScenarioError(msg if msg.startswith(source) else f"{source}: {msg}") from None
 

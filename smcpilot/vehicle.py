@@ -70,9 +70,9 @@ class VehicleParams:
     #: First-order motor lag time constant (realistic plant only).
     motor_time_constant_s: float = 0.02
     #: Maximum rotor speed (realistic plant only); the default gives thrust/weight = 2.
-    rotor_speed_max_rad_s: float = 282.6
+    rotor_speed_max_radps: float = 282.6
     #: Minimum rotor speed while armed (realistic plant only).
-    rotor_speed_idle_rad_s: float = 50.0
+    rotor_speed_idle_radps: float = 50.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -90,9 +90,9 @@ class VehicleParams:
                     f"vehicle key {f.name!r} must be {'> 0' if f.name in _MUST_BE_POSITIVE else '>= 0'},"
                     f" got {value!r}"
                 )
-        if self.rotor_speed_idle_rad_s >= self.rotor_speed_max_rad_s:
+        if self.rotor_speed_idle_radps >= self.rotor_speed_max_radps:
             raise VehicleFileError(
-                "vehicle key 'rotor_speed_idle_rad_s' must be below 'rotor_speed_max_rad_s'"
+                "vehicle key 'rotor_speed_idle_radps' must be below 'rotor_speed_max_radps'"
             )
 
     # -- derived quantities -------------------------------------------------------------------
@@ -109,7 +109,7 @@ class VehicleParams:
     @property
     def thrust_to_weight(self) -> float:
         """Maximum total thrust over weight (realistic plant)."""
-        return 4.0 * self.thrust_coeff_n_s2 * self.rotor_speed_max_rad_s**2 / self.weight_n
+        return 4.0 * self.thrust_coeff_n_s2 * self.rotor_speed_max_radps**2 / self.weight_n
 
     # -- (de)serialisation ----------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
@@ -119,6 +119,12 @@ class VehicleParams:
     def from_mapping(cls, data: Mapping[str, Any], *, source: str = "vehicle") -> "VehicleParams":
         """Build from a mapping of field names; unknown keys raise naming the key and the source."""
         known = {f.name for f in fields(cls)}
+        data = dict(data)
+        for old, new in RENAMED_KEYS.items():  # files written before the rename still load
+            if old in data:
+                if new in data:
+                    raise VehicleFileError(f"{source}: both {old!r} (its old name) and {new!r} given")
+                data[new] = data.pop(old)
         unknown = sorted(set(data) - known)
         if unknown:
             raise VehicleFileError(
@@ -158,6 +164,9 @@ class VehicleParams:
         return "\n".join(lines) + "\n"
 
 
+#: Vehicle keys renamed (old -> new): rad/s is written ``radps`` everywhere.
+RENAMED_KEYS = {"rotor_speed_max_rad_s": "rotor_speed_max_radps", "rotor_speed_idle_rad_s": "rotor_speed_idle_radps"}
+
 _MUST_BE_POSITIVE = frozenset(
     {
         "mass_kg",
@@ -169,7 +178,7 @@ _MUST_BE_POSITIVE = frozenset(
         "iyy_kg_m2",
         "izz_kg_m2",
         "motor_time_constant_s",
-        "rotor_speed_max_rad_s",
+        "rotor_speed_max_radps",
     }
 )
 

@@ -13,16 +13,16 @@ from smcpilot.model import PaperModel
 from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
 
 V = DEFAULT_VEHICLE
-IDLE_SQ = V.rotor_speed_idle_rad_s**2
-MAX_SQ = V.rotor_speed_max_rad_s**2
+IDLE_SQ = V.rotor_speed_idle_radps**2
+MAX_SQ = V.rotor_speed_max_radps**2
 unit = st.floats(min_value=0.0, max_value=1.0)
 
 
 def test_endpoints() -> None:
     assert act.command_to_omega_sq(0.0, V) == pytest.approx(IDLE_SQ)
     assert act.command_to_omega_sq(1.0, V) == pytest.approx(MAX_SQ)
-    assert act.command_to_omega_rad_s(1.0, V) == pytest.approx(V.rotor_speed_max_rad_s)
-    assert act.command_to_omega_rad_s(0.0, V) == pytest.approx(V.rotor_speed_idle_rad_s)
+    assert act.command_to_omega_radps(1.0, V) == pytest.approx(V.rotor_speed_max_radps)
+    assert act.command_to_omega_radps(0.0, V) == pytest.approx(V.rotor_speed_idle_radps)
 
 
 def test_thrust_is_linear_in_command() -> None:
@@ -77,7 +77,7 @@ def test_vector_helpers() -> None:
     "vehicle",
     [
         V,
-        VehicleParams(mass_kg=1.5, thrust_coeff_n_s2=1.2e-5, rotor_speed_max_rad_s=783.0, rotor_speed_idle_rad_s=150.0),
+        VehicleParams(mass_kg=1.5, thrust_coeff_n_s2=1.2e-5, rotor_speed_max_radps=783.0, rotor_speed_idle_radps=150.0),
     ],
 )
 def test_hover_command_gives_weight(vehicle: VehicleParams) -> None:

@@ -27,8 +27,8 @@ V = DEFAULT_VEHICLE
 W = V.weight_n
 MIXER = Mixer(V)
 MODEL = PaperModel.from_vehicle(V)
-LO_SQ = V.rotor_speed_idle_rad_s**2
-HI_SQ = V.rotor_speed_max_rad_s**2
+LO_SQ = V.rotor_speed_idle_radps**2
+HI_SQ = V.rotor_speed_max_radps**2
 T_MIN, T_MAX = MIXER.thrust_range_n
 
 

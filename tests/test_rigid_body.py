@@ -18,7 +18,7 @@ from sim_bridge.environment import Environment, EnvironmentParams
 from sim_bridge.plants.paper_vehicle import PaperVehiclePlant
 from sim_bridge.plants.rigid_body import RigidBodyPlant, VehicleObservation
 from sim_bridge.sensors import SensorNoiseParams
-from smcpilot.actuators import command_to_omega_rad_s, hover_command
+from smcpilot.actuators import command_to_omega_radps, hover_command
 from smcpilot.errors import ConfigError
 from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
 
@@ -167,7 +167,7 @@ def test_rk4_matches_solve_ivp_over_2s() -> None:
         cmds = tuple(c_h + rng.uniform(-0.05, 0.08) for _ in range(4))
         if seg == 12:
             cmds = (1.0, 0.9, 1.0, 0.9)
-        targets = np.array([command_to_omega_rad_s(c, v) for c in cmds]) if armed else np.zeros(4)
+        targets = np.array([command_to_omega_radps(c, v) for c in cmds]) if armed else np.zeros(4)
         sol = solve_ivp(
             reference_rhs(v, targets, np.array(force)), (t, t + 0.1), s_ref, method="DOP853", rtol=1e-12, atol=1e-13
         )
@@ -207,7 +207,7 @@ def test_small_angle_agreement_with_paper_model(paper_disturbance: bool) -> None
     v = DEFAULT_VEHICLE
     c = hover_command(v)
     cmds = (c + 0.002, c - 0.001, c + 0.003, c + 0.001)
-    w = tuple(command_to_omega_rad_s(ci, v) for ci in cmds)
+    w = tuple(command_to_omega_radps(ci, v) for ci in cmds)
     init = dict(roll_rad=0.03, pitch_rad=-0.02, velocity_mps=(0.1, -0.2, 0.05), body_rates_radps=(0.02, -0.03, 0.05))
     env_params = EnvironmentParams(paper_disturbance=paper_disturbance)
     rigid = RigidBodyPlant(v, Environment(env_params))
@@ -279,7 +279,7 @@ def test_roll_and_pitch_move_the_vehicle_sideways() -> None:
 def test_motor_lag_reaches_63_percent_at_one_time_constant() -> None:
     v = DEFAULT_VEHICLE
     plant = RigidBodyPlant(v)
-    w_idle, w_max = v.rotor_speed_idle_rad_s, v.rotor_speed_max_rad_s
+    w_idle, w_max = v.rotor_speed_idle_radps, v.rotor_speed_max_radps
     plant.reset((0, 0, 100), rotor_speeds_radps=(w_idle,) * 4)
     run(plant, (1.0, 1.0, 1.0, 1.0), v.motor_time_constant_s)
     frac = [(w - w_idle) / (w_max - w_idle) for w in plant.observe().rotor_speed_radps]
@@ -289,7 +289,7 @@ def test_motor_lag_reaches_63_percent_at_one_time_constant() -> None:
 def test_rotor_limits_respected() -> None:
     v = DEFAULT_VEHICLE
     plant = RigidBodyPlant(v)
-    plant.reset((0, 0, 1000.0), rotor_speeds_radps=(v.rotor_speed_idle_rad_s,) * 4)
+    plant.reset((0, 0, 1000.0), rotor_speeds_radps=(v.rotor_speed_idle_radps,) * 4)
     t = 0.0
     seen = []
     for cmds in [(5.0, -3.0, math.inf, -math.inf), (1.0, 0.0, 1e300, -1e300), (0.5, 2.0, -0.1, 0.7)]:
@@ -297,23 +297,23 @@ def test_rotor_limits_respected() -> None:
             plant.step(t, DT, cmds, True)
             t += DT
             seen.extend(plant.observe().rotor_speed_radps)
-    assert max(seen) <= v.rotor_speed_max_rad_s
-    assert min(seen) >= v.rotor_speed_idle_rad_s - 1e-9
-    assert max(seen) > 0.99 * v.rotor_speed_max_rad_s
+    assert max(seen) <= v.rotor_speed_max_radps
+    assert min(seen) >= v.rotor_speed_idle_radps - 1e-9
+    assert max(seen) > 0.99 * v.rotor_speed_max_radps
     # disarm: spins down toward 0 with the same lag
     run(plant, (1.0,) * 4, 0.2, armed=False, t0=t)
-    assert max(plant.observe().rotor_speed_radps) < 0.01 * v.rotor_speed_max_rad_s
+    assert max(plant.observe().rotor_speed_radps) < 0.01 * v.rotor_speed_max_radps
 
 
 def test_nan_command_does_not_crash() -> None:
     v = DEFAULT_VEHICLE
     plant = RigidBodyPlant(v)
-    plant.reset((0, 0, 5.0), rotor_speeds_radps=(v.rotor_speed_idle_rad_s,) * 4)
+    plant.reset((0, 0, 5.0), rotor_speeds_radps=(v.rotor_speed_idle_radps,) * 4)
     nan = float("nan")
     run(plant, (nan, nan, nan, nan), 0.2)
     obs = plant.observe()
     assert all(math.isfinite(x) for x in (*obs.position_m, *obs.velocity_mps, *obs.euler_rad, *obs.body_rates_radps))
-    assert obs.rotor_speed_radps == pytest.approx((v.rotor_speed_idle_rad_s,) * 4)  # NaN -> 0 -> idle
+    assert obs.rotor_speed_radps == pytest.approx((v.rotor_speed_idle_radps,) * 4)  # NaN -> 0 -> idle
     paper = PaperVehiclePlant(v)
     paper.reset((0, 0, 5.0))
     run(paper, (nan, 0.5, nan, 0.5), 0.1)

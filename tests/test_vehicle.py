@@ -52,8 +52,8 @@ def test_random_round_trip(tmp_path_factory, mass, izz, jr, idle, extra, name):
         mass_kg=mass,
         izz_kg_m2=izz,
         rotor_inertia_kg_m2=jr,
-        rotor_speed_idle_rad_s=idle,
-        rotor_speed_max_rad_s=idle + extra,
+        rotor_speed_idle_radps=idle,
+        rotor_speed_max_radps=idle + extra,
     )
     p = tmp_path_factory.mktemp("rt") / "v.toml"
     p.write_text(v.to_toml(), encoding="utf-8")
@@ -113,7 +113,7 @@ def test_misspelt_key_names_the_key(tmp_path):
         VehicleParams.from_toml(p)
 
 
-@pytest.mark.parametrize("key", ["mass_kg", "izz_kg_m2", "rotor_speed_max_rad_s"])
+@pytest.mark.parametrize("key", ["mass_kg", "izz_kg_m2", "rotor_speed_max_radps"])
 def test_non_number_names_the_key(tmp_path, key):
     p = _write(tmp_path, f'[vehicle]\n{key} = "heavy"\n')
     with pytest.raises(VehicleFileError, match=key):
@@ -148,8 +148,8 @@ def test_non_finite_names_the_key(tmp_path, value):
 
 
 def test_idle_above_max_is_rejected(tmp_path):
-    p = _write(tmp_path, "[vehicle]\nrotor_speed_idle_rad_s = 300.0\nrotor_speed_max_rad_s = 200.0\n")
-    with pytest.raises(VehicleFileError, match="rotor_speed_idle_rad_s"):
+    p = _write(tmp_path, "[vehicle]\nrotor_speed_idle_radps = 300.0\nrotor_speed_max_radps = 200.0\n")
+    with pytest.raises(VehicleFileError, match="rotor_speed_idle_radps"):
         VehicleParams.from_toml(p)
 
 
@@ -204,3 +204,20 @@ def test_round_trip_names_needing_escapes(tmp_path, name):
     v = VehicleParams(name=name)
     p = _write(tmp_path, v.to_toml())
     assert VehicleParams.from_toml(p) == v
+
+
+def test_vehicle_files_with_the_old_rad_s_key_names_still_load(tmp_path) -> None:
+    from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
+
+    path = tmp_path / "old.toml"
+    path.write_text("[vehicle]\nrotor_speed_max_rad_s = 1000.0\nrotor_speed_idle_rad_s = 100.0\n")
+    v = VehicleParams.from_toml(path)
+    assert (v.rotor_speed_max_radps, v.rotor_speed_idle_radps) == (1000.0, 100.0)
+    assert v.mass_kg == DEFAULT_VEHICLE.mass_kg
+    path.write_text("[vehicle]\nrotor_speed_max_rad_s = 1000.0\nrotor_speed_max_radps = 900.0\n")
+    import pytest
+
+    from smcpilot.errors import VehicleFileError
+
+    with pytest.raises(VehicleFileError, match="rotor_speed_max_rad_s.*old name"):
+        VehicleParams.from_toml(path)

@@ -4,11 +4,22 @@ noisy observation. Plants implement ``reset``, ``step`` and ``truth``."""
 from __future__ import annotations
 
 import math
+from typing import Protocol, Sequence
 
 from sim_bridge.environment import Environment
 from sim_bridge.sensors import VehicleObservation
 from smcpilot.errors import ConfigError
 from smcpilot.vehicle import VehicleParams
+
+
+class Plant(Protocol):
+    """A simulated vehicle as every runner steps it (the simulator process, the in-process runner):
+    ``step`` advances ``dt_s`` seconds holding the motor commands (c1..c4 in [0, 1]; not armed:
+    rotors stop), ``observe`` gives the state the sensors report (noisy, paper frame)."""
+
+    def step(self, t_s: float, dt_s: float, motor_commands: Sequence[float], armed: bool) -> None: ...
+
+    def observe(self) -> VehicleObservation: ...
 
 
 class PlantBase:

@@ -115,9 +115,9 @@ class RigidBodyPlant(PlantBase):
     ) -> None:
         super().__init__(vehicle, env, max_step_s=max_step_s, ground_contact=ground_contact)
         v = vehicle
-        self._idle_sq = v.rotor_speed_idle_rad_s**2
-        self._span_sq = v.rotor_speed_max_rad_s**2 - self._idle_sq
-        self._w_max = v.rotor_speed_max_rad_s
+        self._idle_sq = v.rotor_speed_idle_radps**2
+        self._span_sq = v.rotor_speed_max_radps**2 - self._idle_sq
+        self._w_max = v.rotor_speed_max_radps
         self._tau_m = v.motor_time_constant_s
         self._decay_h = -1.0
         self._e_half = 0.0
