@@ -160,7 +160,7 @@ class VehicleParams:
         lines = ["[vehicle]"]
         for f in fields(self):
             value = getattr(self, f.name)
-            lines.append(f"{f.name} = {value!r}" if f.name != "name" else f"name = {json.dumps(value, ensure_ascii=False)}")
+            lines.append(f"{f.name} = {value!r}" if f.name != "name" else f"name = {json.dumps(value, ensure_ascii=False).replace(chr(0x7F), chr(92) + 'u007f')}")
         return "\n".join(lines) + "\n"
 
 
