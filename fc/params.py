@@ -14,7 +14,7 @@ import os
 import tempfile
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable
 
 from fc.config import FcConfig
 from smcpilot.protocol import FC_CONTROLLERS
@@ -80,7 +80,7 @@ def _attr(path: str, scale: float = 1.0, cast: Callable[[float], object] = float
         return float(obj) * scale  # type: ignore[arg-type]
 
     def set_(c: FcConfig, v: float) -> FcConfig:
-        val = cast(v / scale)
+        val: Any = cast(v / scale)
         if len(parts) == 1:
             return replace(c, **{parts[0]: val})
         sub = getattr(c, parts[0])
@@ -273,7 +273,7 @@ def defaults_table() -> list[dict[str, object]]:
 def apply_scenario(store: ParamStore, scenario: Scenario) -> FcConfig:
     """Start-up: the scenario's controller, rate and parameter values over what ``store`` holds
     (defaults, or a loaded parameter file); restart parameters apply at once. Errors name the key."""
-    base = {"controller": scenario.controller, "rate_hz": scenario.rate_hz}
+    base: dict[str, Any] = {"controller": scenario.controller, "rate_hz": scenario.rate_hz}
     store.config = replace(store.config, **base)
     store.pending = replace(store.pending, **base)
     for name, value in scenario.params:
@@ -290,7 +290,7 @@ def config_for(scenario: Scenario) -> FcConfig:
     return apply_scenario(ParamStore(FcConfig()), scenario)
 
 
-def param_messages(mav, config: FcConfig) -> list:
+def param_messages(mav: Any, config: FcConfig) -> list[Any]:
     """``PARAM_VALUE`` of every parameter as ``config`` holds it: the FC logs them once at start,
     so a log says what configuration flew it (as ArduPilot's logs carry PARM records)."""
     out = []

@@ -37,7 +37,8 @@ class OdePlant(Protocol):
     with the controller's states; the stepping form every SITL runner uses is :class:`sim_bridge.plants.base.Plant`.
     What :func:`simulate` needs from a plant (see :class:`sim_bridge.plants.paper.PaperPlant`)."""
 
-    state_names: tuple[str, ...]
+    @property
+    def state_names(self) -> tuple[str, ...]: ...
 
     def derivatives(self, t_s: float, y: Sequence[float], u: Sequence[float]) -> tuple[Any, Any, Any]:
         """(dy/dt, true accelerations (4), rotor speeds squared (4))."""
@@ -130,11 +131,11 @@ def simulate(
                 " (e.g. 1000, 500, 250, 200, 100)"
             )
     ref_fn: RefFn | None = reference if callable(reference) else None
-    ref_const = None if ref_fn is not None else tuple(float(v) for v in reference)  # type: ignore[union-attr]
+    ref_const: tuple[float, ...] = () if ref_fn is not None else tuple(float(v) for v in reference)  # type: ignore[union-attr]
     n_steps = int(round(duration_s / dt_s))
     nx = len(x0)
-    y = [float(v) for v in x0]
-    c = list(controller.initial_state(y[:8]))
+    y: list[float] = [float(v) for v in x0]
+    c: Sequence[float] = list(controller.initial_state(y[:8]))
     rec_t: list[float] = []
     rec_x: list[Sequence[float]] = []
     rec_ref: list[tuple[float, float, float, float]] = []
@@ -170,7 +171,7 @@ def simulate(
                 dc, diag = controller.derivatives(meas, ref, cs, acc)
                 return dp + dc, u, w, diag, ref
 
-            yy = y + c
+            yy = y + list(c)
             h2 = 0.5 * h
             h6 = h / 6.0
             for i in range(n_steps + 1):
@@ -199,7 +200,7 @@ def simulate(
             for i in range(n_steps + 1):
                 ref = ref_fn(t) if ref_fn is not None else ref_const
                 if i % substeps == 0:
-                    acc = plant.derivatives(t, y, u)[1] if u is not None else None
+                    acc: Sequence[float] | None = plant.derivatives(t, y, u)[1] if u is not None else None
                     u, c, diag = controller.step(y[:8], ref, c, dt_ctrl, acc)
                 k1, _acc, w = plant.derivatives(t, y, u)
                 why = _bad(y, u)

@@ -279,7 +279,8 @@ class MavlinkUdp:
             infos = socket.getaddrinfo(endpoint.host, endpoint.port, socket.AF_INET, socket.SOCK_DGRAM)
         except OSError as exc:
             raise LinkError(f"endpoint {endpoint.url}: cannot resolve host {endpoint.host!r}: {exc}") from exc
-        address: Address = infos[0][4][:2]
+        host, port = infos[0][4][:2]  # AF_INET: (host, port)
+        address: Address = (str(host), int(port))
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             if endpoint.mode == "in":

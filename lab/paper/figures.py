@@ -94,6 +94,7 @@ def write_figures(run: PaperRun, out_dir: str | Path) -> list[Path]:
         fig.suptitle(f"Sliding variable S and PID manifold σ ({sub})")
         for i, c in enumerate(CHANNELS):
             for name, tr in smc.items():
+                assert tr.s is not None and tr.sigma is not None  # smc holds the sliding-mode laws only
                 axes[i, 0].plot(tr.t_s, tr.s[:, i], color=COLORS[name], label=LABELS[name], lw=1.2)
                 axes[i, 1].plot(tr.t_s, tr.sigma[:, i], color=COLORS[name], label=LABELS[name], lw=1.2)
             axes[i, 0].set_ylabel(f"S_{SYMBOLS[c]}")
