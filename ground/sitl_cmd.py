@@ -15,6 +15,7 @@ from typing import Any, Callable
 from ground.sitl import Sitl, SitlError, SitlOptions, print_connect_help
 from smcpilot.errors import ConfigError
 from smcpilot.protocol import FC_CONTROLLERS
+from smcpilot.scenario import Scenario
 
 
 def _ned_triple(text: str) -> tuple[float, float, float]:
@@ -34,13 +35,13 @@ def add_common(p: argparse.ArgumentParser, *, lockstep_flag: bool) -> None:
     p.add_argument("--speed", type=float, metavar="FACTOR",
                    help="lockstep: at most FACTOR x real time (a ground station needs 1); real time: clock speed")  # fmt: skip
     p.add_argument("--vehicle", type=Path, metavar="FILE", help="vehicle TOML (default: the spec's parameters)")
-    p.add_argument("--controller", choices=FC_CONTROLLERS, default="adaptive_pid_smc", help="control law (default adaptive_pid_smc)")
-    p.add_argument("--seed", type=int, default=0, metavar="N", help="seed of sensor noise and gusts (default 0)")
+    p.add_argument("--controller", choices=FC_CONTROLLERS, default=None, help="control law (default adaptive_pid_smc)")
+    p.add_argument("--seed", type=int, default=None, metavar="N", help="seed of sensor noise and gusts (default 0)")
     p.add_argument("--log-dir", type=Path, default=Path("logs"), metavar="DIR", help="where the .tlog goes (default logs/)")
-    p.add_argument("--plant", choices=("rigid-body", "paper"), default="rigid-body", help="simulated vehicle model (default rigid-body)")
-    p.add_argument("--noise", action="store_true", help="sensor noise on the simulated state")
+    p.add_argument("--plant", choices=("rigid-body", "paper"), default=None, help="simulated vehicle model (default rigid-body)")
+    p.add_argument("--noise", action="store_true", default=None, help="sensor noise on the simulated state")
     p.add_argument("--wind-force", type=_ned_triple, metavar="N,E,D", help="constant wind force, newtons, NED")
-    p.add_argument("--gust-std", type=float, default=0.0, metavar="N", help="horizontal gust force std, newtons")
+    p.add_argument("--gust-std", type=float, default=None, metavar="N", help="horizontal gust force std, newtons (default 0)")
 
 
 def add_sitl_arguments(p: argparse.ArgumentParser) -> None:
@@ -50,7 +51,10 @@ def add_sitl_arguments(p: argparse.ArgumentParser) -> None:
                    help="ground link of the FC: udp:HOST:PORT sends telemetry there (default udp:127.0.0.1:14550,"
                    " where QGroundControl and MAVProxy listen), udpin:HOST:PORT listens, none: no ground link")  # fmt: skip
     p.add_argument("--plan", type=Path, metavar="FILE", help="timed set-point plan (TOML) the FC flies in simulated time")
-    p.add_argument("--paper-disturbance", action="store_true", help="add the paper's disturbances fs1..fs4")
+    p.add_argument("--paper-disturbance", action="store_true", default=None, help="add the paper's disturbances fs1..fs4")
+    p.add_argument("--scenario", type=Path, metavar="FILE",
+                   help="fly this scenario (TOML, see `smcpilot run`): its vehicle, environment, seed, controller,"
+                   " parameters and plan (the flags above change it); runs until Ctrl-C unless --duration is given")  # fmt: skip
 
 
 def _options(args: argparse.Namespace, **extra: Any) -> SitlOptions:
@@ -58,22 +62,20 @@ def _options(args: argparse.Namespace, **extra: Any) -> SitlOptions:
         raise ConfigError("--speed must be > 0")
     if getattr(args, "duration", None) is not None and not args.duration > 0:
         raise ConfigError("--duration must be > 0 simulated seconds")
-    if args.gust_std < 0:
+    if args.gust_std is not None and args.gust_std < 0:
         raise ConfigError("--gust-std must be >= 0")
     if args.vehicle is not None and not args.vehicle.is_file():
         raise ConfigError(f"vehicle file not found: {args.vehicle}")
-    kw: dict[str, Any] = dict(
-        speed=args.speed,
-        vehicle=args.vehicle,
-        controller=args.controller,
-        seed=args.seed,
-        log_dir=args.log_dir,
-        plant=args.plant,
-        noise=args.noise,
-        wind_force_ned_n=args.wind_force,
-        gust_std_n=args.gust_std,
-    )
-    kw.update(extra)
+    kw: dict[str, Any] = dict(speed=args.speed, log_dir=args.log_dir)
+    scenario_file = getattr(args, "scenario", None)
+    if scenario_file is not None:
+        kw["scenario"] = Scenario.from_toml(scenario_file)
+    # Only what the command line says changes the scenario (the defaults are the scenario's).
+    for key, value in (("vehicle", args.vehicle), ("controller", args.controller), ("seed", args.seed), ("plant", args.plant),
+                       ("noise", args.noise), ("wind_force_ned_n", args.wind_force), ("gust_std_n", args.gust_std)):  # fmt: skip
+        if value is not None:
+            kw[key] = value
+    kw.update({k: v for k, v in extra.items() if v is not None or k in ("gcs",)})
     return SitlOptions.of(**kw)
 
 

@@ -194,3 +194,16 @@ def test_smcpilot_run_refuses_a_broken_scenario_in_one_line(tmp_path: Path) -> N
     r = subprocess.run([sys.executable, "-m", "lab.cli", "run", str(bad)], capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "gust_std_n must be >= 0" in r.stderr, r.stderr
     assert not math.isnan(0.0)
+
+
+def test_smcpilot_sitl_flies_a_scenario_and_flags_change_it(tmp_path: Path) -> None:
+    r = subprocess.run(
+        [sys.executable, "-m", "lab.cli", "sitl", "--scenario", str(ROOT / "examples" / "scenarios" / "gusty-hold.toml"),
+         "--lockstep", "--duration", "2", "--gcs", "none", "--seed", "9", "--log-dir", str(tmp_path)],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stdout + r.stderr
+    (written,) = tmp_path.glob("*.scenario.toml")
+    sc = Scenario.from_toml(written)
+    assert sc.seed == 9 and sc.environment.noise and sc.environment.gust_std_n == 0.15 and len(sc.plan) == 3
+    assert "1001 control ticks" in r.stdout
