@@ -286,7 +286,7 @@ def test_command_line_beats_the_parameter_file(tmp_path: Path) -> None:
                 assert sim.exchange(t).time_usec == t * 1000  # 2 ms steps answered: 500 Hz in force
         finally:
             sim.close()
-        ready = [ln for ln in fc.all_lines if ln.startswith("FC_READY")]
+        ready = [fc.await_line("FC_READY", 10.0)]  # the reader thread may not have the line yet
         assert ready and "controller=pid_smc" in ready[0], fc.all_lines
     finally:
         fc.kill()
@@ -301,7 +301,7 @@ def test_command_line_beats_the_parameter_file(tmp_path: Path) -> None:
                 assert sim.exchange(t).time_usec == t * 1000  # 4 ms steps answered: 250 Hz from the file
         finally:
             sim.close()
-        ready = [ln for ln in fc.all_lines if ln.startswith("FC_READY")]
+        ready = [fc.await_line("FC_READY", 10.0)]  # the reader thread may not have the line yet
         assert ready and "controller=cascade_pid" in ready[0], fc.all_lines
     finally:
         fc.kill()
