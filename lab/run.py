@@ -47,7 +47,7 @@ from smcpilot.protocol import (
     SMC_ARRAY_NAME,
 )
 from smcpilot.protocol import FC_CONTROLLERS
-from smcpilot.scenario import Scenario
+from smcpilot.scenario import Scenario, ScenarioError
 from smcpilot.tlog import TlogWriter
 
 MODES = ("in-process", "sitl")
@@ -208,6 +208,7 @@ def fly(scenario: Scenario, out_dir: Path, *, sitl: bool = False, echo=None) -> 
     and summarise the log."""
     from ground import logtools
 
+    config_for(scenario)  # unknown or out-of-range FC parameters: a clear error before anything flies
     out_dir.mkdir(parents=True, exist_ok=True)
     tlog = out_dir / f"{scenario.name}.tlog"
     scenario.save(out_dir / f"{scenario.name}.scenario.toml")
@@ -248,6 +249,10 @@ def main(args: argparse.Namespace) -> int:
         changes["duration_s"] = args.duration
     if changes:
         scenario = scenario.with_changes(**changes)
+    try:
+        config_for(scenario)
+    except ScenarioError as exc:
+        raise ScenarioError(f"{args.scenario}: {exc}") from None
     out_dir = args.out if args.out is not None else Path("out") / "run" / scenario.name
     mode = "sitl" if args.sitl else "in-process"
     echo = None if args.quiet else (lambda line: print(line, flush=True))
