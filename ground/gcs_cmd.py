@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Any, Callable, Sequence, TextIO
 
 
-from ground.client import (
+from ground.vehicle import (
     COPTER_MODES,
     HomePosition,
     MissionItem,
@@ -48,7 +48,7 @@ from ground.client import (
     json_safe,
     mode_number,
 )
-from ground.missions import ItemSpec, MissionFileError, items_to_toml, load_mission
+from ground.missions.schema import ItemSpec, MissionFileError, items_to_toml, load_mission
 from smcpilot.errors import ConfigError
 
 DEFAULT_CONNECT = "udpin:127.0.0.1:14550"
@@ -189,7 +189,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     mission = sub.add_parser("mission", help="upload, download, start or clear the mission", description="The mission protocol (item 0 is home and is handled by the client).")
     msub = mission.add_subparsers(dest="mission_command", metavar="ACTION")
     msub.required = True
-    s = msub.add_parser("upload", help="upload a mission TOML file", description="Upload the [[item]] list of a mission file (the format of `smcpilot mission`, see ground/missions.py; its [sitl] and [[expect]] tables are ignored here). north_m/east_m are converted to latitude/longitude through the vehicle's home.")
+    s = msub.add_parser("upload", help="upload a mission TOML file", description="Upload the [[item]] list of a mission file (the format of `smcpilot mission`, see ground/missions/__init__.py; its [sitl] and [[expect]] tables are ignored here). north_m/east_m are converted to latitude/longitude through the vehicle's home.")
     s.add_argument("file", type=Path, metavar="FILE", help="mission TOML file")
     s.set_defaults(gcs_handler=_mission_upload)
     s = msub.add_parser("download", help="download the mission (TOML to FILE or stdout)", description="Download the mission; home (item 0) is left out.")

@@ -52,7 +52,7 @@ from typing import Any, Iterator
 
 import pytest
 
-from ground.client import Vehicle
+from ground.vehicle import Vehicle
 from ground.sitl import SCENARIO_KEYWORDS, Sitl, SitlOptions
 from smcpilot.scenario import Scenario
 

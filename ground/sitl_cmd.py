@@ -161,7 +161,7 @@ def add_demo_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def demo_main(args: argparse.Namespace) -> int:
-    from ground import logtools
+    from ground.logs import load_log, plot_log, print_summary, summarize
 
     plan = demo_plan_path()
     opts = _options(args, lockstep=True, duration_s=DEMO_DURATION_S, gcs=None, plan=plan)
@@ -172,18 +172,18 @@ def demo_main(args: argparse.Namespace) -> int:
         return rc
     fcs = sitl.fc_summary or {}
     assert sitl.tlog is not None
-    log = logtools.load_log(sitl.tlog)
-    summary = logtools.summarize(log)
+    log = load_log(sitl.tlog)
+    summary = summarize(log)
     result = demo_result(summary, fcs, wall, sitl.tlog)
     print()
-    logtools.print_summary(summary, sys.stdout)
+    print_summary(summary, sys.stdout)
     print(
         f"\ndemo: {result['sim_seconds']:.1f} simulated s in {wall:.2f} wall s ({result['speed']:.1f}× real time),"
         f" final position error {_fmt(result['position_error_final_m'])} m, max tilt {_fmt(result['max_tilt_deg'])}°,"
         f" χ̂ = [{', '.join(_fmt(c) for c in result['chi_hat_final'] or [])}], {result['overruns']} overruns"
     )
     if not args.no_plots:
-        paths = logtools.plot_log(log, args.out)
+        paths = plot_log(log, args.out)
         print(f"plots: {len(paths)} PNG files in {args.out}/")
         result["plots"] = [str(p) for p in paths]
     print(f"log: {sitl.tlog}")

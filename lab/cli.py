@@ -80,7 +80,7 @@ def _run(sub: argparse._SubParsersAction) -> None:
 
 
 def _plot(sub: argparse._SubParsersAction) -> None:
-    from ground import logtools
+    from ground.logs import cli as logs_cli
 
     p = sub.add_parser(
         "plot",
@@ -88,16 +88,16 @@ def _plot(sub: argparse._SubParsersAction) -> None:
         description="Read a flight-controller .tlog and write PNG figures into DIR"
         " (default: <log stem>-plots/ next to the log).",
     )
-    logtools.add_plot_arguments(p)
-    p.set_defaults(handler=logtools.plot_main)
+    logs_cli.add_plot_arguments(p)
+    p.set_defaults(handler=logs_cli.plot_main)
 
 
 def _log(sub: argparse._SubParsersAction) -> None:
-    from ground import logtools
+    from ground.logs import cli as logs_cli
 
     p = sub.add_parser("log", help="inspect flight logs (.tlog): summary", description="Inspect flight-controller .tlog files.")
-    logtools.add_log_arguments(p)
-    p.set_defaults(handler=logtools.log_main)
+    logs_cli.add_log_arguments(p)
+    p.set_defaults(handler=logs_cli.log_main)
 
 
 def _gcs(sub: argparse._SubParsersAction) -> None:
@@ -118,16 +118,16 @@ def _gcs(sub: argparse._SubParsersAction) -> None:
 
 
 def _mission(sub: argparse._SubParsersAction) -> None:
-    from ground import missions
+    from ground.missions import cli as missions_cli
 
     p = sub.add_parser(
         "mission",
         help="scripted missions: fly a mission TOML in SITL (or on a running vehicle) and check its expectations",
-        description="Scripted missions ([[item]], [sitl], [[expect]] in a TOML file; format in ground/missions.py)."
+        description="Scripted missions ([[item]], [sitl], [[expect]] in a TOML file; format in ground/missions/__init__.py)."
         " Exit codes: 0 every expectation held, 1 one failed or the flight could not be flown, 2 broken file or usage.",
     )
-    missions.add_arguments(p)
-    p.set_defaults(handler=missions.main)
+    missions_cli.add_arguments(p)
+    p.set_defaults(handler=missions_cli.main)
 
 
 SUBCOMMANDS = (_run, _paper, _sitl, _demo, _bench, _plot, _log, _gcs, _mission)

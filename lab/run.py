@@ -3,7 +3,7 @@
 Both ways fly the same flight core (:class:`fc.core.FlightCore`) on the same plant
 (:func:`sim_bridge.build.plant_for`) and write the same ``.tlog`` (state, motor commands, the
 per-tick ``SMC`` record, events), from which the same summary is computed
-(:func:`ground.logtools.summarize`): in-process has no UDP and no second process, so it runs as
+(:func:`ground.logs.summarize`): in-process has no UDP and no second process, so it runs as
 fast as the machine allows; ``--sitl`` runs the real processes in lockstep on free ports. A
 lockstep flight is deterministic: the two ways give the same motor commands tick for tick.
 
@@ -206,7 +206,7 @@ def fly_sitl(scenario: Scenario, tlog_path: Path, *, echo=None) -> FlightResult:
 def fly(scenario: Scenario, out_dir: Path, *, sitl: bool = False, echo=None) -> FlightResult:
     """Fly ``scenario`` one way or the other; write its log and scenario file into ``out_dir``,
     and summarise the log."""
-    from ground import logtools
+    from ground.logs import load_log, summarize
 
     config_for(scenario)  # unknown or out-of-range FC parameters: a clear error before anything flies
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -214,8 +214,8 @@ def fly(scenario: Scenario, out_dir: Path, *, sitl: bool = False, echo=None) -> 
     scenario.save(out_dir / f"{scenario.name}.scenario.toml")
     result = (fly_sitl if sitl else fly_in_process)(scenario, tlog, echo=echo)
     if tlog.exists() and tlog.stat().st_size > 0:
-        log = logtools.load_log(tlog)
-        result.summary = logtools.summarize(log)
+        log = load_log(tlog)
+        result.summary = summarize(log)
         if not result.events:
             result.events = [(e.t_s, e.text) for e in log.events]
     return result
@@ -237,7 +237,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    from ground import logtools
+    from ground.logs import load_log, plot_log, print_summary
 
     scenario = Scenario.from_toml(args.scenario)
     changes: dict[str, Any] = {}
@@ -262,13 +262,13 @@ def main(args: argparse.Namespace) -> int:
     result = fly(scenario, out_dir, sitl=args.sitl, echo=echo)
     if result.summary:
         print()
-        logtools.print_summary(result.summary, sys.stdout)
+        print_summary(result.summary, sys.stdout)
     speed = result.sim_s / result.wall_s if result.wall_s > 0 else math.nan
     print(f"\nrun: {result.status}{': ' + result.message if result.message else ''};"
           f" {result.ticks} ticks, {result.sim_s:.2f} simulated s in {result.wall_s:.2f} wall s ({speed:.1f}× real time)")  # fmt: skip
     doc = result.as_json()
     if not args.no_plots and result.summary:
-        paths = logtools.plot_log(logtools.load_log(result.tlog), out_dir)
+        paths = plot_log(load_log(result.tlog), out_dir)
         doc["plots"] = [str(p) for p in paths]
         print(f"plots: {len(paths)} PNG files in {out_dir}/")
     print(f"log: {result.tlog}")

@@ -1,0 +1,284 @@
+"""Summaries of a flight log: :func:`summarize` reduces a :class:`~ground.logs.load.FlightLog`
+to a JSON-ready dict of headline numbers (tracking error in metres and degrees, tilt in degrees,
+times in seconds), :func:`print_summary` prints them."""
+
+from __future__ import annotations
+
+import math
+import sys
+from typing import Any, TextIO
+
+import numpy as np
+
+from ground.logs.load import CHANNELS, FlightLog, _wrap_deg
+from smcpilot.protocol import FLAG_ARMED, FLAG_FAILSAFE, FLAG_LANDING
+
+__all__ = ["DEFAULT_SETTLE_S", "DEFAULT_SIGMA_WINDOW_S", "print_summary", "summarize"]
+
+#: Seconds a set-point change is given before the tracking error counts (see :func:`summarize`).
+DEFAULT_SETTLE_S = 8.0
+#: Length of the window over which sigma's RMS is taken: the last seconds of flight before landing.
+DEFAULT_SIGMA_WINDOW_S = 5.0
+# Target changes smaller than this (m or rad) are float noise, not a new set-point.
+_SETPOINT_TOLERANCE = 1e-4
+# STATUSTEXT prefixes after which the FC descends on purpose (tracking is not assessed).
+_LANDING_EVENT_PREFIXES = ("Landing", "FAILSAFE", "State back", "Mode LAND", "Mode RTL", "Failsafe")
+
+
+def _hold(t_src: np.ndarray, values: np.ndarray, t_query: np.ndarray) -> np.ndarray:
+    """Zero-order hold: the latest sample of ``values`` at or before each ``t_query`` (NaN before the first)."""
+    idx = np.searchsorted(t_src, t_query, side="right") - 1
+    out = np.full(t_query.shape + values.shape[1:], np.nan)
+    ok = idx >= 0
+    if t_src.size:
+        out[ok] = values[idx[ok]]
+    return out
+
+
+def _setpoint_changes(log: FlightLog) -> np.ndarray:
+    """Mask over ``smc_t_s``: the first tick and every tick whose north/east/altitude/heading
+    set-point differs from the previous tick's."""
+    n = log.smc_t_s.size
+    changed = np.zeros(n, dtype=bool)
+    if n:
+        target = np.column_stack([log.target_north_m, log.target_east_m, log.target_alt_m])
+        changed[0] = True
+        changed[1:] |= np.any(np.abs(np.diff(target, axis=0)) > _SETPOINT_TOLERANCE, axis=1)
+        changed[1:] |= np.abs(_wrap_deg(np.diff(log.target_yaw_deg))) > math.degrees(_SETPOINT_TOLERANCE)
+    return changed
+
+
+def _tracking_masks(log: FlightLog, settle_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """(holding, settled) masks over ``smc_t_s``; see :func:`summarize`."""
+    t = log.smc_t_s
+    n = t.size
+    if log.act_t_s.size:
+        armed = _hold(log.act_t_s, log.armed.astype(float), t) > 0.5
+    else:
+        armed = np.isfinite(log.ref_alt_m)
+    changed = _setpoint_changes(log)
+    if n:
+        changed[1:] |= armed[1:] & ~armed[:-1]
+    change_idx = np.flatnonzero(changed)
+    last_change_t = t[change_idx[np.searchsorted(change_idx, np.arange(n), side="right") - 1]] if n else t
+    flags = log.smc.get("flags") if log.smc else None
+    # (All zeros means a log written before the FC logged its flags: a real FC run sets at least
+    # POSITION_HOLD.)
+    if flags is not None and flags.size == n and n and np.all(np.isfinite(flags)) and np.any(flags != 0):
+        # The FC logs its state every tick: landing/failsafe bits are exact.
+        bits = flags.astype(np.int64)
+        armed = (bits & FLAG_ARMED) != 0
+        landing = (bits & (FLAG_LANDING | FLAG_FAILSAFE)) != 0
+        holding = armed & ~landing
+        settled = holding & (t - last_change_t >= settle_s)
+        return holding, settled
+    # Older logs: landing (or failsafe descent) from its event until the next set-point change.
+    landing = np.zeros(n, dtype=bool)
+    for ev in log.events:
+        if ev.text.startswith(_LANDING_EVENT_PREFIXES):
+            later_changes = t[change_idx][t[change_idx] > ev.t_s]
+            end = later_changes[0] if later_changes.size else np.inf
+            landing |= (t >= ev.t_s) & (t < end)
+    holding = armed & ~landing
+    settled = holding & (t - last_change_t >= settle_s)
+    return holding, settled
+
+
+def _num(x: Any) -> Any:
+    """A JSON-safe number: float/int, or None for NaN, inf and missing values."""
+    if x is None:
+        return None
+    if isinstance(x, (bool, np.bool_)):
+        return bool(x)
+    if isinstance(x, (int, np.integer)):
+        return int(x)
+    v = float(x)
+    return v if math.isfinite(v) else None
+
+
+def _rms(x: np.ndarray) -> float | None:
+    x = x[np.isfinite(x)]
+    return float(np.sqrt(np.mean(x * x))) if x.size else None
+
+
+def _sigma_window(log: FlightLog, window_s: float) -> np.ndarray:
+    """Mask over ``ctrl_t_s``: the last ``window_s`` seconds ending at the last tick with a finite
+    sigma while holding (armed, not landing); without "SMC" records, at the last finite sigma."""
+    t = log.ctrl_t_s
+    finite = np.any(np.isfinite(log.sigma), axis=1)
+    if log.has_smc and log.ctrl_t_s is log.smc_t_s:
+        holding, _ = _tracking_masks(log, 0.0)
+        if np.any(finite & holding):
+            finite = finite & holding
+    if not finite.any():
+        return np.zeros(t.size, dtype=bool)
+    t_end = t[np.flatnonzero(finite)[-1]]
+    return (t >= t_end - window_s) & (t <= t_end)
+
+
+def summarize(
+    log: FlightLog, *, settle_s: float = DEFAULT_SETTLE_S, sigma_window_s: float = DEFAULT_SIGMA_WINDOW_S
+) -> dict[str, Any]:
+    """Headline numbers of a flight, as a JSON-serialisable dict (NaN and missing values are None).
+
+    Tracking error is evaluated at the controller ticks (the "SMC" records, which carry the
+    set-point), with the vehicle position held from the latest state sample:
+
+    - the *position error* is the 3-D distance from the vehicle (north, east, altitude) to the
+      position set-point; the *yaw error* is yaw minus the heading set-point, wrapped to ±180°;
+    - a tick is *holding* when the vehicle is armed and not landing (from a "Landing",
+      "FAILSAFE ..." or "State back ..." event until the next set-point change);
+    - a tick is *settled* when it is holding and at least ``settle_s`` seconds have passed since
+      the last set-point change (any change of the north/east/altitude/heading target, or
+      arming); the first tick of the log counts as a change;
+    - ``position_error_rms_m`` / ``_max_m`` (and the yaw RMS) are over the settled ticks
+      (``settled_time_s`` says how much flight that is; None if none);
+    - ``position_error_final_m`` and ``yaw_error_final_deg`` are at the last holding tick,
+      settled or not, so a log that ends mid-manoeuvre reports the error it ended with.
+
+    Other entries: ``duration_s`` (simulated, see :attr:`FlightLog.duration_s`), ``armed_time_s``
+    (sum of the actuator-message intervals that start armed), ``max_tilt_deg`` (largest
+    acos(cos roll · cos pitch)), ``chi_hat_final`` (last finite value per channel phi, theta, psi,
+    z), ``sigma_rms_last_s`` (RMS of sigma per channel over the last ``sigma_window_s`` seconds of
+    flight while holding, i.e. before a final landing; NaN samples ignored), ``overruns`` (last OVERRUN count), ``message_counts`` and ``events``.
+    """
+    out: dict[str, Any] = {
+        "log": log.name,
+        "path": str(log.path),
+        "records": log.records,
+        "truncated": log.truncated,
+        "read_error": log.read_error,
+        "warnings": list(log.warnings),
+        "lockstep": log.lockstep,
+        "state_source": log.state_source,
+        "controller_data": log.ctrl_source,
+        "duration_s": _num(log.duration_s) if log.records else None,
+        "message_counts": dict(log.message_counts),
+        "overruns": log.overruns,
+    }
+
+    # Armed time.
+    if log.act_t_s.size:
+        t = log.act_t_s
+        dt = np.diff(t)
+        last_dt = float(np.median(dt)) if dt.size else 0.0
+        dt = np.append(dt, last_dt)
+        out["armed_time_s"] = _num(np.sum(dt[log.armed]))
+    else:
+        out["armed_time_s"] = None
+    out["max_tilt_deg"] = _num(np.nanmax(log.tilt_deg)) if log.att_t_s.size and np.isfinite(log.tilt_deg).any() else None
+
+    # Tracking.
+    out["settle_s"] = settle_s
+    tracking: dict[str, Any] = {
+        "settled_time_s": None,
+        "position_error_final_m": None,
+        "position_error_final_ned_m": None,
+        "position_error_rms_m": None,
+        "position_error_max_m": None,
+        "yaw_error_final_deg": None,
+        "yaw_error_rms_deg": None,
+    }
+    if log.has_smc and log.pos_t_s.size:
+        t = log.smc_t_s
+        holding, settled = _tracking_masks(log, settle_s)
+        pos = _hold(log.pos_t_s, np.column_stack([log.north_m, log.east_m, log.alt_m]), t)
+        target = np.column_stack([log.target_north_m, log.target_east_m, log.target_alt_m])
+        err_vec = pos - target
+        err = np.linalg.norm(err_vec, axis=1)
+        yaw_err = (
+            _wrap_deg(_hold(log.att_t_s, log.yaw_deg, t) - log.target_yaw_deg) if log.att_t_s.size else np.full(t.size, np.nan)
+        )
+        if settled.any():
+            dt_tick = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+            tracking["settled_time_s"] = _num(settled.sum() * dt_tick)
+            tracking["position_error_rms_m"] = _num(_rms(err[settled]))
+            tracking["position_error_max_m"] = _num(np.nanmax(err[settled])) if np.isfinite(err[settled]).any() else None
+            tracking["yaw_error_rms_deg"] = _num(_rms(yaw_err[settled]))
+        hold_idx = np.flatnonzero(holding)
+        if hold_idx.size:
+            k = hold_idx[-1]
+            tracking["position_error_final_m"] = _num(err[k])
+            tracking["position_error_final_ned_m"] = {
+                "north": _num(err_vec[k, 0]),
+                "east": _num(err_vec[k, 1]),
+                "alt": _num(err_vec[k, 2]),
+            }
+            tracking["yaw_error_final_deg"] = _num(yaw_err[k])
+    out.update(tracking)
+
+    # Adaptive gains and manifolds.
+    out["channels"] = list(CHANNELS)
+    if log.ctrl_t_s.size:
+        chi_final = []
+        for j in range(4):
+            finite = log.chi_hat[:, j][np.isfinite(log.chi_hat[:, j])]
+            chi_final.append(_num(finite[-1]) if finite.size else None)
+        window = _sigma_window(log, sigma_window_s)
+        sig_rms = [_num(_rms(log.sigma[window, j])) for j in range(4)]
+        out["chi_hat_final"] = chi_final if any(v is not None for v in chi_final) else None
+        out["sigma_rms_last_s"] = sig_rms if any(v is not None for v in sig_rms) else None
+    else:
+        out["chi_hat_final"] = None
+        out["sigma_rms_last_s"] = None
+    out["sigma_window_s"] = sigma_window_s
+    out["events"] = [{"t_s": round(e.t_s, 6), "severity": e.severity, "text": e.text} for e in log.events]
+    return out
+
+
+def _fmt(v: Any, spec: str = ".3f", unit: str = "") -> str:
+    return "n/a" if v is None else f"{v:{spec}}{unit}"
+
+
+def print_summary(summary: dict[str, Any], file: TextIO | None = None) -> None:
+    """Print a :func:`summarize` dict as a readable text block to ``file`` (default stdout)."""
+    f = file if file is not None else sys.stdout
+    s = summary
+    w = 22
+
+    def line(label: str, text: str) -> None:
+        print(f"{label:<{w}}{text}", file=f)
+
+    mode = {True: "lockstep", False: "real time", None: "timing unknown"}[s.get("lockstep")]
+    line("Log", f"{s['log']}  ({s['records']} records, {mode})")
+    if s.get("truncated"):
+        line("  TRUNCATED", str(s.get("read_error")))
+    for note in s.get("warnings", []):
+        if not (s.get("truncated") and note.startswith("reading stopped")):
+            line("  note", note)
+    line("Duration", f"{_fmt(s.get('duration_s'), '.2f', ' s simulated')}, armed {_fmt(s.get('armed_time_s'), '.2f', ' s')}")
+    line("Overruns", "n/a (no OVERRUN telemetry)" if s.get("overruns") is None else str(s["overruns"]))
+    line("State from", s.get("state_source") or "n/a")
+    line("Controller data", s.get("controller_data") or "n/a")
+    line("Max tilt", _fmt(s.get("max_tilt_deg"), ".1f", " deg"))
+    settle = s.get("settle_s")
+    if s.get("settled_time_s") is None:
+        line("Tracking", f"no settled flight (needs SMC set-points held >= {settle:g} s while armed)")
+    else:
+        line("Tracking", f"{s['settled_time_s']:.1f} s of settled flight (>= {settle:g} s after a set-point change)")
+    line(
+        "  position error",
+        f"final {_fmt(s.get('position_error_final_m'), '.3g', ' m')}, RMS {_fmt(s.get('position_error_rms_m'), '.3g', ' m')},"
+        f" max {_fmt(s.get('position_error_max_m'), '.3g', ' m')}",
+    )
+    ned = s.get("position_error_final_ned_m")
+    if ned:
+        line("    final N/E/alt", "  ".join(_fmt(ned[k], "+.3g", " m") for k in ("north", "east", "alt")))
+    line(
+        "  yaw error",
+        f"final {_fmt(s.get('yaw_error_final_deg'), '+.3g', ' deg')}, RMS {_fmt(s.get('yaw_error_rms_deg'), '.3g', ' deg')}",
+    )
+    chans = s.get("channels", list(CHANNELS))
+    chi = s.get("chi_hat_final")
+    line("chi_hat final", "n/a" if chi is None else "  ".join(f"{c} {_fmt(v, '.3f')}" for c, v in zip(chans, chi)))
+    sig = s.get("sigma_rms_last_s")
+    line(
+        f"sigma RMS last {s.get('sigma_window_s', DEFAULT_SIGMA_WINDOW_S):g} s",
+        "n/a" if sig is None else "  ".join(f"{c} {_fmt(v, '.2e')}" for c, v in zip(chans, sig)),
+    )
+    counts = s.get("message_counts", {})
+    line("Messages", ", ".join(f"{k} {v}" for k, v in sorted(counts.items(), key=lambda kv: -kv[1])) or "none")
+    events = s.get("events", [])
+    line("Events", "none" if not events else "")
+    for e in events:
+        print(f"  {e['t_s']:9.3f} s  {e['severity']:<9} {e['text']}", file=f)
