@@ -39,7 +39,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from fc import telemetry
 from fc.config import FcConfig
-from fc.core import FlightCore, TickOutput
+from fc.core import FlightCore
 from fc.flight import VehicleState
 from fc.gcs import GcsHandler
 from fc.params import ParamStore, param_messages
@@ -183,11 +183,13 @@ class FlightControllerApp:
             send_to=gcs.send_to if gcs is not None else None,
             broadcast=gcs.send if gcs is not None else None,
         )  # fmt: skip
-        self.flight = self.core.flight
-        self.commander = self.core.commander
-        self.mission = self.commander.mission
-        self.gcs_handler = GcsHandler(self, monotonic)
         self.streams = StreamScheduler(config.telemetry_rate_hz)
+        #: the ground protocol, with its collaborators (no back-reference to this app).
+        self.gcs_handler = GcsHandler(
+            core=self.core, mission=self.core.commander.mission, params=self.params, streams=self.streams,
+            link=gcs, event=self.event, log=self.say, snapshot=self.telemetry_snapshot,
+            apply_config=self.apply_config, wall_s=monotonic,
+        )  # fmt: skip
         self._att: mavlink.MAVLink_attitude_message | None = None
         self.state: VehicleState | None = None
         self.body_rates: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -196,7 +198,6 @@ class FlightControllerApp:
         self._last_tick_ms = -1
         self._odd_steps = 0
         self._last_actuator: bytes | None = None
-        self.last_out: TickOutput | None = None
         self._stop = False
         self._exit_code = EXIT_OK
 
@@ -204,6 +205,12 @@ class FlightControllerApp:
     def failsafe(self) -> bool:
         """In the state-loss failsafe."""
         return self.core.failsafe
+
+    def telemetry_snapshot(self) -> telemetry.TelemetrySnapshot:
+        """What ground-station telemetry reads, now (the GCS handler's snapshot provider)."""
+        return telemetry.snapshot(
+            self.core, time_us=self.clock.now_us(), state=self.state, body_rates=self.body_rates, overruns=self.stats.overruns
+        )
 
     # -- lifecycle -----------------------------------------------------------------------------
     def say(self, line: str) -> None:
@@ -386,7 +393,8 @@ class FlightControllerApp:
 
     # -- the tick ------------------------------------------------------------------------------
     def apply_config(self, cfg: FcConfig) -> None:
-        """Live parameter change: takes effect from the next control step."""
+        """Live parameter change, the one listener every change goes to: the core (from its next
+        tick), the telemetry rates, and this process's loops."""
         self.cfg = cfg
         self.core.reconfigure(cfg)
         self.streams.set_telemetry_rate(cfg.telemetry_rate_hz)
@@ -399,7 +407,6 @@ class FlightControllerApp:
             self.say(f"FC_READY t={t_us * 1e-6:.3f}s controller={self.cfg.controller} lockstep={self.lockstep}")
         stats.ticks += 1
         out = core.tick(t_us, self.state, fresh=not stale, wall_s=self._mono() if self.gcs is not None else None)
-        self.last_out = out
         m = out.motors
         sim = self.sim
         act = encode_hil_actuator_controls(

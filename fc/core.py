@@ -8,9 +8,11 @@ and the tests. One tick, in order:
    station would command them;
 2. **state-loss failsafe**: no state, or a stale one (real time), while armed -> open loop, level,
    a fraction of hover thrust, ``STATUSTEXT``; when the state comes back: land where we are;
-3. otherwise the mode logic (:class:`fc.commander.Commander`: AUTO, RTL, disarm delay) and the
-   flight pipeline (:class:`fc.flight.FlightControl`: prefilters, position loop, law, mixer,
-   anti-windup); **touchdown** while landing disarms, and the commander hears of it;
+3. otherwise the mode logic (:class:`fc.commander.Commander`: the disarm delay, then the current
+   mode object of :mod:`fc.modes`, e.g. AUTO's items or RTL's phases) and the flight pipeline
+   (:class:`fc.flight.FlightControl`: prefilters, position loop, law, mixer, anti-windup);
+   **touchdown** while landing disarms (the pipeline decides that, and nothing else does), and
+   the commander hears of it (:meth:`fc.commander.Commander.on_touchdown`);
 4. **GCS-loss failsafe** on the wall clock the caller passes (a ground station lives in real time).
 
 Inputs are arguments (time in microseconds, the state in the paper frame or None, whether it is
@@ -97,7 +99,9 @@ class FlightCore:
         self._sink(severity, text)
 
     def reconfigure(self, config: FcConfig) -> None:
-        """Live parameter change: takes effect from the next tick (the one listener for changes)."""
+        """Live parameter change: takes effect from the next tick. The FC process reaches this
+        through its one listener for changes (:meth:`fc.app.FlightControllerApp.apply_config`,
+        which also retimes the telemetry streams)."""
         self.config = config
         self.flight.reconfigure(config)
 
@@ -149,7 +153,8 @@ class FlightCore:
         finally:
             self._tick_events = None
         f = self.flight
-        result = TickOutput(out.motors, f.armed, self.flags(), int(self.commander.mode), out, tuple(events) if events else _NO_EVENTS)
+        mode = int(self.commander.current.number)
+        result = TickOutput(out.motors, f.armed, self.flags(), mode, out, tuple(events) if events else _NO_EVENTS)
         self.last = result
         return result
 
@@ -178,6 +183,6 @@ class FlightCore:
         was_armed = flight.armed
         out = flight.step(st, dt)
         if was_armed and not flight.armed:
-            c.on_disarmed()
+            c.on_touchdown()
             self.event(mavlink.MAV_SEVERITY_INFO, "Landed: disarmed")
         return out

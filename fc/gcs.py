@@ -2,8 +2,11 @@
 
 :class:`GcsHandler` dispatches every message from the ground link — commands, modes, set-points,
 parameters, missions, stream requests — to the commander, the parameter store and the mission
-protocol, answers the sender, and builds the telemetry the stream scheduler says is due.
-Bad input never raises: it is refused with the protocol's code (``COMMAND_ACK`` result,
+protocol, answers the sender, and sends the telemetry the stream scheduler says is due (built by
+:func:`fc.telemetry.build` from one :class:`fc.telemetry.TelemetrySnapshot`). It is given its
+collaborators explicitly and knows nothing of the process that runs it (:mod:`fc.app`).
+The commander's refusals (:class:`fc.modes.Refusal`) become ``COMMAND_ACK`` results and
+``STATUSTEXT`` here, and only here. Bad input never raises: it is refused with the protocol's code (``COMMAND_ACK`` result,
 ``MISSION_ACK`` error, unchanged ``PARAM_VALUE``) and a ``STATUSTEXT``, or dropped and counted.
 """
 
@@ -12,48 +15,85 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter
-from typing import TYPE_CHECKING, Callable
+from typing import Callable, Iterable, Protocol
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from fc import telemetry
-from fc.commander import Result
-from fc.mission import RELATIVE_FRAMES
-from fc.params import PARAM_INDEX, PARAMS, ParamError
-from smcpilot import __version__
-from smcpilot.frames import euler_flu_to_frd, euler_frd_to_flu, ned_to_nwu, nwu_to_ned
-from smcpilot.geo import ned_to_global
-from smcpilot.protocol import FORCE_ARM_MAGIC, OVERRUN_NAME, Mode
-
-if TYPE_CHECKING:  # pragma: no cover
-    from fc.app import FlightControllerApp
+from fc import inbound, telemetry
+from fc.config import FcConfig
+from fc.core import EventSink, FlightCore
+from fc.mission import RELATIVE_FRAMES, MissionProtocol
+from fc.modes import Refusal
+from fc.params import PARAM_INDEX, PARAMS, ParamError, ParamStore
+from fc.streams import StreamScheduler
+from fc.telemetry import CAPABILITIES, IGNORE_POS, IGNORE_YAW, TelemetrySnapshot
+from smcpilot.protocol import FORCE_ARM_MAGIC, Mode
 
 M = mavlink
 Address = tuple[str, int]
 
-# POSITION_TARGET_TYPEMASK bits
-_IGNORE_POS = 0x7
-_IGNORE_YAW = 0x400
 _FTP_NAK = 129
 _FTP_FILE_NOT_FOUND = 10
+#: a command we do not implement: MAV_RESULT_UNSUPPORTED, no STATUSTEXT.
+_UNSUPPORTED = Refusal("", M.MAV_RESULT_UNSUPPORTED)
+_GLOBAL_FRAMES = (M.MAV_FRAME_GLOBAL, M.MAV_FRAME_GLOBAL_INT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
 
-CAPABILITIES = (
-    M.MAV_PROTOCOL_CAPABILITY_MAVLINK2
-    | M.MAV_PROTOCOL_CAPABILITY_MISSION_INT
-    | M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
-    | M.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
-    | M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
-    | M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
-)
-_VERSION = tuple(int(p) for p in __version__.split(".")[:3])
-FLIGHT_SW_VERSION = (_VERSION[0] << 24) | (_VERSION[1] << 16) | (_VERSION[2] << 8) | 0xFF  # FIRMWARE_VERSION_TYPE_OFFICIAL
+
+class GroundLink(Protocol):
+    """The ground link as the handler uses it (:class:`smcpilot.link.MavlinkUdp`)."""
+
+    @property
+    def mav(self) -> mavlink.MAVLink: ...
+
+    def send(self, msg: mavlink.MAVLink_message) -> None: ...
+
+    def send_many(self, msgs: Iterable[mavlink.MAVLink_message]) -> None: ...
+
+    def send_to(self, msg: mavlink.MAVLink_message, addr: Address) -> None: ...
+
+    def send_many_to(self, msgs: Iterable[mavlink.MAVLink_message], addr: Address) -> None: ...
 
 
 class GcsHandler:
-    """Dispatches ground-link messages; ``wall_s`` is the real-time clock for protocol timeouts."""
+    """Dispatches ground-link messages to explicit collaborators.
 
-    def __init__(self, app: "FlightControllerApp", wall_s: Callable[[], float] = time.monotonic) -> None:
-        self.app = app
+    - ``core``: the flight core (its commander carries out commands; home; the GCS heartbeat);
+    - ``mission``: the mission protocol (uploads, downloads, set-current);
+    - ``params``: the parameter store; ``apply_config``: the one listener every accepted
+      parameter change goes to (it reaches the core and the streams);
+    - ``streams``: the telemetry scheduler; ``snapshot``: the telemetry snapshot provider
+      (:func:`fc.telemetry.snapshot`), called once per batch of due messages or per request;
+    - ``link``: the ground link (None: none; then only :meth:`on_tick` is called);
+    - ``event``: the event sink (``STATUSTEXT`` to ground stations, a line on stdout);
+      ``log``: a line on stdout only;
+    - ``wall_s``: the real-time clock for protocol timeouts and the GCS-loss failsafe.
+    """
+
+    def __init__(
+        self,
+        *,
+        core: FlightCore,
+        mission: MissionProtocol,
+        params: ParamStore,
+        streams: StreamScheduler,
+        link: GroundLink | None,
+        event: EventSink,
+        log: Callable[[str], None],
+        snapshot: Callable[[], TelemetrySnapshot],
+        apply_config: Callable[[FcConfig], None],
+        wall_s: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.core = core
+        self.commander = core.commander
+        self.mission = mission
+        self.params = params
+        self.streams = streams
+        self.link = link
+        self.mav: mavlink.MAVLink = link.mav if link is not None else mavlink.MAVLink(None)
+        self._event = event
+        self._log = log
+        self.snapshot = snapshot
+        self._apply_config = apply_config
         self.wall_s = wall_s
         #: reason -> count of dropped or refused messages
         self.rejected: Counter[str] = Counter()
@@ -69,13 +109,13 @@ class GcsHandler:
             M.MAVLINK_MSG_ID_PARAM_REQUEST_LIST: self._param_list,
             M.MAVLINK_MSG_ID_PARAM_REQUEST_READ: self._param_read,
             M.MAVLINK_MSG_ID_PARAM_SET: self._param_set,
-            M.MAVLINK_MSG_ID_MISSION_COUNT: lambda m, a: self.app.mission.on_count(m, a, self.wall_s()),
-            M.MAVLINK_MSG_ID_MISSION_ITEM_INT: lambda m, a: self.app.mission.on_item(m, a, self.wall_s()),
-            M.MAVLINK_MSG_ID_MISSION_ITEM: lambda m, a: self.app.mission.on_item(m, a, self.wall_s()),
-            M.MAVLINK_MSG_ID_MISSION_REQUEST_LIST: lambda m, a: self.app.mission.on_request_list(m, a),
-            M.MAVLINK_MSG_ID_MISSION_REQUEST_INT: lambda m, a: self.app.mission.on_request(m, a, True),
-            M.MAVLINK_MSG_ID_MISSION_REQUEST: lambda m, a: self.app.mission.on_request(m, a, False),
-            M.MAVLINK_MSG_ID_MISSION_CLEAR_ALL: lambda m, a: self.app.mission.on_clear(m, a),
+            M.MAVLINK_MSG_ID_MISSION_COUNT: lambda m, a: mission.on_count(m, a, self.wall_s()),
+            M.MAVLINK_MSG_ID_MISSION_ITEM_INT: lambda m, a: mission.on_item(m, a, self.wall_s()),
+            M.MAVLINK_MSG_ID_MISSION_ITEM: lambda m, a: mission.on_item(m, a, self.wall_s()),
+            M.MAVLINK_MSG_ID_MISSION_REQUEST_LIST: lambda m, a: mission.on_request_list(m, a),
+            M.MAVLINK_MSG_ID_MISSION_REQUEST_INT: lambda m, a: mission.on_request(m, a, True),
+            M.MAVLINK_MSG_ID_MISSION_REQUEST: lambda m, a: mission.on_request(m, a, False),
+            M.MAVLINK_MSG_ID_MISSION_CLEAR_ALL: lambda m, a: mission.on_clear(m, a),
             M.MAVLINK_MSG_ID_MISSION_SET_CURRENT: self._mission_set_current,
             M.MAVLINK_MSG_ID_MISSION_ACK: lambda m, a: None,
             M.MAVLINK_MSG_ID_REQUEST_DATA_STREAM: self._request_data_stream,
@@ -83,20 +123,16 @@ class GcsHandler:
         }
 
     # -- plumbing -------------------------------------------------------------------------------
-    @property
-    def mav(self) -> mavlink.MAVLink:
-        return self.app.gcs.mav  # type: ignore[union-attr]
-
     def _send_to(self, msg: mavlink.MAVLink_message, addr: Address) -> None:
-        if self.app.gcs is not None:
-            self.app.gcs.send_to(msg, addr)
+        if self.link is not None:
+            self.link.send_to(msg, addr)
 
     def _broadcast(self, msg: mavlink.MAVLink_message) -> None:
-        if self.app.gcs is not None:
-            self.app.gcs.send(msg)
+        if self.link is not None:
+            self.link.send(msg)
 
     def _for_us(self, target_system: int, target_component: int | None = None) -> bool:
-        if target_system not in (0, self.app.cfg.system_id):
+        if target_system not in (0, self.core.config.system_id):
             self.rejected["other_system"] += 1
             return False
         if target_component is not None and target_component not in (0, 1):
@@ -114,7 +150,7 @@ class GcsHandler:
             if len(self._last_reject_text_s) > 256:
                 self._last_reject_text_s.clear()
             self._last_reject_text_s[key] = now
-            self.app.event(M.MAV_SEVERITY_WARNING, text)
+            self._event(M.MAV_SEVERITY_WARNING, text)
 
     def handle(self, msg: mavlink.MAVLink_message, addr: Address) -> None:
         handler = self._handlers.get(msg.id)
@@ -127,21 +163,24 @@ class GcsHandler:
             handler(msg, addr)
         except Exception as exc:  # a hostile packet must never stop the loop
             self.rejected["handler_error"] += 1
-            self.app.say(f"fc: ignored {msg.get_type()} from {addr[0]}:{addr[1]}: {type(exc).__name__}: {exc}")
+            self._log(f"fc: ignored {msg.get_type()} from {addr[0]}:{addr[1]}: {type(exc).__name__}: {exc}")
 
     # -- messages -------------------------------------------------------------------------------
     def _heartbeat(self, m: mavlink.MAVLink_message, addr: Address) -> None:
         if m.type == M.MAV_TYPE_GCS:
             self.gcs_heartbeats += 1
-            self.app.core.on_gcs_heartbeat(self.wall_s())
+            self.core.on_gcs_heartbeat(self.wall_s())
 
-    def _ack(self, addr: Address, m: mavlink.MAVLink_message, command: int, result: Result) -> None:
-        code, reason = result
-        if reason and code != M.MAV_RESULT_ACCEPTED:
-            self.app.event(M.MAV_SEVERITY_WARNING, reason)
-        self._send_to(
-            self.mav.command_ack_encode(command, code, 0, 0, m.get_srcSystem(), m.get_srcComponent()), addr
-        )
+    def _ack(self, addr: Address, m: mavlink.MAVLink_message, command: int, refusal: Refusal | None) -> None:
+        """``COMMAND_ACK`` to the sender: ACCEPTED, or the refusal's code with a ``STATUSTEXT``
+        saying why (the one place a refusal becomes protocol)."""
+        if refusal is None:
+            code = M.MAV_RESULT_ACCEPTED
+        else:
+            code = refusal.code
+            if refusal.reason:
+                self._event(M.MAV_SEVERITY_WARNING, refusal.reason)
+        self._send_to(self.mav.command_ack_encode(command, code, 0, 0, m.get_srcSystem(), m.get_srcComponent()), addr)
 
     def _command_long(self, m: mavlink.MAVLink_message, addr: Address) -> None:
         if not self._for_us(m.target_system, m.target_component):
@@ -155,15 +194,15 @@ class GcsHandler:
         p = (m.param1, m.param2, m.param3, m.param4, float(m.x), float(m.y), m.z)
         self._ack(addr, m, m.command, self._command(m.command, p, m.frame, addr, m))
 
-    def _command(self, cmd: int, p: tuple[float, ...], frame: int | None, addr: Address, m) -> Result:
-        c = self.app.commander
+    def _command(self, cmd: int, p: tuple[float, ...], frame: int | None, addr: Address, m) -> Refusal | None:
+        c = self.commander
         if cmd == M.MAV_CMD_COMPONENT_ARM_DISARM:
             force = p[1] == FORCE_ARM_MAGIC
             if p[0] == 1.0:
                 return c.arm(force)
             if p[0] == 0.0:
                 return c.disarm(force)
-            return (M.MAV_RESULT_DENIED, f"Arm/disarm: param1 must be 0 or 1, got {p[0]!r}")
+            return Refusal(f"Arm/disarm: param1 must be 0 or 1, got {p[0]!r}")
         if cmd == M.MAV_CMD_NAV_TAKEOFF:
             return c.takeoff(p[6])
         if cmd == M.MAV_CMD_NAV_LAND:
@@ -175,99 +214,96 @@ class GcsHandler:
             return c.mission_start(first)
         if cmd == M.MAV_CMD_DO_SET_MODE:
             if not math.isfinite(p[0]) or not int(p[0]) & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
-                return (M.MAV_RESULT_DENIED, "Set mode: only custom modes (base mode bit 1) are supported")
+                return Refusal("Set mode: only custom modes (base mode bit 1) are supported")
             if not math.isfinite(p[1]):
-                return (M.MAV_RESULT_DENIED, "Set mode: mode number is not a number")
+                return Refusal("Set mode: mode number is not a number")
             return c.set_mode(int(p[1]))
         if cmd == M.MAV_CMD_DO_REPOSITION:
             if frame is None:  # COMMAND_LONG: lat/lon degrees in param5/6, altitude above home in param7
                 return c.reposition(p[4], p[5], p[6], True, p[3])
-            if frame not in (M.MAV_FRAME_GLOBAL, M.MAV_FRAME_GLOBAL_INT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT,
-                             M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT):  # fmt: skip
-                return (M.MAV_RESULT_DENIED, f"Reposition: frame {frame} not supported")
+            if frame not in _GLOBAL_FRAMES:
+                return Refusal(f"Reposition: frame {frame} not supported")
             return c.reposition(p[4] * 1e-7, p[5] * 1e-7, p[6], frame in RELATIVE_FRAMES, p[3])
         if cmd == M.MAV_CMD_SET_MESSAGE_INTERVAL:
             if not (math.isfinite(p[0]) and math.isfinite(p[1])):
-                return (M.MAV_RESULT_DENIED, "Message interval: non-finite parameter")
-            ok = self.app.streams.set_interval(int(p[0]), p[1])
-            return (M.MAV_RESULT_ACCEPTED, None) if ok else (M.MAV_RESULT_DENIED, f"Message interval: message {int(p[0])} not streamed")
+                return Refusal("Message interval: non-finite parameter")
+            ok = self.streams.set_interval(int(p[0]), p[1])
+            return None if ok else Refusal(f"Message interval: message {int(p[0])} not streamed")
         if cmd == M.MAV_CMD_REQUEST_MESSAGE:
             if not math.isfinite(p[0]):
-                return (M.MAV_RESULT_DENIED, "Request message: id is not a number")
+                return Refusal("Request message: id is not a number")
             msgs = self.build(int(p[0]))
             if not msgs:
-                return (M.MAV_RESULT_UNSUPPORTED, None)
+                return _UNSUPPORTED
             for msg in msgs:
                 self._send_to(msg, addr)
-            return (M.MAV_RESULT_ACCEPTED, None)
+            return None
         if cmd == M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES:
             self._send_to(self.build(M.MAVLINK_MSG_ID_AUTOPILOT_VERSION)[0], addr)
-            return (M.MAV_RESULT_ACCEPTED, None)
+            return None
         if cmd == M.MAV_CMD_GET_HOME_POSITION:
             self._send_to(self.build(M.MAVLINK_MSG_ID_HOME_POSITION)[0], addr)
-            return (M.MAV_RESULT_ACCEPTED, None)
+            return None
         if cmd == M.MAV_CMD_DO_SET_MISSION_CURRENT:
-            if not math.isfinite(p[0]) or not self.app.mission.set_current(int(p[0])):
-                return (M.MAV_RESULT_DENIED, f"Set current: no mission item {p[0]!r}")
+            if not math.isfinite(p[0]) or not self.mission.set_current(int(p[0])):
+                return Refusal(f"Set current: no mission item {p[0]!r}")
             self._broadcast(self.build(M.MAVLINK_MSG_ID_MISSION_CURRENT)[0])
-            return (M.MAV_RESULT_ACCEPTED, None)
+            return None
         self.rejected["unsupported_command"] += 1
-        return (M.MAV_RESULT_UNSUPPORTED, None)
+        return _UNSUPPORTED
 
     def _set_mode_msg(self, m: mavlink.MAVLink_message, addr: Address) -> None:
         if not m.base_mode & M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
-            result: Result = (M.MAV_RESULT_DENIED, "Set mode: only custom modes are supported")
+            refusal: Refusal | None = Refusal("Set mode: only custom modes are supported")
         else:
-            result = self.app.commander.set_mode(m.custom_mode)
-        self._ack(addr, m, M.MAVLINK_MSG_ID_SET_MODE, result)
+            refusal = self.commander.set_mode(m.custom_mode)
+        self._ack(addr, m, M.MAVLINK_MSG_ID_SET_MODE, refusal)
 
     def _target_local(self, m: mavlink.MAVLink_message, addr: Address) -> None:
         if m.coordinate_frame != M.MAV_FRAME_LOCAL_NED:
             self._refuse("unsupported_frame", f"Set-point: frame {m.coordinate_frame} not supported (use LOCAL_NED)", addr)
             return
-        if m.type_mask & _IGNORE_POS:
+        if m.type_mask & IGNORE_POS:
             self._refuse("no_position", "Set-point: only position targets are supported", addr)
             return
-        yaw = None if m.type_mask & _IGNORE_YAW else m.yaw
+        yaw = None if m.type_mask & IGNORE_YAW else m.yaw
         if yaw is not None and not math.isfinite(yaw):
             self._refuse("non_finite", "Set-point: yaw is not a number", addr)
             return
-        x, y, z = ned_to_nwu((m.x, m.y, m.z))
-        code, reason = self.app.commander.goto_local(
-            x, y, z, euler_frd_to_flu(0.0, 0.0, yaw)[2] if yaw is not None else None
-        )
-        if code != M.MAV_RESULT_ACCEPTED:
-            self._refuse("setpoint_refused", reason or "Set-point refused", addr)
+        refusal = self.commander.goto(inbound.local_ned_target(m.x, m.y, m.z, yaw))
+        if refusal is not None:
+            self._refuse("setpoint_refused", refusal.reason or "Set-point refused", addr)
 
     def _target_global(self, m: mavlink.MAVLink_message, addr: Address) -> None:
-        if m.coordinate_frame not in (M.MAV_FRAME_GLOBAL_INT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.MAV_FRAME_GLOBAL,
-                                      M.MAV_FRAME_GLOBAL_RELATIVE_ALT):  # fmt: skip
+        if m.coordinate_frame not in _GLOBAL_FRAMES:
             self._refuse("unsupported_frame", f"Set-point: frame {m.coordinate_frame} not supported", addr)
             return
-        if m.type_mask & _IGNORE_POS:
+        if m.type_mask & IGNORE_POS:
             self._refuse("no_position", "Set-point: only position targets are supported", addr)
             return
         if not math.isfinite(m.alt):
             self._refuse("non_finite", "Set-point: altitude is not a number", addr)
             return
-        c = self.app.commander
-        x, y, z = c.local_of_global(m.lat_int * 1e-7, m.lon_int * 1e-7, m.alt, m.coordinate_frame in RELATIVE_FRAMES)
-        yaw = None if m.type_mask & _IGNORE_YAW or not math.isfinite(m.yaw) else euler_frd_to_flu(0.0, 0.0, m.yaw)[2]
-        code, reason = c.goto_local(x, y, z, yaw)
-        if code != M.MAV_RESULT_ACCEPTED:
-            self._refuse("setpoint_refused", reason or "Set-point refused", addr)
+        yaw = None if m.type_mask & IGNORE_YAW else m.yaw
+        target = inbound.global_target(
+            self.core.home, m.lat_int * 1e-7, m.lon_int * 1e-7, m.alt, m.coordinate_frame in RELATIVE_FRAMES, yaw
+        )
+        refusal = self.commander.goto(target)
+        if refusal is not None:
+            self._refuse("setpoint_refused", refusal.reason or "Set-point refused", addr)
 
     # -- parameters -----------------------------------------------------------------------------
     def _param_msg(self, index: int) -> mavlink.MAVLink_message:
         p = PARAMS[index]
-        value = self.app.params.value(p.name)
+        value = self.params.value(p.name)
         ptype = M.MAV_PARAM_TYPE_INT32 if p.is_int else M.MAV_PARAM_TYPE_REAL32
         return self.mav.param_value_encode(p.name.encode(), float(value), ptype, len(PARAMS), index)
 
     def _param_list(self, m: mavlink.MAVLink_message, addr: Address) -> None:
         if not self._for_us(m.target_system, m.target_component):
             return
-        self.app.gcs.send_many_to([self._param_msg(i) for i in range(len(PARAMS))], addr)  # type: ignore[union-attr]
+        if self.link is not None:
+            self.link.send_many_to([self._param_msg(i) for i in range(len(PARAMS))], addr)
 
     def _param_read(self, m: mavlink.MAVLink_message, addr: Address) -> None:
         if not self._for_us(m.target_system, m.target_component):
@@ -291,28 +327,28 @@ class GcsHandler:
             self._refuse("unknown_param", f"Param set: unknown {name}", addr)
             return
         try:
-            cfg = self.app.params.set(name, float(m.param_value))
+            cfg = self.params.set(name, float(m.param_value))
         except ParamError as exc:
             self.rejected["param_refused"] += 1
-            self.app.event(M.MAV_SEVERITY_WARNING, str(exc))
+            self._event(M.MAV_SEVERITY_WARNING, str(exc))
             self._send_to(self._param_msg(index), addr)  # the value in force, unchanged
             return
         except OSError as exc:
-            self.app.event(M.MAV_SEVERITY_ERROR, f"Param file not written: {exc.strerror or exc}")
-            cfg = self.app.params.config
-        self.app.apply_config(cfg)
+            self._event(M.MAV_SEVERITY_ERROR, f"Param file not written: {exc.strerror or exc}")
+            cfg = self.params.config
+        self._apply_config(cfg)
         if PARAMS[index].restart:
-            self.app.event(M.MAV_SEVERITY_INFO, f"{name} takes effect at the next start")
+            self._event(M.MAV_SEVERITY_INFO, f"{name} takes effect at the next start")
         self._broadcast(self._param_msg(index))
 
     # -- missions, streams, FTP -----------------------------------------------------------------
     def _mission_set_current(self, m: mavlink.MAVLink_message, addr: Address) -> None:
-        if not self.app.mission.set_current(m.seq):
+        if not self.mission.set_current(m.seq):
             self._refuse("bad_mission_seq", f"Mission: no item {m.seq}", addr)
         self._broadcast(self.build(M.MAVLINK_MSG_ID_MISSION_CURRENT)[0])
 
     def _request_data_stream(self, m: mavlink.MAVLink_message, addr: Address) -> None:
-        self.app.streams.request_stream(m.req_stream_id, m.req_message_rate, bool(m.start_stop))
+        self.streams.request_stream(m.req_stream_id, m.req_message_rate, bool(m.start_stop))
 
     def _ftp(self, m: mavlink.MAVLink_message, addr: Address) -> None:
         """NAK every MAVLink-FTP request (FileNotFound): MAVProxy then uses the parameter protocol."""
@@ -331,100 +367,29 @@ class GcsHandler:
 
     # -- telemetry ------------------------------------------------------------------------------
     def stream(self, t_us: int) -> None:
-        """Send what the scheduler says is due (one batch per peer)."""
-        gcs = self.app.gcs
-        if gcs is None:
+        """Send what the scheduler says is due (one batch per peer, from one snapshot)."""
+        link = self.link
+        if link is None:
             return
+        due = self.streams.due(t_us)
+        if not due:
+            return
+        snap = self.snapshot()
+        mav = self.mav
         msgs: list[mavlink.MAVLink_message] = []
-        for mid in self.app.streams.due(t_us):
-            msgs.extend(self.build(mid))
+        for mid in due:
+            msgs.extend(telemetry.build(mid, snap, mav))
         if msgs:
-            gcs.send_many(msgs)
+            link.send_many(msgs)
 
     def build(self, msg_id: int) -> list[mavlink.MAVLink_message]:
-        """The message(s) of this id for the current state; [] when there is nothing to say."""
-        app = self.app
-        mav = self.mav
-        st = app.state
-        t_ms = (app.clock.now_us() // 1000) & 0xFFFFFFFF
-        c = app.commander
-        f = app.flight
-        if msg_id == M.MAVLINK_MSG_ID_HEARTBEAT:
-            status = M.MAV_STATE_CRITICAL if app.failsafe else M.MAV_STATE_ACTIVE if f.armed else M.MAV_STATE_STANDBY
-            return [telemetry.heartbeat(mav, f.armed, int(c.mode), status)]
-        if msg_id == M.MAVLINK_MSG_ID_SYS_STATUS:
-            healthy = not app.failsafe and st is not None
-            prearm_ok = f.armed or c.prearm_failure() is None
-            return [telemetry.sys_status(mav, 0, healthy, prearm_ok)]
-        if msg_id == M.MAVLINK_MSG_ID_SYSTEM_TIME:
-            return [mav.system_time_encode(0, t_ms)]
-        if msg_id == M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE:
-            return [mav.extended_sys_state_encode(M.MAV_VTOL_STATE_UNDEFINED, c.landed_state())]
-        if msg_id == M.MAVLINK_MSG_ID_MISSION_CURRENT:
-            n_items = len(app.mission.items)
-            return [mav.mission_current_encode(app.mission.current, n_items - 1 if n_items else 0xFFFF)]
-        if msg_id == M.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED:
-            if not f.armed:
-                return []
-            tn, te, td = nwu_to_ned(f.target)
-            yaw_ned = euler_flu_to_frd(0.0, 0.0, f.yaw_target_rad)[2]
-            mask = 0xFFF & ~(_IGNORE_POS | _IGNORE_YAW)  # position and yaw are the set-point
-            return [mav.position_target_local_ned_encode(t_ms, M.MAV_FRAME_LOCAL_NED, mask, tn, te, td, 0, 0, 0, 0, 0, 0, yaw_ned, 0)]
-        if msg_id == M.MAVLINK_MSG_ID_NAMED_VALUE_INT:
-            return [mav.named_value_int_encode(t_ms, OVERRUN_NAME.encode(), app.stats.overruns)]
-        if msg_id == M.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT:
-            return telemetry.named_values(mav, t_ms, app.last_out.pipeline if app.last_out is not None else None)
-        if msg_id == M.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
-            return [
-                mav.autopilot_version_encode(
-                    CAPABILITIES, FLIGHT_SW_VERSION, 0, 0, 0, b"\0" * 8, b"\0" * 8, b"\0" * 8, 0x1209, 0x5350,
-                    0x534D435049000000 | app.cfg.system_id,
-                )  # fmt: skip
-            ]
-        if msg_id == M.MAVLINK_MSG_ID_HOME_POSITION:
-            h = app.home
-            return [
-                mav.home_position_encode(
-                    int(round(h.lat_deg * 1e7)), int(round(h.lon_deg * 1e7)), int(round(h.alt_m * 1000)),
-                    0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0,
-                )  # fmt: skip
-            ]
-        if st is None:
-            return []
-        if msg_id == M.MAVLINK_MSG_ID_ATTITUDE:
-            return [telemetry.attitude(mav, t_ms, st, app.body_rates)]
-        if msg_id == M.MAVLINK_MSG_ID_LOCAL_POSITION_NED:
-            return [telemetry.local_position(mav, t_ms, st)]
-        n, e, d = nwu_to_ned((st.x_m, st.y_m, st.z_m))
-        vn, ve, vd = nwu_to_ned((st.vx_mps, st.vy_mps, st.vz_mps))
-        lat, lon, alt = ned_to_global(app.home, n, e, d)
-        heading_deg = math.degrees(euler_frd_to_flu(0.0, 0.0, st.psi_rad)[2]) % 360.0
-        if msg_id == M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
-            return [
-                mav.global_position_int_encode(
-                    t_ms, int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1000)), int(round(-d * 1000)),
-                    _i16(vn * 100), _i16(ve * 100), _i16(vd * 100), int(round(heading_deg * 100)) % 36000,
-                )  # fmt: skip
-            ]
-        ground_speed = math.hypot(vn, ve)
-        if msg_id == M.MAVLINK_MSG_ID_GPS_RAW_INT:
-            cog = int(round(math.degrees(math.atan2(ve, vn)) % 360.0 * 100)) % 36000 if ground_speed > 0.2 else 65535
-            return [
-                mav.gps_raw_int_encode(
-                    app.clock.now_us(), M.GPS_FIX_TYPE_3D_FIX, int(round(lat * 1e7)), int(round(lon * 1e7)),
-                    int(round(alt * 1000)), 80, 120, min(65534, int(round(ground_speed * 100))), cog, 12,
-                )  # fmt: skip
-            ]
-        if msg_id == M.MAVLINK_MSG_ID_VFR_HUD:
-            out = app.last_out
-            throttle = int(round(100 * sum(out.motors) / 4)) if out is not None else 0
-            return [mav.vfr_hud_encode(ground_speed, ground_speed, int(round(heading_deg)) % 360, throttle, -d, -vd)]
-        return []
+        """The message(s) of this id now; [] when there is nothing to say."""
+        return telemetry.build(msg_id, self.snapshot(), self.mav)
 
     def on_tick(self, t_us: int) -> None:
         """Per control tick: mission-protocol timeouts (wall clock) and the telemetry streams."""
         now = self.wall_s()
-        self.app.mission.tick(now)
+        self.mission.tick(now)
         self.stream(t_us)
 
 
@@ -434,8 +399,4 @@ def _param_name(raw: object) -> str:
     return str(raw).split("\x00", 1)[0].strip()
 
 
-def _i16(v: float) -> int:
-    return max(-32768, min(32767, int(round(v))))
-
-
-__all__ = ["GcsHandler", "CAPABILITIES", "Mode"]
+__all__ = ["GcsHandler", "GroundLink", "CAPABILITIES", "Mode"]

@@ -11,22 +11,51 @@ To ground stations (every control tick decides, by simulated or wall time, what 
 - ``NAMED_VALUE_INT`` ``OVERRUN`` (missed deadlines so far) at 1 Hz;
 - ``STATUSTEXT`` for events (failsafe, arming, landing).
 
+Ground-station messages are built by :func:`build` from a :class:`TelemetrySnapshot`: a frozen
+copy of everything telemetry reads, taken once when something is due (:func:`snapshot`), so the
+builders are pure functions of (message id, snapshot, encoder) and never reach into the FC.
+
 To the log only (lockstep): a ``DEBUG_FLOAT_ARRAY`` named ``SMC`` every control tick, carrying
 the law's internals at full rate; :data:`smcpilot.protocol.SMC_FIELDS` names its entries.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Sequence
+import math
+from typing import TYPE_CHECKING, Callable, NamedTuple, Sequence
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from fc.flight import PipelineOutput, VehicleState
-from smcpilot.frames import euler_flu_to_frd, nwu_to_ned, rates_flu_to_frd
-from smcpilot.protocol import CHI_NAMES, SIG_NAMES, SMC_FIELDS
+from smcpilot import __version__
+from smcpilot.frames import (
+    euler_flu_to_frd,
+    euler_frd_to_flu,
+    nwu_to_ned,
+    rates_flu_to_frd,
+)
+from smcpilot.geo import Home, ned_to_global
+from smcpilot.protocol import CHI_NAMES, OVERRUN_NAME, SIG_NAMES, SMC_FIELDS
 
 if TYPE_CHECKING:  # pragma: no cover
     from fc.core import FlightCore, TickOutput
+
+M = mavlink
+
+CAPABILITIES = (
+    M.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+    | M.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+    | M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+    | M.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+    | M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
+    | M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
+)
+_VERSION = tuple(int(p) for p in __version__.split(".")[:3])
+FLIGHT_SW_VERSION = (_VERSION[0] << 24) | (_VERSION[1] << 16) | (_VERSION[2] << 8) | 0xFF  # FIRMWARE_VERSION_TYPE_OFFICIAL
+
+# POSITION_TARGET_TYPEMASK bits
+IGNORE_POS = 0x7
+IGNORE_YAW = 0x400
 
 # Health bits MAVSDK and MAVProxy look at (gcs-interop-notes.md).
 _SENSORS = (
@@ -134,3 +163,200 @@ def smc_record(core: "FlightCore", out: "TickOutput") -> list[float]:
     """The per-tick ``SMC`` record of a flight-core tick (every runner logs the same one)."""
     f = core.flight
     return smc_data(out.pipeline, f.target, f.yaw_target_rad, out.flags, out.mode)
+
+
+# -- the snapshot and the ground-station messages ------------------------------------------------
+class TelemetrySnapshot(NamedTuple):
+    """Everything ground-station telemetry reads, frozen at one moment (paper frame)."""
+
+    #: the FC's clock (simulated time in lockstep), µs.
+    time_us: int
+    #: the latest vehicle state, None before the first.
+    state: VehicleState | None
+    #: body rates p, q, r (FLU), rad/s.
+    body_rates: tuple[float, float, float]
+    armed: bool
+    #: ArduCopter custom-mode number.
+    mode: int
+    #: in the state-loss failsafe.
+    failsafe: bool
+    #: arming would pass now (or the vehicle is armed): SYS_STATUS PREARM_CHECK.
+    prearm_ok: bool
+    #: MAV_LANDED_STATE_*.
+    landed_state: int
+    #: the position set-point (paper frame), m.
+    target: tuple[float, float, float]
+    #: the heading set-point (FLU, wrapped), rad.
+    yaw_target_rad: float
+    #: the last tick's pipeline output, None before the first tick.
+    pipeline: PipelineOutput | None
+    #: missed control deadlines so far.
+    overruns: int
+    mission_current: int
+    #: stored mission items, home included.
+    mission_count: int
+    home: Home
+    system_id: int
+
+
+def snapshot(core: FlightCore, *, time_us: int, state: VehicleState | None, body_rates: tuple[float, float, float],
+             overruns: int) -> TelemetrySnapshot:  # fmt: skip
+    """The snapshot of a flight core now, with the runner's clock, latest state and counters."""
+    c = core.commander
+    f = core.flight
+    last = core.last
+    mission = c.mission
+    return TelemetrySnapshot(
+        time_us, state, body_rates, f.armed, int(c.mode), core.failsafe, f.armed or c.prearm_failure() is None,
+        c.landed_state(), f.target, f.yaw_target_rad, last.pipeline if last is not None else None, overruns,
+        mission.current, len(mission.items), core.home, core.config.system_id,
+    )  # fmt: skip
+
+
+Builder = Callable[[TelemetrySnapshot, mavlink.MAVLink, int], list]
+
+
+def _b_heartbeat(s: TelemetrySnapshot, mav: mavlink.MAVLink, t_ms: int) -> list:
+    status = M.MAV_STATE_CRITICAL if s.failsafe else M.MAV_STATE_ACTIVE if s.armed else M.MAV_STATE_STANDBY
+    return [heartbeat(mav, s.armed, s.mode, status)]
+
+
+def _b_sys_status(s: TelemetrySnapshot, mav: mavlink.MAVLink, t_ms: int) -> list:
+    return [sys_status(mav, 0, not s.failsafe and s.state is not None, s.prearm_ok)]
+
+
+def _b_system_time(s: TelemetrySnapshot, mav: mavlink.MAVLink, t_ms: int) -> list:
+    return [mav.system_time_encode(0, t_ms)]
+
+
+def _b_extended_sys_state(s: TelemetrySnapshot, mav: mavlink.MAVLink, t_ms: int) -> list:
+    return [mav.extended_sys_state_encode(M.MAV_VTOL_STATE_UNDEFINED, s.landed_state)]
+
+
+def _b_mission_current(s: TelemetrySnapshot, mav: mavlink.MAVLink, t_ms: int) -> list:
+    n_items = s.mission_count
+    return [mav.mission_current_encode(s.mission_current, n_items - 1 if n_items else 0xFFFF)]
+
+
+def _b_position_target(s: TelemetrySnapshot, mav: mavlink.MAVLink, t_ms: int) -> list:
+    if not s.armed:
+        return []
+    tn, te, td = nwu_to_ned(s.target)
+    yaw_ned = euler_flu_to_frd(0.0, 0.0, s.yaw_target_rad)[2]
+    mask = 0xFFF & ~(IGNORE_POS | IGNORE_YAW)  # position and yaw are the set-point
+    return [mav.position_target_local_ned_encode(t_ms, M.MAV_FRAME_LOCAL_NED, mask, tn, te, td, 0, 0, 0, 0, 0, 0, yaw_ned, 0)]
+
+
+def _b_overruns(s: TelemetrySnapshot, mav: mavlink.MAVLink, t_ms: int) -> list:
+    return [mav.named_value_int_encode(t_ms, OVERRUN_NAME.encode(), s.overruns)]
+
+
+def _b_named_values(s: TelemetrySnapshot, mav: mavlink.MAVLink, t_ms: int) -> list:
+    return named_values(mav, t_ms, s.pipeline)
+
+
+def _b_autopilot_version(s: TelemetrySnapshot, mav: mavlink.MAVLink, t_ms: int) -> list:
+    return [
+        mav.autopilot_version_encode(
+            CAPABILITIES, FLIGHT_SW_VERSION, 0, 0, 0, b"\0" * 8, b"\0" * 8, b"\0" * 8, 0x1209, 0x5350,
+            0x534D435049000000 | s.system_id,
+        )  # fmt: skip
+    ]
+
+
+def _b_home_position(s: TelemetrySnapshot, mav: mavlink.MAVLink, t_ms: int) -> list:
+    h = s.home
+    return [
+        mav.home_position_encode(
+            int(round(h.lat_deg * 1e7)), int(round(h.lon_deg * 1e7)), int(round(h.alt_m * 1000)),
+            0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0,
+        )  # fmt: skip
+    ]
+
+
+def _b_attitude(s: TelemetrySnapshot, mav: mavlink.MAVLink, t_ms: int) -> list:
+    return [attitude(mav, t_ms, s.state, s.body_rates)] if s.state is not None else []
+
+
+def _b_local_position(s: TelemetrySnapshot, mav: mavlink.MAVLink, t_ms: int) -> list:
+    return [local_position(mav, t_ms, s.state)] if s.state is not None else []
+
+
+def _global(s: TelemetrySnapshot, st: VehicleState):
+    """(lat, lon, alt AMSL, down, vn, ve, vd, heading deg) of a state."""
+    n, e, d = nwu_to_ned((st.x_m, st.y_m, st.z_m))
+    vn, ve, vd = nwu_to_ned((st.vx_mps, st.vy_mps, st.vz_mps))
+    lat, lon, alt = ned_to_global(s.home, n, e, d)
+    heading_deg = math.degrees(euler_frd_to_flu(0.0, 0.0, st.psi_rad)[2]) % 360.0
+    return lat, lon, alt, d, vn, ve, vd, heading_deg
+
+
+def _b_global_position(s: TelemetrySnapshot, mav: mavlink.MAVLink, t_ms: int) -> list:
+    st = s.state
+    if st is None:
+        return []
+    lat, lon, alt, d, vn, ve, vd, heading_deg = _global(s, st)
+    return [
+        mav.global_position_int_encode(
+            t_ms, int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1000)), int(round(-d * 1000)),
+            _i16(vn * 100), _i16(ve * 100), _i16(vd * 100), int(round(heading_deg * 100)) % 36000,
+        )  # fmt: skip
+    ]
+
+
+def _b_gps_raw(s: TelemetrySnapshot, mav: mavlink.MAVLink, t_ms: int) -> list:
+    st = s.state
+    if st is None:
+        return []
+    lat, lon, alt, _d, vn, ve, _vd, _heading_deg = _global(s, st)
+    ground_speed = math.hypot(vn, ve)
+    cog = int(round(math.degrees(math.atan2(ve, vn)) % 360.0 * 100)) % 36000 if ground_speed > 0.2 else 65535
+    return [
+        mav.gps_raw_int_encode(
+            s.time_us, M.GPS_FIX_TYPE_3D_FIX, int(round(lat * 1e7)), int(round(lon * 1e7)),
+            int(round(alt * 1000)), 80, 120, min(65534, int(round(ground_speed * 100))), cog, 12,
+        )  # fmt: skip
+    ]
+
+
+def _b_vfr_hud(s: TelemetrySnapshot, mav: mavlink.MAVLink, t_ms: int) -> list:
+    st = s.state
+    if st is None:
+        return []
+    _lat, _lon, _alt, d, vn, ve, vd, heading_deg = _global(s, st)
+    ground_speed = math.hypot(vn, ve)
+    out = s.pipeline
+    throttle = int(round(100 * sum(out.motors) / 4)) if out is not None else 0
+    return [mav.vfr_hud_encode(ground_speed, ground_speed, int(round(heading_deg)) % 360, throttle, -d, -vd)]
+
+
+_BUILDERS: dict[int, Builder] = {
+    M.MAVLINK_MSG_ID_HEARTBEAT: _b_heartbeat,
+    M.MAVLINK_MSG_ID_SYS_STATUS: _b_sys_status,
+    M.MAVLINK_MSG_ID_SYSTEM_TIME: _b_system_time,
+    M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: _b_extended_sys_state,
+    M.MAVLINK_MSG_ID_MISSION_CURRENT: _b_mission_current,
+    M.MAVLINK_MSG_ID_POSITION_TARGET_LOCAL_NED: _b_position_target,
+    M.MAVLINK_MSG_ID_NAMED_VALUE_INT: _b_overruns,
+    M.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT: _b_named_values,
+    M.MAVLINK_MSG_ID_AUTOPILOT_VERSION: _b_autopilot_version,
+    M.MAVLINK_MSG_ID_HOME_POSITION: _b_home_position,
+    M.MAVLINK_MSG_ID_ATTITUDE: _b_attitude,
+    M.MAVLINK_MSG_ID_LOCAL_POSITION_NED: _b_local_position,
+    M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: _b_global_position,
+    M.MAVLINK_MSG_ID_GPS_RAW_INT: _b_gps_raw,
+    M.MAVLINK_MSG_ID_VFR_HUD: _b_vfr_hud,
+}
+
+
+def build(msg_id: int, snap: TelemetrySnapshot, mav: mavlink.MAVLink) -> list[mavlink.MAVLink_message]:
+    """The message(s) of this id for the snapshot; [] when there is nothing to say (unknown id,
+    no state yet for the state's messages, no set-point while disarmed)."""
+    builder = _BUILDERS.get(msg_id)
+    if builder is None:
+        return []
+    return builder(snap, mav, (snap.time_us // 1000) & 0xFFFFFFFF)
+
+
+def _i16(v: float) -> int:
+    return max(-32768, min(32767, int(round(v))))

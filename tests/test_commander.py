@@ -12,6 +12,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from fc.config import FcConfig
 from fc.core import FlightCore
 from fc.mission import MissionItem, validate
+from fc.modes import Refusal
 from smcpilot.protocol import Mode
 from fc.params import PARAMS, ParamError, ParamStore, defaults_table
 from fc.streams import StreamScheduler
@@ -213,9 +214,9 @@ class Rig:
 
     def takeoff(self, alt: float = 3.0) -> None:
         c = self.commander
-        assert c.set_mode(Mode.GUIDED)[0] == M.MAV_RESULT_ACCEPTED
-        assert c.arm() == (M.MAV_RESULT_ACCEPTED, None)
-        assert c.takeoff(alt)[0] == M.MAV_RESULT_ACCEPTED
+        assert c.set_mode(Mode.GUIDED) is None  # None: accepted
+        assert c.arm() is None
+        assert c.takeoff(alt) is None
         self.run(8.0)
         assert self.pos[2] == pytest.approx(alt, abs=0.05)
 
@@ -223,20 +224,20 @@ class Rig:
 def test_arming_checks_and_takeoff_preconditions() -> None:
     rig = Rig()
     c = rig.commander
-    code, reason = c.takeoff(3.0)
-    assert code == M.MAV_RESULT_DENIED and "arm first" in reason
+    refusal = c.takeoff(3.0)
+    assert isinstance(refusal, Refusal) and refusal.code == M.MAV_RESULT_DENIED and "arm first" in refusal.reason
     c.set_mode(Mode.RTL)
-    code, reason = c.arm()
-    assert code == M.MAV_RESULT_DENIED and "RTL" in reason
+    refusal = c.arm()
+    assert isinstance(refusal, Refusal) and refusal.code == M.MAV_RESULT_DENIED and "RTL" in refusal.reason
     c.set_mode(Mode.AUTO)  # refused: no mission
     assert c.mode == Mode.RTL
     c.set_mode(Mode.GUIDED)
     c.state_fresh = False
-    assert "stale" in c.arm()[1]
+    assert "stale" in c.arm().reason
     c.state_fresh = True
-    assert c.arm() == (M.MAV_RESULT_ACCEPTED, None)
-    assert c.takeoff(math.nan)[0] == M.MAV_RESULT_DENIED
-    assert c.takeoff(1000.0)[0] == M.MAV_RESULT_DENIED
+    assert c.arm() is None
+    assert c.takeoff(math.nan).code == M.MAV_RESULT_DENIED
+    assert c.takeoff(1000.0).code == M.MAV_RESULT_DENIED
 
 
 def test_disarm_delay_disarms_an_idle_armed_vehicle() -> None:
@@ -252,10 +253,10 @@ def test_air_disarm_needs_force_and_rtl_comes_home_and_lands() -> None:
     rig = Rig(FcConfig(rtl_alt_m=5.0))
     rig.takeoff(3.0)
     c = rig.commander
-    assert c.goto_local(4.0, 3.0, 3.0, None)[0] == M.MAV_RESULT_ACCEPTED
+    assert c.goto_local(4.0, 3.0, 3.0, None) is None
     rig.run(10.0)
-    assert c.disarm()[0] == M.MAV_RESULT_DENIED
-    assert c.rtl() == (M.MAV_RESULT_ACCEPTED, None)
+    assert c.disarm().code == M.MAV_RESULT_DENIED
+    assert c.rtl() is None
     max_z = 0.0
     for _ in range(40):
         rig.run(0.5)
@@ -284,8 +285,8 @@ def test_auto_flies_the_mission_and_reports_each_item() -> None:
         global_item(4, M.MAV_CMD_NAV_WAYPOINT, 3.0, 3.0, 2.5),
         _item(5, M.MAV_CMD_NAV_LAND, x=0, y=0, z=0.0),
     ]
-    assert c.set_mode(Mode.AUTO) == (M.MAV_RESULT_ACCEPTED, None)
-    assert c.arm() == (M.MAV_RESULT_ACCEPTED, None)
+    assert c.set_mode(Mode.AUTO) is None
+    assert c.arm() is None
     for _ in range(120):
         rig.run(0.5)
         if not rig.flight.armed:
@@ -301,7 +302,7 @@ def test_alt_hold_holds_altitude_but_not_position_in_wind() -> None:
     rig = Rig(env=EnvironmentParams(wind_force_n=(0.3, 0.0, 0.0)))
     rig.takeoff(3.0)
     x0 = rig.pos[0]
-    assert rig.commander.set_mode(Mode.ALT_HOLD) == (M.MAV_RESULT_ACCEPTED, None)
+    assert rig.commander.set_mode(Mode.ALT_HOLD) is None
     rig.run(4.0)
     assert rig.pos[2] == pytest.approx(3.0, abs=0.05)
     assert rig.pos[0] - x0 > 0.5  # drifts downwind: no position hold in ALT_HOLD
@@ -329,7 +330,7 @@ def test_gcs_heartbeats_keep_the_failsafe_away() -> None:
     rig = Rig(FcConfig(fs_gcs_enable=2, fs_gcs_timeout_s=2.0))
     c = rig.commander
     c.on_gcs_heartbeat(0.0)
-    assert c.set_mode(Mode.GUIDED)[0] == M.MAV_RESULT_ACCEPTED and c.arm()[0] == M.MAV_RESULT_ACCEPTED
+    assert c.set_mode(Mode.GUIDED) is None and c.arm() is None
     c.takeoff(3.0)
     rig.run(10.0, gcs_heartbeats=True)
     assert c.mode == Mode.GUIDED and rig.flight.armed

@@ -1,0 +1,126 @@
+"""The small interface every flight mode implements, after ArduCopter's ``Mode`` (mode.h).
+
+One object per mode, built once by the :class:`fc.commander.Commander` and kept for the whole
+flight (a mode's progress, e.g. how far RTL has got, lives in its object). The commander calls:
+
+- :meth:`FlightMode.refuse_entry` before a requested switch (``set_mode``): None, or why not;
+- :meth:`FlightMode.exit` on the mode being left (only when the mode really changes; it is told
+  which mode comes next, as ArduCopter's ``exit_mode(old, new)``), then
+  :meth:`FlightMode.enter` on the new one (also when a mode is entered again: re-entering LAND,
+  RTL or AUTO restarts it);
+- :meth:`FlightMode.run` once per control tick while armed, before the flight pipeline's step
+  (simulated time; called 500 times a second: it allocates nothing on the common path);
+- :meth:`FlightMode.on_armed` after arming and :meth:`FlightMode.on_touchdown` when the pipeline
+  disarmed by itself on touchdown (the pipeline, :class:`fc.flight.FlightControl`, owns that).
+
+Modes see the vehicle through :class:`ModeHost` (the commander): the flight pipeline, the
+configuration, home, the mission, whether the vehicle is flying, and an event sink. Positions are
+in the paper frame (x north, y west, z up above home; FLU yaw): every conversion from a wire frame
+happens in :mod:`fc.inbound`.
+
+A refused request is a :class:`Refusal`: a domain value (why, and the result code a ground station
+gets); only the ground edge (:mod:`fc.gcs`) turns it into ``COMMAND_ACK`` + ``STATUSTEXT``.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, ClassVar, NamedTuple, Protocol
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from smcpilot.protocol import Mode
+
+if TYPE_CHECKING:  # pragma: no cover
+    from fc.config import FcConfig
+    from fc.flight import FlightControl, VehicleState
+    from fc.mission import MissionProtocol
+    from smcpilot.geo import Home
+
+#: a take-off (and RTL's climb) counts as done within this height of its target, m.
+TAKEOFF_DONE_M = 0.3
+
+
+class Refusal(NamedTuple):
+    """A request the vehicle will not carry out: why (the ``STATUSTEXT``; empty: say nothing) and
+    the ``MAV_RESULT`` a ground station gets for it."""
+
+    reason: str
+    code: int = mavlink.MAV_RESULT_DENIED
+
+
+class ModeHost(Protocol):
+    """What a mode needs of the vehicle (the commander provides it)."""
+
+    flight: FlightControl
+    home: Home
+    mission: MissionProtocol
+
+    @property
+    def config(self) -> FcConfig: ...
+
+    def flying(self) -> bool: ...
+
+    def say(self, text: str, severity: int = mavlink.MAV_SEVERITY_INFO) -> None: ...
+
+    def item_reached(self, seq: int) -> None: ...
+
+
+class FlightMode:
+    """One flight mode. Subclasses set :attr:`number` and override what they need."""
+
+    #: the ArduCopter custom-mode number.
+    number: ClassVar[Mode]
+    #: one may arm in this mode (the pre-arm check; :data:`smcpilot.protocol.ARMABLE_MODES`).
+    allows_arming: ClassVar[bool] = False
+    #: the pipeline holds the horizontal position (False: ALT_HOLD, level attitude, drifts).
+    position_hold: ClassVar[bool] = True
+
+    def __init__(self, host: ModeHost) -> None:
+        self.host = host
+        self.flight = host.flight
+
+    @property
+    def name(self) -> str:
+        return self.number.name
+
+    @property
+    def is_landing(self) -> bool:
+        """The mode is bringing the vehicle down to land now."""
+        return False
+
+    def refuse_entry(self) -> Refusal | None:
+        """Why a switch to this mode is refused now, or None."""
+        return None
+
+    def prearm_failure(self) -> str | None:
+        """Why arming in this mode would be refused (the mode's part of the pre-arm check), or None."""
+        return None if self.allows_arming else f"PreArm: cannot arm in {self.name}"
+
+    def enter(self, prev: Mode, st: VehicleState | None) -> None:
+        """The vehicle switches to this mode from ``prev`` (may be this mode) at state ``st``
+        (None: no state yet)."""
+
+    def run(self, st: VehicleState, t_s: float, dt_s: float) -> None:
+        """Per control tick while armed (simulated time), before the pipeline's step."""
+
+    def exit(self, to: Mode) -> None:
+        """The vehicle leaves this mode for mode ``to`` (another one)."""
+
+    def on_armed(self) -> None:
+        """The vehicle was just armed in this mode."""
+
+    def on_touchdown(self) -> Mode | None:
+        """The pipeline disarmed on touchdown; the mode to switch to silently, or None to stay."""
+        return None
+
+
+class HoldHereMode(FlightMode):
+    """Modes that hold the position they are entered at (GUIDED, LOITER, ALT_HOLD): switching to
+    one while armed keeps the vehicle where it is (on the ground: the altitude set-point too)."""
+
+    allows_arming = True
+
+    def enter(self, prev: Mode, st: VehicleState | None) -> None:
+        f = self.flight
+        if st is not None and f.armed and prev != self.number:
+            f.set_target(st.x_m, st.y_m, st.z_m if self.host.flying() else f.target[2])
