@@ -201,11 +201,6 @@ class FlightControllerApp:
         self._stop = False
         self._exit_code = EXIT_OK
 
-    @property
-    def failsafe(self) -> bool:
-        """In the state-loss failsafe."""
-        return self.core.failsafe
-
     def telemetry_snapshot(self) -> telemetry.TelemetrySnapshot:
         """What ground-station telemetry reads, now (the GCS handler's snapshot provider)."""
         return telemetry.snapshot(

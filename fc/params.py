@@ -18,12 +18,9 @@ from typing import Any, Callable
 
 from fc.config import FcConfig
 from smcpilot.protocol import FC_CONTROLLERS
-from smcpilot.errors import ConfigError, InvalidGainError
+from smcpilot.errors import ConfigError, InvalidGainError, ParamError
 from smcpilot.scenario import Scenario, ScenarioError
 
-
-class ParamError(ConfigError):
-    """A parameter name, value or file is invalid (the message says which and why)."""
 
 
 @dataclass(frozen=True)

@@ -57,3 +57,8 @@ class WatchdogError(SmcpilotError):
 
 class RateMismatchError(ConfigError):
     """Lockstep: the simulator's state period is not the flight controller's control period."""
+
+
+class ParamError(ConfigError):
+    """A flight-controller parameter name or value is invalid (unknown name, out of range, not
+    finite, not a whole number), or a parameter file is broken (the message names the line)."""

@@ -8,7 +8,7 @@ Hierarchy::
     │   │   ├── ConnectTimeout       no HEARTBEAT
     │   │   └── CommandTimeout       no COMMAND_ACK
     │   ├── CommandDenied            a MAV_RESULT other than ACCEPTED
-    │   ├── ParamError
+    │   ├── ParamExchangeError (also importable as ParamError)
     │   │   └── ParamRejected        the vehicle kept another value
     │   └── MissionError
     └── ConfigError
@@ -26,6 +26,7 @@ __all__ = [
     "ConnectTimeout",
     "MissionError",
     "ParamError",
+    "ParamExchangeError",
     "ParamRejected",
     "UnknownModeError",
     "VehicleError",
@@ -81,11 +82,15 @@ class UnknownModeError(ConfigError):
     """A flight-mode name is not an ArduCopter mode (the message lists the valid names)."""
 
 
-class ParamError(VehicleError):
-    """A parameter exchange failed (unknown name, incomplete list)."""
+class ParamExchangeError(VehicleError):
+    """A parameter exchange with the vehicle failed (unknown name, no echo, incomplete list)."""
 
 
-class ParamRejected(ParamError):
+#: The earlier name of :class:`ParamExchangeError` (``except ParamError`` keeps working).
+ParamError = ParamExchangeError
+
+
+class ParamRejected(ParamExchangeError):
     """The vehicle kept another value than the one set (out of range, not finite, read-only).
 
     ``name``, ``requested`` and ``value`` (now in force) are attributes; ``reason`` is the

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from ground.vehicle.errors import ParamError, ParamRejected
+from ground.vehicle.errors import ParamExchangeError, ParamRejected
 from ground.vehicle.exchange import await_match, refusal_reason
 from ground.vehicle.telemetry import StatusText, mavlink_text
 from smcpilot.errors import ConfigError
@@ -60,7 +60,7 @@ class Params:
 
     def get(self, name: str) -> float:
         """PARAM_REQUEST_READ by name (re-requested every ``param_timeout_s``, ``param_tries``
-        times); returns the value (an ``int`` for integer parameters). Raises :class:`ParamError`
+        times); returns the value (an ``int`` for integer parameters). Raises :class:`ParamExchangeError`
         when the vehicle never answers (unknown name)."""
         value, _ = self._read(name)
         return value
@@ -91,8 +91,8 @@ class Params:
                 if msg is not None and msg.get_type() == "PARAM_VALUE":
                     return _param_value(msg), msg.param_type
         if said:
-            raise ParamError(f"no value for parameter {pid}: {said[-1]}")
-        raise ParamError(
+            raise ParamExchangeError(f"no value for parameter {pid}: {said[-1]}")
+        raise ParamExchangeError(
             f"no PARAM_VALUE for {pid!r} after {tries} requests {v.param_timeout_s:g} s apart"
             " (unknown parameter, or the vehicle is not answering)"
         )
@@ -126,13 +126,13 @@ class Params:
                     if not _float32_equal(float(got), float(value)):
                         raise ParamRejected(pid, float(value), float(got), refusal_reason(v, sub, texts))
                     return got
-        raise ParamError(f"no PARAM_VALUE echo for PARAM_SET {pid} after {v.param_tries} tries {v.param_timeout_s:g} s apart")
+        raise ParamExchangeError(f"no PARAM_VALUE echo for PARAM_SET {pid} after {v.param_tries} tries {v.param_timeout_s:g} s apart")
 
     def list(self) -> dict[str, float]:
         """Every parameter (PARAM_REQUEST_LIST), in index order: name -> value (``int`` for
         integer parameters). Indices still missing when the stream pauses for
         ``param_timeout_s`` are re-requested one by one (PARAM_REQUEST_READ by index), up to
-        ``param_tries`` rounds; then :class:`ParamError` lists what is missing."""
+        ``param_tries`` rounds; then :class:`ParamExchangeError` lists what is missing."""
         v = self._vehicle
         mav = v.mav
         by_index: dict[int, tuple[str, float]] = {}
@@ -150,7 +150,7 @@ class Params:
                 rounds += 1
                 if rounds >= v.param_tries:
                     missing = "all" if count is None else f"{count - len(by_index)} of {count}"
-                    raise ParamError(f"parameter list incomplete after {rounds} retries: {missing} missing")
+                    raise ParamExchangeError(f"parameter list incomplete after {rounds} retries: {missing} missing")
                 if count is None:
                     v.send(mav.param_request_list_encode(v.target_system, v.target_component))
                 else:
