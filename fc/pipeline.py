@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+from fc.control import LAW_FUNCTIONS
 from fc.control.base import integrators_anti_windup
 from fc.control.cascade_pid import CascadePid, CascadePidConsts, CascadePidParams, cascade_pid_consts, cascade_pid_output
 from fc.control.pid_smc import (
@@ -312,3 +313,18 @@ def pipeline_step(
         psi_r, psi_v, psi_a, int_x, int_y, new, law_n, landed_s,
     )  # fmt: skip
     return state, (motors, realised, limited, s, sg, chi, u, ud, (phi_r, th_r, psi_r, z_r), touchdown)
+
+
+#: every function the per-tick pipeline runs (the pure hot path): what ``tests/test_compilable.py``
+#: checks against the rules above and compiles with numba's ``njit``, unchanged.
+PURE_FUNCTIONS = (
+    pipeline_step,
+    pipeline_reset,
+    pipeline_off,
+    law_initial_state,
+    prefilter_step,
+    position_step,
+    mix,
+    wrap_pi,
+    *LAW_FUNCTIONS,
+)
