@@ -21,9 +21,9 @@ the truth and adds disturbances d. Both build a :class:`PaperModel` from the sam
 
 All methods take and return plain floats (they sit in the hot path). The equations the control
 law needs (:func:`unmix`, :func:`omega_bar`, :func:`drift`, :func:`drift_rates`, :func:`tilt_cos`)
-are module-level pure functions of a flat constants record, either a :class:`PaperModel` or its
-:meth:`PaperModel.consts` (a :class:`ModelConsts` NamedTuple of floats and bools, what a compiled
-hot path takes); the methods of the same names *are* these functions, so the equations exist once.
+are module-level pure functions of :meth:`PaperModel.consts`, a :class:`ModelConsts` NamedTuple of
+floats and bools (what a compiled hot path takes); the methods of the same names call them, so the
+equations exist once.
 """
 
 from __future__ import annotations
@@ -71,16 +71,17 @@ class ModelConsts(NamedTuple):
     fdot_typo: bool
 
 
-# -- the equations, as pure functions of ``m`` (a PaperModel or its ModelConsts) -------------------
+# -- the equations, as pure functions of ``m``, a ModelConsts ---------------------------------------
 def unmix(m, u_phi: float, u_theta: float, u_psi: float, u_z: float) -> tuple[float, float, float, float]:
     """Inverse of eq. (11): inputs -> (w1^2, w2^2, w3^2, w4^2), (rad/s)^2.
 
     A result below zero means the command cannot be realised by any rotor speeds.
     """
-    t = u_z / m.thrust_coeff_n_s2
-    y = u_psi / m.drag_coeff_n_m_s2
-    r = u_phi / m.thrust_coeff_n_s2
-    p = u_theta / m.thrust_coeff_n_s2
+    kp = m[2]  # thrust_coeff_n_s2
+    t = u_z / kp
+    y = u_psi / m[3]  # drag_coeff_n_m_s2
+    r = u_phi / kp
+    p = u_theta / kp
     q13 = 0.25 * (t + y)
     q24 = 0.25 * (t - y)
     return (q13 - 0.5 * r, q24 - 0.5 * p, q13 + 0.5 * r, q24 + 0.5 * p)
@@ -104,12 +105,13 @@ def omega_bar_of_inputs(m, u_phi: float, u_theta: float, u_psi: float, u_z: floa
 
 def drift(m, phi_dot: float, theta_dot: float, psi_dot: float, z_dot: float, omega_bar: float) -> tuple[float, float, float, float]:
     """f = (f_phi, f_theta, f_psi, f_z): rad/s^2, rad/s^2, rad/s^2, m/s^2."""
-    fz = m.a9 * z_dot * psi_dot if m.z_drift_typo else m.a9 * z_dot
+    _mass, gravity, _kp, _cd, a1, a2, a3, a4, a5, a6, a7, a8, a9, _b1, _b2, _b3, z_drift_typo, _fdot_typo = m
+    fz = a9 * z_dot * psi_dot if z_drift_typo else a9 * z_dot
     return (
-        m.a1 * theta_dot * psi_dot + m.a2 * phi_dot * phi_dot + m.a3 * omega_bar * theta_dot,
-        m.a4 * phi_dot * psi_dot + m.a5 * theta_dot * theta_dot + m.a6 * omega_bar * phi_dot,
-        m.a7 * phi_dot * theta_dot + m.a8 * psi_dot * psi_dot,
-        fz - m.gravity_mps2,
+        a1 * theta_dot * psi_dot + a2 * phi_dot * phi_dot + a3 * omega_bar * theta_dot,
+        a4 * phi_dot * psi_dot + a5 * theta_dot * theta_dot + a6 * omega_bar * phi_dot,
+        a7 * phi_dot * theta_dot + a8 * psi_dot * psi_dot,
+        fz - gravity,
     )
 
 
@@ -139,30 +141,23 @@ def drift_rates(
 
     The accelerations are inputs (the controller passes its nominal ``f + g u``).
     """
-    if m.fdot_typo:
+    mass, _g, _kp, _cd, a1, a2, a3, a4, a5, a6, a7, a8, a9, _b1, _b2, _b3, z_drift_typo, fdot_typo = m
+    if fdot_typo:
         # As printed in eqs. (20)/(34): a1 x4' x6' + 2 a2 x2' x2 + a3 W x4', etc.
-        fp = m.a1 * theta_dd * psi_dd + 2.0 * m.a2 * phi_dd * phi_dot + m.a3 * omega_bar * theta_dd
-        ft = m.a4 * phi_dd * psi_dd + 2.0 * m.a5 * theta_dd * theta_dot + m.a6 * omega_bar * phi_dd
-        fs = m.a7 * phi_dd * theta_dd + 2.0 * m.a8 * psi_dd * psi_dot
+        fp = a1 * theta_dd * psi_dd + 2.0 * a2 * phi_dd * phi_dot + a3 * omega_bar * theta_dd
+        ft = a4 * phi_dd * psi_dd + 2.0 * a5 * theta_dd * theta_dot + a6 * omega_bar * phi_dd
+        fs = a7 * phi_dd * theta_dd + 2.0 * a8 * psi_dd * psi_dot
     else:
-        fp = (
-            m.a1 * (theta_dd * psi_dot + theta_dot * psi_dd)
-            + 2.0 * m.a2 * phi_dot * phi_dd
-            + m.a3 * omega_bar * theta_dd
-        )
-        ft = (
-            m.a4 * (phi_dd * psi_dot + phi_dot * psi_dd)
-            + 2.0 * m.a5 * theta_dot * theta_dd
-            + m.a6 * omega_bar * phi_dd
-        )
-        fs = m.a7 * (phi_dd * theta_dot + phi_dot * theta_dd) + 2.0 * m.a8 * psi_dot * psi_dd
-    if m.z_drift_typo:
-        fz = m.a9 * (z_dd * psi_dot + z_dot * psi_dd)
+        fp = a1 * (theta_dd * psi_dot + theta_dot * psi_dd) + 2.0 * a2 * phi_dot * phi_dd + a3 * omega_bar * theta_dd
+        ft = a4 * (phi_dd * psi_dot + phi_dot * psi_dd) + 2.0 * a5 * theta_dot * theta_dd + a6 * omega_bar * phi_dd
+        fs = a7 * (phi_dd * theta_dot + phi_dot * theta_dd) + 2.0 * a8 * psi_dot * psi_dd
+    if z_drift_typo:
+        fz = a9 * (z_dd * psi_dot + z_dot * psi_dd)
     else:
-        fz = m.a9 * z_dd
+        fz = a9 * z_dd
     sp, cp = _sin(phi), _cos(phi)
     st, ct = _sin(theta), _cos(theta)
-    gz_dot = -(phi_dot * sp * ct + theta_dot * cp * st) / m.mass_kg
+    gz_dot = -(phi_dot * sp * ct + theta_dot * cp * st) / mass
     return fp, ft, fs, fz, gz_dot
 
 
@@ -194,19 +189,18 @@ class PaperModel:
     b2: float
     b3: float
     typos: frozenset[str] = frozenset()
-    #: the typos the equations test, as flags (derived from ``typos``).
-    z_drift_typo: bool = field(default=False, init=False, repr=False, compare=False)
-    fdot_typo: bool = field(default=False, init=False, repr=False, compare=False)
+    #: the coefficients the equations read, flattened (derived; see :meth:`consts`).
+    _k: ModelConsts | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "z_drift_typo", "z-drift" in self.typos)
-        object.__setattr__(self, "fdot_typo", "fdot" in self.typos)
+        k = ModelConsts(
+            *(float(getattr(self, f)) for f in ModelConsts._fields[:-2]), "z-drift" in self.typos, "fdot" in self.typos
+        )
+        object.__setattr__(self, "_k", k)
 
     def consts(self) -> ModelConsts:
-        """The coefficients as a :class:`ModelConsts` of plain floats (for the pure hot path)."""
-        return ModelConsts(
-            *(float(getattr(self, f)) for f in ModelConsts._fields[:-2]), self.z_drift_typo, self.fdot_typo
-        )
+        """The coefficients as a :class:`ModelConsts` of plain floats (what the pure functions take)."""
+        return self._k
 
     @classmethod
     def from_vehicle(
@@ -250,12 +244,26 @@ class PaperModel:
             kp * (w1_sq + w2_sq + w3_sq + w4_sq),
         )
 
-    unmix = unmix
+    def unmix(self, u_phi: float, u_theta: float, u_psi: float, u_z: float) -> tuple[float, float, float, float]:
+        """Inverse of :meth:`mix`: inputs -> (w1^2, w2^2, w3^2, w4^2), (rad/s)^2 (:func:`unmix`).
+
+        A result below zero means the command cannot be realised by any rotor speeds.
+        """
+        return unmix(self._k, u_phi, u_theta, u_psi, u_z)
+
     omega_bar = staticmethod(omega_bar)
-    omega_bar_of_inputs = omega_bar_of_inputs
+
+    def omega_bar_of_inputs(self, u_phi: float, u_theta: float, u_psi: float, u_z: float) -> float:
+        """Omega-bar of the rotor speeds that realise the inputs."""
+        return omega_bar_of_inputs(self._k, u_phi, u_theta, u_psi, u_z)
 
     # -- eq. (13) with corrections: drift f and input gain g --------------------------------------
-    drift = drift
+    def drift(
+        self, phi_dot: float, theta_dot: float, psi_dot: float, z_dot: float, omega_bar: float
+    ) -> tuple[float, float, float, float]:
+        """f = (f_phi, f_theta, f_psi, f_z): rad/s^2, rad/s^2, rad/s^2, m/s^2 (:func:`drift`)."""
+        return drift(self._k, phi_dot, theta_dot, psi_dot, z_dot, omega_bar)
+
     tilt_cos = staticmethod(tilt_cos)
 
     def gain_z(self, phi: float, theta: float) -> float:
@@ -290,7 +298,22 @@ class PaperModel:
         )
 
     # -- time derivatives of f and g (spec §2; the paper's (20)/(27) drop half of each product) ---
-    drift_rates = drift_rates
+    def drift_rates(
+        self,
+        phi: float,
+        phi_dot: float,
+        theta: float,
+        theta_dot: float,
+        psi_dot: float,
+        z_dot: float,
+        phi_dd: float,
+        theta_dd: float,
+        psi_dd: float,
+        z_dd: float,
+        omega_bar: float,
+    ) -> tuple[float, float, float, float, float]:
+        """(f_phi', f_theta', f_psi', f_z', g_z') with Omega-bar held constant (:func:`drift_rates`)."""
+        return drift_rates(self._k, phi, phi_dot, theta, theta_dot, psi_dot, z_dot, phi_dd, theta_dd, psi_dd, z_dd, omega_bar)
 
     # -- physical actuation (plant side) ----------------------------------------------------------
     def actuation(

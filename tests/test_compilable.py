@@ -30,7 +30,7 @@ import pytest
 from fc.config import FcConfig
 from fc.control import LAW_FUNCTIONS, PidSmc, PidSmcParams
 from fc.control.cascade_pid import CascadePid
-from fc.control.pid_smc import AdaptationBounds
+from fc.control.pid_smc import AdaptationBounds, ChannelConsts
 from fc.control.sign_smc import SignSmc
 from fc.flight import FlightControl
 from fc.pipeline import (
@@ -45,7 +45,7 @@ from fc.pipeline import (
 )
 from lab.runner import wire_state
 from sim_bridge.plants.rigid_body import RigidBodyPlant
-from smcpilot.model import PaperModel
+from smcpilot.model import ModelConsts, PaperModel
 from smcpilot.typos import TYPOS
 from smcpilot.vehicle import DEFAULT_VEHICLE
 
@@ -135,15 +135,17 @@ def test_parameters_state_and_inputs_are_flat_tuples_of_numbers() -> None:
         p = fl.params
         assert isinstance(p, PipelineParams)
         sig = tuple(leaf_types(p))
-        assert all(t is float for path, t in sig if path not in (".law_kind", ".law_n") and not path.endswith("_typo")
-                   and path.rsplit(".", 1)[-1] not in ("adaptive", "algebraic_chi", "theta_uses_phi_chi", "oracle",
-                                                       "has_limits", "has_u0")), sig  # fmt: skip
+        # Numbers meant as floats are floats even where the configuration gave ints; the only ints
+        # are the law's kind and state length.
+        assert [path for path, t in sig if t is int] == [".law_kind", ".law_n"], sig
         signatures.add(tuple(t for _, t in sig))
     # One layout and one set of leaf types for every controller: one compiled specialisation.
     assert len(signatures) == 1
     for name, ctrl in (("pid_smc", PidSmc(PaperModel.from_vehicle(), PidSmcParams(typos=frozenset(TYPOS)))),
                        ("cascade", CascadePid(PaperModel.from_vehicle())), ("sign", SignSmc(PaperModel.from_vehicle()))):  # fmt: skip
-        leaf_types(ctrl.consts, name)
+        assert not [path for path, t in leaf_types(ctrl.consts, name) if t is int]
+    assert len(PidSmc(PaperModel.from_vehicle()).consts.model) == len(ModelConsts._fields)
+    assert all(len(k) == len(ChannelConsts._fields) for k in PidSmc(PaperModel.from_vehicle()).consts.k)
 
 
 @pytest.mark.parametrize("controller", FC_CONTROLLERS)

@@ -33,7 +33,7 @@ from typing import Literal, NamedTuple, Sequence
 from fc.control.base import Diagnostics, Vec4
 from fc.control.gains import PAPER_GAINS, ChannelGains, Gains4
 from smcpilot.errors import InvalidGainError
-from smcpilot.model import CHANNELS, ModelConsts, PaperModel, drift, drift_rates, omega_bar_of_inputs, tilt_cos
+from smcpilot.model import CHANNELS, PaperModel, drift, drift_rates, omega_bar_of_inputs, tilt_cos
 from smcpilot.typos import CONTROLLER_TYPOS, parse_typos
 
 _INF = math.inf
@@ -131,11 +131,17 @@ class ChannelConsts(NamedTuple):
 
 
 class PidSmcConsts(NamedTuple):
-    """Everything :func:`pid_smc_law` reads, flattened once from the model and the parameters."""
+    """Everything :func:`pid_smc_law` reads, flattened once from the model and the parameters.
 
-    model: ModelConsts
-    #: per channel (phi, theta, psi, z).
-    k: tuple[ChannelConsts, ChannelConsts, ChannelConsts, ChannelConsts]
+    ``model`` and the four ``k`` are plain tuples in :class:`~smcpilot.model.ModelConsts` and
+    :class:`ChannelConsts` order: the law unpacks them on every step, and CPython unpacks an exact
+    tuple on its fast path (a NamedTuple goes through the iterator protocol).
+    """
+
+    #: the model's constants, in ModelConsts order.
+    model: tuple[float | bool, ...]
+    #: per channel (phi, theta, psi, z), each in ChannelConsts order.
+    k: tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...], tuple[float, ...]]
     adaptive: bool
     #: "adaptive-law" typo: chi_hat = Theta |sigma| algebraically.
     algebraic_chi: bool
@@ -168,7 +174,7 @@ def pid_smc_consts(model: PaperModel, params: PidSmcParams) -> PidSmcConsts:
     """Flatten a model and validated parameters into the law's constants."""
     ty = params.typos
     k = tuple(
-        ChannelConsts(
+        tuple(ChannelConsts(
             float(g.c1),
             float(g.c2),
             float(g.kp),
@@ -179,13 +185,13 @@ def pid_smc_consts(model: PaperModel, params: PidSmcParams) -> PidSmcConsts:
             float(g.nu),
             float(g.adapt_rate),
             1.0 / (g.c2 if "prefactor" in ty else g.kd * g.c2),
-        )
+        ))
         for g in params.gains
     )
     a = params.adaptation
     chi0 = params.chi_hat0 if params.adaptive else tuple(g.chi for g in params.gains)
     return PidSmcConsts(
-        model=model.consts(),
+        model=tuple(model.consts()),
         k=(k[0], k[1], k[2], k[3]),
         adaptive=bool(params.adaptive),
         algebraic_chi="adaptive-law" in ty,
@@ -303,7 +309,7 @@ def pid_smc_initial_state(meas: Sequence[float], p: PidSmcConsts) -> tuple[float
     else:
         m = p.model
         u0, u1, u2 = 0.0, 0.0, 0.0
-        u3 = m.mass_kg * m.gravity_mps2 / tilt_cos(meas[0], meas[2], p.tilt_min)
+        u3 = m[0] * m[1] / tilt_cos(meas[0], meas[2], p.tilt_min)  # mass_kg * gravity_mps2
     c0, c1, c2, c3 = p.chi0
     return (0.0, 0.0, 0.0, 0.0, u0, u1, u2, u3, c0, c1, c2, c3)
 
@@ -323,7 +329,7 @@ def pid_smc_law(
     wbar = omega_bar_of_inputs(m, u0, u1, u2, u3)
     gz = tilt_cos(phi, th, tilt_min) * inv_mass
     f0, f1, f2, f3 = drift(m, phi_d, th_d, psi_d, z_d, wbar)
-    g0, g1, g2 = m.b1, m.b2, m.b3
+    g0, g1, g2 = m[13], m[14], m[15]  # b1, b2, b3
     a0 = f0 + g0 * u0
     a1 = f1 + g1 * u1
     a2 = f2 + g2 * u2

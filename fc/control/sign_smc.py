@@ -19,7 +19,7 @@ from typing import NamedTuple, Sequence
 
 from fc.control.base import Diagnostics, IntegratingBaseline, Vec4
 from smcpilot.errors import InvalidGainError
-from smcpilot.model import ModelConsts, PaperModel, drift, tilt_cos
+from smcpilot.model import PaperModel, drift, tilt_cos
 
 
 
@@ -54,17 +54,18 @@ class SignSmcChannel(NamedTuple):
 
 
 class SignSmcConsts(NamedTuple):
-    """:class:`SignSmcParams` and the model's constants, flattened for the pure step."""
+    """:class:`SignSmcParams` and the model's constants, flattened for the pure step (``model``
+    and the ``k`` as plain tuples in ModelConsts and SignSmcChannel order, for CPython's fast unpacking)."""
 
-    model: ModelConsts
-    k: tuple[SignSmcChannel, SignSmcChannel, SignSmcChannel, SignSmcChannel]
+    model: tuple[float | bool, ...]
+    k: tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...], tuple[float, ...]]
     tilt_cos_min: float
 
 
 def sign_smc_consts(model: PaperModel, params: SignSmcParams) -> SignSmcConsts:
     p = params
-    k = tuple(SignSmcChannel(float(p.kp[i]), float(p.ki[i]), float(p.kd[i]), float(p.eta[i]), float(p.lam[i])) for i in range(4))
-    return SignSmcConsts(model.consts(), (k[0], k[1], k[2], k[3]), float(p.tilt_cos_min))
+    k = tuple(tuple(SignSmcChannel(float(p.kp[i]), float(p.ki[i]), float(p.kd[i]), float(p.eta[i]), float(p.lam[i]))) for i in range(4))
+    return SignSmcConsts(tuple(model.consts()), (k[0], k[1], k[2], k[3]), float(p.tilt_cos_min))
 
 
 class SignSmc(IntegratingBaseline):
@@ -94,7 +95,7 @@ class SignSmc(IntegratingBaseline):
         return u, new, Diagnostics(None, s, None, u, None)
 
 
-def _sign_channel(k: SignSmcChannel, x: float, x_dot: float, r: float, r_d: float, r_dd: float, f: float, g: float, integ: float) -> tuple[float, float, float]:
+def _sign_channel(k: tuple[float, ...], x: float, x_dot: float, r: float, r_d: float, r_dd: float, f: float, g: float, integ: float) -> tuple[float, float, float]:
     """(u, e, s) of one channel."""
     kp, ki, kd, eta, lam = k
     ei = x - r
@@ -108,10 +109,10 @@ def sign_smc_output(meas: Sequence[float], ref: Sequence[float], state: Sequence
     """(u, d(int e)/dt = e, s) for every channel (pure)."""
     m, k, tilt_min = p
     f0, f1, f2, f3 = drift(m, meas[1], meas[3], meas[5], meas[7], 0.0)
-    gz = tilt_cos(meas[0], meas[2], tilt_min) / m.mass_kg
-    u0, e0, s0 = _sign_channel(k[0], meas[0], meas[1], ref[0], ref[1], ref[2], f0, m.b1, state[0])
-    u1, e1, s1 = _sign_channel(k[1], meas[2], meas[3], ref[4], ref[5], ref[6], f1, m.b2, state[1])
-    u2, e2, s2 = _sign_channel(k[2], meas[4], meas[5], ref[8], ref[9], ref[10], f2, m.b3, state[2])
+    gz = tilt_cos(meas[0], meas[2], tilt_min) / m[0]  # mass_kg
+    u0, e0, s0 = _sign_channel(k[0], meas[0], meas[1], ref[0], ref[1], ref[2], f0, m[13], state[0])  # b1
+    u1, e1, s1 = _sign_channel(k[1], meas[2], meas[3], ref[4], ref[5], ref[6], f1, m[14], state[1])  # b2
+    u2, e2, s2 = _sign_channel(k[2], meas[4], meas[5], ref[8], ref[9], ref[10], f2, m[15], state[2])  # b3
     u3, e3, s3 = _sign_channel(k[3], meas[6], meas[7], ref[12], ref[13], ref[14], f3, gz, state[3])
     return (u0, u1, u2, u3), (e0, e1, e2, e3), (s0, s1, s2, s3)
 
