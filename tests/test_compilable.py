@@ -1,7 +1,8 @@
 """The hot path stays pure and compilable.
 
 Without numba: the rules, checked on the code and on the data — every function of
-:data:`fc.pipeline.PURE_FUNCTIONS` is a module-level function with no closure whose body has no
+:data:`fc.pipeline.PURE_FUNCTIONS` (and of the rigid-body plant's step,
+:data:`sim_bridge.plants.rigid_body.PURE_FUNCTIONS`) is a module-level function with no closure whose body has no
 lists, dicts, sets, comprehensions, strings, f-strings, exceptions, lambdas, nested functions,
 ``getattr``/``isinstance`` or method calls, and calls only pure functions (by plain name), ``math`` functions,
 ``abs``/``min``/``max`` and NamedTuple classes; the parameters, state and inputs it takes (built
@@ -10,7 +11,8 @@ with the same types on every tick.
 
 With numba (``pytest.importorskip``): the same functions, unchanged, compiled by ``numba.njit``
 give the same bits as CPython over a closed-loop take-off, ALT_HOLD and landing of each FC
-controller, and the law steps do on random inputs.
+controller; the law steps do on random inputs, and the plant step over a flight with gusts and the
+paper's disturbances.
 """
 
 from __future__ import annotations
@@ -44,7 +46,9 @@ from fc.pipeline import (
     pipeline_step,
 )
 from lab.runner import wire_state
-from sim_bridge.plants.rigid_body import RigidBodyPlant
+from sim_bridge.environment import Environment, EnvironmentParams
+from sim_bridge.plants import rigid_body
+from sim_bridge.plants.rigid_body import RigidBodyPlant, rigid_body_params, rigid_body_step
 from smcpilot.model import ModelConsts, PaperModel
 from smcpilot.typos import TYPOS
 from smcpilot.vehicle import DEFAULT_VEHICLE
@@ -69,13 +73,17 @@ def _resolve(fn: types.FunctionType, name: str) -> object:
     return getattr(builtins, name, None)
 
 
+PLANT_FUNCTIONS = rigid_body.PURE_FUNCTIONS
+ALL_PURE = PURE_FUNCTIONS + tuple(f for f in PLANT_FUNCTIONS if f not in PURE_FUNCTIONS)
+
+
 # -- the rules, on the code ---------------------------------------------------------------------------
 def test_the_pure_functions_are_listed_once_and_cover_the_law() -> None:
     assert len(set(PURE_FUNCTIONS)) == len(PURE_FUNCTIONS)
     assert set(LAW_FUNCTIONS) <= set(PURE_FUNCTIONS)
 
 
-@pytest.mark.parametrize("fn", PURE_FUNCTIONS, ids=lambda f: f"{f.__module__}.{f.__name__}")
+@pytest.mark.parametrize("fn", ALL_PURE, ids=lambda f: f"{f.__module__}.{f.__name__}")
 def test_pure_function_follows_the_rules(fn: types.FunctionType) -> None:
     assert isinstance(fn, types.FunctionType) and fn.__qualname__ == fn.__name__, "a module-level function"
     assert fn.__closure__ is None and not fn.__code__.co_freevars, "no closure"
@@ -85,7 +93,7 @@ def test_pure_function_follows_the_rules(fn: types.FunctionType) -> None:
     body = root.body
     if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant):
         body = body[1:]  # the docstring
-    pure = set(PURE_FUNCTIONS)
+    pure = set(ALL_PURE)
     problems = []
     for node in (n for stmt in body for n in ast.walk(stmt)):
         where = f"{fn.__name__} line {getattr(node, 'lineno', '?')}"
@@ -126,6 +134,14 @@ def _configs() -> list[FcConfig]:
     return [FcConfig(controller=c) for c in FC_CONTROLLERS] + [
         FcConfig(speed_max_xy_mps=2, land_detect_s=1, chi_hat0=0, rate_hz=250)  # ints where floats are meant
     ]
+
+
+def test_plant_parameters_and_state_are_flat_tuples_of_floats() -> None:
+    for env in (Environment(), Environment(EnvironmentParams(paper_disturbance=True))):
+        plant = RigidBodyPlant(DEFAULT_VEHICLE, env)
+        assert [path for path, t in leaf_types(plant.params) if t is not float] == [".ground_contact", ".deriv.12"]
+        plant.step(0.0, 0.001, (0.5, 0.5, 0.5, 0.5), True)
+        assert {t for _, t in leaf_types(plant.state)} == {float} and len(plant.state) == 17
 
 
 def test_parameters_state_and_inputs_are_flat_tuples_of_numbers() -> None:
@@ -177,8 +193,8 @@ def compiled():
     """Every pure function as a numba dispatcher, in every module that calls it (undone after)."""
     numba = pytest.importorskip("numba")
     if not _DISPATCHERS:
-        _DISPATCHERS.update({fn: numba.njit(fn) for fn in PURE_FUNCTIONS})
-    modules = {inspect.getmodule(fn) for fn in PURE_FUNCTIONS}
+        _DISPATCHERS.update({fn: numba.njit(fn) for fn in ALL_PURE})
+    modules = {inspect.getmodule(fn) for fn in ALL_PURE}
     with pytest.MonkeyPatch.context() as mp:
         for mod in modules:
             for name, value in list(vars(mod).items()):
@@ -290,3 +306,34 @@ def test_compiled_law_steps_give_the_same_bits() -> None:
                 jit[sign_smc_step](meas, ref, state[:4], 0.002, ss),
             )
             assert bits(got) == bits(want)
+
+
+def _plant_steps() -> list[tuple]:
+    """(state, motors, armed, force, torque, t, h, params) and the result of every interpreted
+    plant step of a take-off with gusts and the paper's disturbances, a spin-down and a touchdown."""
+    env = Environment(EnvironmentParams(paper_disturbance=True, gust_force_std_xy_n=0.3, wind_force_n=(0.2, -0.1, 0.0)), random.Random(3))
+    p = rigid_body_params(DEFAULT_VEHICLE, paper_disturbance=True)
+    s = RigidBodyPlant(DEFAULT_VEHICLE).state
+    rows = []
+    t = 0.0
+    for k in range(1500):
+        motors = (0.52, 0.521, 0.519, 0.52) if k < 900 else (0.3, 0.3, 0.3, 0.3)
+        armed = k < 1300
+        env.advance(0.001)
+        args = (s, motors, armed, env.force_world_n, env.torque_body_n_m, t, 0.001, p)
+        out = rigid_body_step(*args)
+        assert out[2]
+        rows.append((args, out))
+        s = out[0]
+        t += 0.001
+    assert max(r[1][0][2] for r in rows) > 0.2 and rows[-1][1][0][2] == 0.0, "took off and came down"
+    return rows
+
+
+def test_compiled_plant_step_gives_the_same_bits() -> None:
+    pytest.importorskip("numba")
+    rows = _plant_steps()
+    with compiled() as jit:
+        step = jit[rigid_body_step]
+        for k, (args, want) in enumerate(rows):
+            assert bits(step(*args)) == bits(want), f"plant step {k} differs"
