@@ -189,18 +189,17 @@ class PaperModel:
     b2: float
     b3: float
     typos: frozenset[str] = frozenset()
-    #: the coefficients the equations read, flattened (derived; see :meth:`consts`).
-    _k: ModelConsts | None = field(default=None, init=False, repr=False, compare=False)
+    #: the coefficients the equations read, in :class:`ModelConsts` order (derived). An exact
+    #: tuple: the functions unpack it on every call, and CPython does that fastest for exact tuples.
+    _k: tuple[float | bool, ...] = field(default=(), init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        k = ModelConsts(
-            *(float(getattr(self, f)) for f in ModelConsts._fields[:-2]), "z-drift" in self.typos, "fdot" in self.typos
-        )
+        k = (*(float(getattr(self, f)) for f in ModelConsts._fields[:-2]), "z-drift" in self.typos, "fdot" in self.typos)
         object.__setattr__(self, "_k", k)
 
     def consts(self) -> ModelConsts:
         """The coefficients as a :class:`ModelConsts` of plain floats (what the pure functions take)."""
-        return self._k
+        return ModelConsts(*self._k)
 
     @classmethod
     def from_vehicle(
@@ -289,7 +288,7 @@ class PaperModel:
         omega_bar: float,
     ) -> tuple[float, float, float, float]:
         """Nominal accelerations f + g u (no disturbance): (phi'', theta'', psi'' [rad/s^2], z'' [m/s^2])."""
-        f0, f1, f2, f3 = self.drift(phi_dot, theta_dot, psi_dot, z_dot, omega_bar)
+        f0, f1, f2, f3 = drift(self._k, phi_dot, theta_dot, psi_dot, z_dot, omega_bar)
         return (
             f0 + self.b1 * u_phi,
             f1 + self.b2 * u_theta,

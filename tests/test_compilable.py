@@ -41,7 +41,6 @@ from fc.pipeline import (
     PipelineParams,
     PipelineState,
     VehicleState,
-    pipeline_params,
     pipeline_reset,
     pipeline_step,
 )
