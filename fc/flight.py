@@ -12,6 +12,10 @@ Everything is in the paper's frame (x north, y west, z up; ZYX Euler angles; Eul
 :meth:`FlightControl.step`. Time comes in as ``dt_s``; nothing here reads a clock. The yaw error
 the law sees is wrapped to [-pi, pi), and the yaw reference runs on an unwrapped variable, so a
 heading change across +-180 deg takes the short way.
+
+The computation is the pure :func:`fc.pipeline.pipeline_step` over flat NamedTuples (the
+configuration flattened once into :class:`fc.pipeline.PipelineParams`); :class:`FlightControl`
+keeps its state between ticks and the commander's set-points, and is what the rest of the FC uses.
 """
 
 from __future__ import annotations
@@ -21,31 +25,27 @@ from typing import NamedTuple
 from fc.config import FcConfig
 from fc.control import make_controller
 from fc.control.base import Diagnostics
-from fc.mixer import Mixer
-from fc.position import position_step
-from fc.prefilter import prefilter_step
+from fc.mixer import Mixer, mix
+from fc.pipeline import (
+    LAW_CASCADE_PID,
+    LAW_PID_SMC,
+    PipelineInputs,
+    PipelineParams,
+    PipelineState,
+    VehicleState,
+    pipeline_params,
+    pipeline_reset,
+    pipeline_step,
+)
 from smcpilot.frames import wrap_pi
 from smcpilot.model import PaperModel
 from smcpilot.vehicle import VehicleParams
 
 _NAN = float("nan")
+#: builds a NamedTuple without the class call's argument handling (the wrapper is plain CPython).
+_tuple_new = tuple.__new__
 
-
-class VehicleState(NamedTuple):
-    """Estimated vehicle state in the paper frame (m, m/s, rad, rad/s; Euler-angle rates)."""
-
-    x_m: float
-    y_m: float
-    z_m: float
-    vx_mps: float
-    vy_mps: float
-    vz_mps: float
-    phi_rad: float
-    theta_rad: float
-    psi_rad: float
-    phi_dot_radps: float
-    theta_dot_radps: float
-    psi_dot_radps: float
+__all__ = ["FlightControl", "PipelineOutput", "VehicleState"]
 
 
 class PipelineOutput(NamedTuple):
@@ -63,8 +63,15 @@ class PipelineOutput(NamedTuple):
     ref: tuple[float, float, float, float]
 
 
+_ZERO_STATE = PipelineState(*(0.0,) * 20, (0.0,) * 12, 0, 0.0)
+
+
 class FlightControl:
-    """Set-point tracking for one vehicle: prefilters, position loop, law, mixer, anti-windup."""
+    """Set-point tracking for one vehicle: prefilters, position loop, law, mixer, anti-windup.
+
+    A thin stateful wrapper: the tick is :func:`fc.pipeline.pipeline_step` on the flattened
+    configuration (``params``) and the carried state (``pipeline_state``).
+    """
 
     def __init__(self, config: FcConfig, vehicle: VehicleParams) -> None:
         self.config = config
@@ -72,10 +79,10 @@ class FlightControl:
         self.model = PaperModel.from_vehicle(vehicle)
         self.mixer = Mixer(vehicle)
         self.law = self._make_law(config)
-        self._g = vehicle.gravity_mps2
+        #: the configuration, vehicle and law flattened for :func:`fc.pipeline.pipeline_step`.
+        self.params: PipelineParams = pipeline_params(config, vehicle, self.law)
         self.armed = False
         self.landing = False
-        self.landed_s = 0.0
         #: False in ALT_HOLD: level attitude, no horizontal position control.
         self.position_hold = True
         #: horizontal speed limit override (DO_CHANGE_SPEED), m/s; None: the config's.
@@ -83,25 +90,20 @@ class FlightControl:
         # Set-point (paper frame) and the unwrapped yaw target.
         self.target = (0.0, 0.0, 0.0)
         self._psi_target = 0.0
-        # Prefilter states: position (x, y, z) and yaw as (value, rate, accel); roll/pitch refs.
-        self._pf = [[0.0, 0.0, 0.0] for _ in range(3)]
-        self._yaw = [0.0, 0.0, 0.0]
-        self._att = [[0.0, 0.0, 0.0], [0.0, 0.0, 0.0]]
-        self._int_xy = [0.0, 0.0]
-        self._law_state: tuple[float, ...] = ()
-        self._ref16 = [0.0] * 16
+        #: prefilter states, integrators, the law's state, the landed timer.
+        self.pipeline_state: PipelineState = _ZERO_STATE
 
     def reconfigure(self, config: FcConfig) -> None:
         """Apply new settings between control steps; the law keeps its state (same layout)."""
         old = self.config
         self.config = config
         if (config.gains, config.adaptation, config.controller) != (old.gains, old.adaptation, old.controller):
-            state = self._law_state
+            n = self.pipeline_state.law_n
             self.law = self._make_law(config)
-            if len(state) == len(self.law.state_names):
-                self._law_state = state
-            elif self.armed:  # another controller type: restart its state where we are
-                self._law_state = ()
+            if n != len(self.law.state_names) and self.armed:
+                # another controller type: restart its state where we are
+                self.pipeline_state = self.pipeline_state._replace(law_n=0)
+        self.params = pipeline_params(config, self.vehicle, self.law)
 
     def _make_law(self, cfg: FcConfig):
         opts: dict = {}
@@ -112,17 +114,11 @@ class FlightControl:
     # -- commands ------------------------------------------------------------------------------
     def arm(self, st: VehicleState) -> None:
         """Arm at the current state: references start where the vehicle is, the law at hover trim."""
-        for i, (p, v) in enumerate(((st.x_m, st.vx_mps), (st.y_m, st.vy_mps), (st.z_m, st.vz_mps))):
-            self._pf[i] = [p, v, 0.0]
-        self._yaw = [st.psi_rad, 0.0, 0.0]
+        self.pipeline_state = pipeline_reset(st, self.params)
         self._psi_target = st.psi_rad
-        self._att = [[st.phi_rad, 0.0, 0.0], [st.theta_rad, 0.0, 0.0]]
-        self._int_xy = [0.0, 0.0]
         self.target = (st.x_m, st.y_m, st.z_m)
-        self._law_state = tuple(self.law.initial_state((0.0, 0.0, 0.0, 0.0, st.psi_rad, 0.0, st.z_m, 0.0)))
         self.armed = True
         self.landing = False
-        self.landed_s = 0.0
 
     def disarm(self) -> None:
         self.armed = False
@@ -135,7 +131,7 @@ class FlightControl:
         self.target = (x_m, y_m, z_m)
         self.landing = False
         if yaw_rad is not None:
-            ref = self._yaw[0]
+            ref = self.pipeline_state.psi_r
             self._psi_target = ref + wrap_pi(yaw_rad - ref)
 
     def land(self) -> None:
@@ -144,102 +140,53 @@ class FlightControl:
         self.landed_s = 0.0
 
     @property
+    def landed_s(self) -> float:
+        """Time settled on the ground while landing, s."""
+        return self.pipeline_state.landed_s
+
+    @landed_s.setter
+    def landed_s(self, value: float) -> None:
+        self.pipeline_state = self.pipeline_state._replace(landed_s=value)
+
+    @property
     def yaw_target_rad(self) -> float:
         return wrap_pi(self._psi_target)
 
     @property
     def law_state(self) -> tuple[float, ...]:
-        return self._law_state
+        ps = self.pipeline_state
+        n = ps.law_n
+        return ps.law if n == 12 else ps.law[:n]
 
     # -- the tick -------------------------------------------------------------------------------
     def step(self, st: VehicleState, dt_s: float) -> PipelineOutput:
         """One control tick of ``dt_s`` seconds. Disarmed: motors stopped."""
         if not self.armed:
             return PipelineOutput((0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0), (False,) * 4, None, (_NAN,) * 4)
-        if not self._law_state:
-            self._law_state = tuple(self.law.initial_state((st.phi_rad, 0.0, st.theta_rad, 0.0, st.psi_rad, 0.0, st.z_m, 0.0)))
-        cfg = self.config
-        # 1. Position/altitude references.
-        w = cfg.pos_filter_omega_radps
-        amax = cfg.accel_ref_max_mps2
+        p = self.params
         tx, ty, tz = self.target
-        vz_max = cfg.speed_max_z_mps
-        if self.landing:
-            tz = st.z_m - 10.0  # keep descending until touchdown
-            vz_max = cfg.land_speed_mps
-        px = self._pf[0]
-        py = self._pf[1]
-        pz = self._pf[2]
-        vxy = cfg.speed_max_xy_mps if self.speed_xy_mps is None else self.speed_xy_mps
-        if not self.position_hold:
-            # ALT_HOLD: the horizontal references follow the vehicle, so position hold can resume smoothly.
-            px[0], px[1], px[2] = st.x_m, st.vx_mps, 0.0
-            py[0], py[1], py[2] = st.y_m, st.vy_mps, 0.0
-            tx, ty = st.x_m, st.y_m
-        x_r, vx_r, ax_r, _ = prefilter_step(px[0], px[1], px[2], tx, w, dt_s, vxy, amax)
-        y_r, vy_r, ay_r, _ = prefilter_step(py[0], py[1], py[2], ty, w, dt_s, vxy, amax)
-        z_r, vz_r, az_r, jz_r = prefilter_step(pz[0], pz[1], pz[2], tz, w, dt_s, vz_max, amax)
-        self._pf[0] = [x_r, vx_r, ax_r]
-        self._pf[1] = [y_r, vy_r, ay_r]
-        self._pf[2] = [z_r, vz_r, az_r]
-        # 2. Outer loop -> attitude set-points.
-        phi_d, theta_d, ix, iy = position_step(
-            cfg.position, self._g, st.x_m, st.y_m, st.vx_mps, st.vy_mps, x_r, y_r, vx_r, vy_r, ax_r, ay_r, az_r,
-            st.psi_rad, self._int_xy[0], self._int_xy[1], dt_s,
-        )  # fmt: skip
-        if not self.position_hold:
-            phi_d = theta_d = 0.0
-            self._int_xy = [0.0, 0.0]
-        elif st.z_m < cfg.land_detect_height_m and (self.landing or z_r < cfg.land_detect_height_m):
-            # On (or at) the ground the horizontal loop has no authority: do not wind up or tilt.
-            phi_d = theta_d = 0.0
-        else:
-            self._int_xy = [ix, iy]
-        wa = cfg.att_filter_omega_radps
-        a0, a1 = self._att
-        phi_r, phi_v, phi_a, phi_j = prefilter_step(a0[0], a0[1], a0[2], phi_d, wa, dt_s)
-        th_r, th_v, th_a, th_j = prefilter_step(a1[0], a1[1], a1[2], theta_d, wa, dt_s)
-        self._att = [[phi_r, phi_v, phi_a], [th_r, th_v, th_a]]
-        yw = self._yaw
-        psi_r, psi_v, psi_a, psi_j = prefilter_step(
-            yw[0], yw[1], yw[2], self._psi_target, cfg.yaw_filter_omega_radps, dt_s, cfg.yaw_rate_max_radps
+        vxy = self.speed_xy_mps
+        cmd = _tuple_new(PipelineInputs, (
+            tx, ty, tz, self._psi_target, True, self.landing, self.position_hold, p.speed_max_xy_mps if vxy is None else vxy
+        ))  # fmt: skip
+        self.pipeline_state, (motors, u, limited, s, sigma, chi, u_law, u_dot, ref, touchdown) = pipeline_step(
+            self.pipeline_state, st, cmd, p, dt_s
         )
-        self._yaw = [psi_r, psi_v, psi_a]
-        # 3. The law, on the wrapped yaw error.
-        ref = self._ref16
-        ref[0], ref[1], ref[2], ref[3] = phi_r, phi_v, phi_a, phi_j
-        ref[4], ref[5], ref[6], ref[7] = th_r, th_v, th_a, th_j
-        ref[8], ref[9], ref[10], ref[11] = psi_r, psi_v, psi_a, psi_j
-        ref[12], ref[13], ref[14], ref[15] = z_r, vz_r, az_r, jz_r
-        meas = (
-            st.phi_rad, st.phi_dot_radps, st.theta_rad, st.theta_dot_radps,
-            psi_r + wrap_pi(st.psi_rad - psi_r), st.psi_dot_radps, st.z_m, st.vz_mps,
-        )  # fmt: skip
-        prev = self._law_state
-        u, new, diag = self.law.step(meas, ref, prev, dt_s)
-        # 4. Mixer with priorities, and the realised inputs fed back (anti-windup).
-        motors, realised, limited = self.mixer.mix(u[0], u[1], u[2], u[3])
-        if self.landing and st.z_m < 3.0 * cfg.land_detect_height_m:
-            # Ground contact is not a disturbance to learn: freeze the z channel's integrators.
-            limited = (limited[0], limited[1], limited[2], True)
-        if limited[0] or limited[1] or limited[2] or limited[3]:
-            new = self.law.anti_windup(prev, new, realised, limited)
-        self._law_state = new
-        # 5. Touchdown while landing -> disarm.
-        if self.landing:
-            if st.z_m < cfg.land_detect_height_m and abs(st.vz_mps) < 0.2:
-                self.landed_s += dt_s
-                if self.landed_s >= cfg.land_detect_s:
-                    self.disarm()
-            else:
-                self.landed_s = 0.0
-        return PipelineOutput(motors, realised, limited, diag, (phi_r, th_r, psi_r, z_r))
+        kind = p.law_kind
+        if kind == LAW_PID_SMC:
+            diag = Diagnostics(s, sigma, chi, u_law, u_dot)
+        elif kind == LAW_CASCADE_PID:
+            diag = Diagnostics(None, None, None, u_law, None)
+        else:
+            diag = Diagnostics(None, sigma, None, u_law, None)
+        if touchdown:
+            self.disarm()
+        return PipelineOutput(motors, u, limited, diag, ref)
 
     def failsafe_step(self) -> PipelineOutput:
         """Open loop (no state): level, thrust a fraction of hover, no yaw. Used when the state is lost."""
         if not self.armed:
             return PipelineOutput((0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0), (False,) * 4, None, (_NAN,) * 4)
         thrust = self.config.failsafe_thrust_fraction * self.vehicle.weight_n
-        motors, realised, limited = self.mixer.mix(0.0, 0.0, 0.0, thrust)
+        motors, realised, limited = mix(self.params.mixer, 0.0, 0.0, 0.0, thrust)
         return PipelineOutput(motors, realised, limited, None, (0.0, 0.0, _NAN, _NAN))
-

@@ -12,12 +12,17 @@ along ``A = (a_x, a_y, g + z_ref'')``::
 
 both limited to ``tilt_max_rad``. The integrator is clamped and does not integrate while the
 demand is saturated (anti-windup). Altitude is flown by the PID-SMC z channel directly.
+
+:func:`position_step` is pure: it reads the gains by name, from the validated
+:class:`PositionGains` or from its flattened :class:`PositionLoopParams` (NamedTuple of floats,
+what the pure flight pipeline passes).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 from smcpilot.errors import ConfigError
 
@@ -53,9 +58,27 @@ class PositionGains:
         if not 0.0 < self.tilt_max_rad < 1.4:
             raise ConfigError(f"tilt_max_rad must lie in (0, 1.4) rad, got {self.tilt_max_rad}")
 
+    def flat(self) -> "PositionLoopParams":
+        """The gains as a :class:`PositionLoopParams` of floats."""
+        return PositionLoopParams(
+            float(self.kp_1ps2), float(self.kd_1ps), float(self.ki_1ps3),
+            float(self.int_limit_mps2), float(self.accel_max_mps2), float(self.tilt_max_rad),
+        )  # fmt: skip
+
+
+class PositionLoopParams(NamedTuple):
+    """:class:`PositionGains` flattened (same names, floats)."""
+
+    kp_1ps2: float
+    kd_1ps: float
+    ki_1ps3: float
+    int_limit_mps2: float
+    accel_max_mps2: float
+    tilt_max_rad: float
+
 
 def position_step(
-    g: PositionGains,
+    g: PositionGains | PositionLoopParams,
     gravity_mps2: float,
     x: float,
     y: float,

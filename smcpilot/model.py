@@ -19,13 +19,18 @@ psi, psi', z, z'). The controller uses f and g as its nominal model; the simulat
 the truth and adds disturbances d. Both build a :class:`PaperModel` from the same
 :class:`~smcpilot.vehicle.VehicleParams`, so the equations exist once.
 
-All methods take and return plain floats (they sit in the hot path).
+All methods take and return plain floats (they sit in the hot path). The equations the control
+law needs (:func:`unmix`, :func:`omega_bar`, :func:`drift`, :func:`drift_rates`, :func:`tilt_cos`)
+are module-level pure functions of :meth:`PaperModel.consts`, a :class:`ModelConsts` NamedTuple of
+floats and bools (what a compiled hot path takes); the methods of the same names call them, so the
+equations exist once.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import NamedTuple
 
 from smcpilot.typos import MODEL_TYPOS, parse_typos
 from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
@@ -39,6 +44,121 @@ STATE_UNITS: tuple[str, str, str, str] = ("rad", "rad", "rad", "m")
 _sqrt = math.sqrt
 _sin = math.sin
 _cos = math.cos
+
+
+class ModelConsts(NamedTuple):
+    """The coefficients the control law reads, flattened (floats; the model typos as bools)."""
+
+    mass_kg: float
+    gravity_mps2: float
+    thrust_coeff_n_s2: float
+    drag_coeff_n_m_s2: float
+    a1: float
+    a2: float
+    a3: float
+    a4: float
+    a5: float
+    a6: float
+    a7: float
+    a8: float
+    a9: float
+    b1: float
+    b2: float
+    b3: float
+    #: the "z-drift" typo (f_z = a9 z' psi') is reproduced.
+    z_drift_typo: bool
+    #: the "fdot" typo (f' as printed in eqs. 20/34) is reproduced.
+    fdot_typo: bool
+
+
+# -- the equations, as pure functions of ``m``, a ModelConsts ---------------------------------------
+def unmix(m, u_phi: float, u_theta: float, u_psi: float, u_z: float) -> tuple[float, float, float, float]:
+    """Inverse of eq. (11): inputs -> (w1^2, w2^2, w3^2, w4^2), (rad/s)^2.
+
+    A result below zero means the command cannot be realised by any rotor speeds.
+    """
+    kp = m[2]  # thrust_coeff_n_s2
+    t = u_z / kp
+    y = u_psi / m[3]  # drag_coeff_n_m_s2
+    r = u_phi / kp
+    p = u_theta / kp
+    q13 = 0.25 * (t + y)
+    q24 = 0.25 * (t - y)
+    return (q13 - 0.5 * r, q24 - 0.5 * p, q13 + 0.5 * r, q24 + 0.5 * p)
+
+
+def omega_bar(w1_sq: float, w2_sq: float, w3_sq: float, w4_sq: float) -> float:
+    """Net rotor speed w1 - w2 + w3 - w4 [rad/s] for the gyroscopic term (negatives clamp to 0)."""
+    return (
+        _sqrt(w1_sq if w1_sq > 0.0 else 0.0)
+        - _sqrt(w2_sq if w2_sq > 0.0 else 0.0)
+        + _sqrt(w3_sq if w3_sq > 0.0 else 0.0)
+        - _sqrt(w4_sq if w4_sq > 0.0 else 0.0)
+    )
+
+
+def omega_bar_of_inputs(m, u_phi: float, u_theta: float, u_psi: float, u_z: float) -> float:
+    """Omega-bar of the rotor speeds that realise the inputs."""
+    w1, w2, w3, w4 = unmix(m, u_phi, u_theta, u_psi, u_z)
+    return omega_bar(w1, w2, w3, w4)
+
+
+def drift(m, phi_dot: float, theta_dot: float, psi_dot: float, z_dot: float, omega_bar: float) -> tuple[float, float, float, float]:
+    """f = (f_phi, f_theta, f_psi, f_z): rad/s^2, rad/s^2, rad/s^2, m/s^2."""
+    _mass, gravity, _kp, _cd, a1, a2, a3, a4, a5, a6, a7, a8, a9, _b1, _b2, _b3, z_drift_typo, _fdot_typo = m
+    fz = a9 * z_dot * psi_dot if z_drift_typo else a9 * z_dot
+    return (
+        a1 * theta_dot * psi_dot + a2 * phi_dot * phi_dot + a3 * omega_bar * theta_dot,
+        a4 * phi_dot * psi_dot + a5 * theta_dot * theta_dot + a6 * omega_bar * phi_dot,
+        a7 * phi_dot * theta_dot + a8 * psi_dot * psi_dot,
+        fz - gravity,
+    )
+
+
+def tilt_cos(phi: float, theta: float, floor: float) -> float:
+    """cos(phi) cos(theta) kept at least ``floor`` away from zero (guards 1/g_z near 90 deg tilt)."""
+    ctc = _cos(phi) * _cos(theta)
+    if -floor < ctc < floor:
+        return floor if ctc >= 0.0 else -floor
+    return ctc
+
+
+def drift_rates(
+    m,
+    phi: float,
+    phi_dot: float,
+    theta: float,
+    theta_dot: float,
+    psi_dot: float,
+    z_dot: float,
+    phi_dd: float,
+    theta_dd: float,
+    psi_dd: float,
+    z_dd: float,
+    omega_bar: float,
+) -> tuple[float, float, float, float, float]:
+    """(f_phi', f_theta', f_psi', f_z', g_z') with Omega-bar held constant over the step.
+
+    The accelerations are inputs (the controller passes its nominal ``f + g u``).
+    """
+    mass, _g, _kp, _cd, a1, a2, a3, a4, a5, a6, a7, a8, a9, _b1, _b2, _b3, z_drift_typo, fdot_typo = m
+    if fdot_typo:
+        # As printed in eqs. (20)/(34): a1 x4' x6' + 2 a2 x2' x2 + a3 W x4', etc.
+        fp = a1 * theta_dd * psi_dd + 2.0 * a2 * phi_dd * phi_dot + a3 * omega_bar * theta_dd
+        ft = a4 * phi_dd * psi_dd + 2.0 * a5 * theta_dd * theta_dot + a6 * omega_bar * phi_dd
+        fs = a7 * phi_dd * theta_dd + 2.0 * a8 * psi_dd * psi_dot
+    else:
+        fp = a1 * (theta_dd * psi_dot + theta_dot * psi_dd) + 2.0 * a2 * phi_dot * phi_dd + a3 * omega_bar * theta_dd
+        ft = a4 * (phi_dd * psi_dot + phi_dot * psi_dd) + 2.0 * a5 * theta_dot * theta_dd + a6 * omega_bar * phi_dd
+        fs = a7 * (phi_dd * theta_dot + phi_dot * theta_dd) + 2.0 * a8 * psi_dot * psi_dd
+    if z_drift_typo:
+        fz = a9 * (z_dd * psi_dot + z_dot * psi_dd)
+    else:
+        fz = a9 * z_dd
+    sp, cp = _sin(phi), _cos(phi)
+    st, ct = _sin(theta), _cos(theta)
+    gz_dot = -(phi_dot * sp * ct + theta_dot * cp * st) / mass
+    return fp, ft, fs, fz, gz_dot
 
 
 @dataclass(frozen=True)
@@ -69,6 +189,17 @@ class PaperModel:
     b2: float
     b3: float
     typos: frozenset[str] = frozenset()
+    #: the coefficients the equations read, in :class:`ModelConsts` order (derived). An exact
+    #: tuple: the functions unpack it on every call, and CPython does that fastest for exact tuples.
+    _k: tuple[float | bool, ...] = field(default=(), init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        k = (*(float(getattr(self, f)) for f in ModelConsts._fields[:-2]), "z-drift" in self.typos, "fdot" in self.typos)
+        object.__setattr__(self, "_k", k)
+
+    def consts(self) -> ModelConsts:
+        """The coefficients as a :class:`ModelConsts` of plain floats (what the pure functions take)."""
+        return ModelConsts(*self._k)
 
     @classmethod
     def from_vehicle(
@@ -113,52 +244,26 @@ class PaperModel:
         )
 
     def unmix(self, u_phi: float, u_theta: float, u_psi: float, u_z: float) -> tuple[float, float, float, float]:
-        """Inverse of :meth:`mix`: inputs -> (w1^2, w2^2, w3^2, w4^2), (rad/s)^2.
+        """Inverse of :meth:`mix`: inputs -> (w1^2, w2^2, w3^2, w4^2), (rad/s)^2 (:func:`unmix`).
 
         A result below zero means the command cannot be realised by any rotor speeds.
         """
-        t = u_z / self.thrust_coeff_n_s2
-        y = u_psi / self.drag_coeff_n_m_s2
-        r = u_phi / self.thrust_coeff_n_s2
-        p = u_theta / self.thrust_coeff_n_s2
-        q13 = 0.25 * (t + y)
-        q24 = 0.25 * (t - y)
-        return (q13 - 0.5 * r, q24 - 0.5 * p, q13 + 0.5 * r, q24 + 0.5 * p)
+        return unmix(self._k, u_phi, u_theta, u_psi, u_z)
 
-    @staticmethod
-    def omega_bar(w1_sq: float, w2_sq: float, w3_sq: float, w4_sq: float) -> float:
-        """Net rotor speed w1 - w2 + w3 - w4 [rad/s] for the gyroscopic term (negatives clamp to 0)."""
-        return (
-            _sqrt(w1_sq if w1_sq > 0.0 else 0.0)
-            - _sqrt(w2_sq if w2_sq > 0.0 else 0.0)
-            + _sqrt(w3_sq if w3_sq > 0.0 else 0.0)
-            - _sqrt(w4_sq if w4_sq > 0.0 else 0.0)
-        )
+    omega_bar = staticmethod(omega_bar)
 
     def omega_bar_of_inputs(self, u_phi: float, u_theta: float, u_psi: float, u_z: float) -> float:
         """Omega-bar of the rotor speeds that realise the inputs."""
-        return self.omega_bar(*self.unmix(u_phi, u_theta, u_psi, u_z))
+        return omega_bar_of_inputs(self._k, u_phi, u_theta, u_psi, u_z)
 
     # -- eq. (13) with corrections: drift f and input gain g --------------------------------------
     def drift(
         self, phi_dot: float, theta_dot: float, psi_dot: float, z_dot: float, omega_bar: float
     ) -> tuple[float, float, float, float]:
-        """f = (f_phi, f_theta, f_psi, f_z): rad/s^2, rad/s^2, rad/s^2, m/s^2."""
-        fz = self.a9 * z_dot * psi_dot if "z-drift" in self.typos else self.a9 * z_dot
-        return (
-            self.a1 * theta_dot * psi_dot + self.a2 * phi_dot * phi_dot + self.a3 * omega_bar * theta_dot,
-            self.a4 * phi_dot * psi_dot + self.a5 * theta_dot * theta_dot + self.a6 * omega_bar * phi_dot,
-            self.a7 * phi_dot * theta_dot + self.a8 * psi_dot * psi_dot,
-            fz - self.gravity_mps2,
-        )
+        """f = (f_phi, f_theta, f_psi, f_z): rad/s^2, rad/s^2, rad/s^2, m/s^2 (:func:`drift`)."""
+        return drift(self._k, phi_dot, theta_dot, psi_dot, z_dot, omega_bar)
 
-    @staticmethod
-    def tilt_cos(phi: float, theta: float, floor: float) -> float:
-        """cos(phi) cos(theta) kept at least ``floor`` away from zero (guards 1/g_z near 90 deg tilt)."""
-        ctc = _cos(phi) * _cos(theta)
-        if -floor < ctc < floor:
-            return floor if ctc >= 0.0 else -floor
-        return ctc
+    tilt_cos = staticmethod(tilt_cos)
 
     def gain_z(self, phi: float, theta: float) -> float:
         """g_z = cos(phi) cos(theta) / m, 1/kg. (g_phi = b1, g_theta = b2, g_psi = b3 are constants.)"""
@@ -183,7 +288,7 @@ class PaperModel:
         omega_bar: float,
     ) -> tuple[float, float, float, float]:
         """Nominal accelerations f + g u (no disturbance): (phi'', theta'', psi'' [rad/s^2], z'' [m/s^2])."""
-        f0, f1, f2, f3 = self.drift(phi_dot, theta_dot, psi_dot, z_dot, omega_bar)
+        f0, f1, f2, f3 = drift(self._k, phi_dot, theta_dot, psi_dot, z_dot, omega_bar)
         return (
             f0 + self.b1 * u_phi,
             f1 + self.b2 * u_theta,
@@ -206,35 +311,8 @@ class PaperModel:
         z_dd: float,
         omega_bar: float,
     ) -> tuple[float, float, float, float, float]:
-        """(f_phi', f_theta', f_psi', f_z', g_z') with Omega-bar held constant over the step.
-
-        The accelerations are inputs (the controller passes its nominal ``f + g u``).
-        """
-        if "fdot" in self.typos:
-            # As printed in eqs. (20)/(34): a1 x4' x6' + 2 a2 x2' x2 + a3 W x4', etc.
-            fp = self.a1 * theta_dd * psi_dd + 2.0 * self.a2 * phi_dd * phi_dot + self.a3 * omega_bar * theta_dd
-            ft = self.a4 * phi_dd * psi_dd + 2.0 * self.a5 * theta_dd * theta_dot + self.a6 * omega_bar * phi_dd
-            fs = self.a7 * phi_dd * theta_dd + 2.0 * self.a8 * psi_dd * psi_dot
-        else:
-            fp = (
-                self.a1 * (theta_dd * psi_dot + theta_dot * psi_dd)
-                + 2.0 * self.a2 * phi_dot * phi_dd
-                + self.a3 * omega_bar * theta_dd
-            )
-            ft = (
-                self.a4 * (phi_dd * psi_dot + phi_dot * psi_dd)
-                + 2.0 * self.a5 * theta_dot * theta_dd
-                + self.a6 * omega_bar * phi_dd
-            )
-            fs = self.a7 * (phi_dd * theta_dot + phi_dot * theta_dd) + 2.0 * self.a8 * psi_dot * psi_dd
-        if "z-drift" in self.typos:
-            fz = self.a9 * (z_dd * psi_dot + z_dot * psi_dd)
-        else:
-            fz = self.a9 * z_dd
-        sp, cp = _sin(phi), _cos(phi)
-        st, ct = _sin(theta), _cos(theta)
-        gz_dot = -(phi_dot * sp * ct + theta_dot * cp * st) / self.mass_kg
-        return fp, ft, fs, fz, gz_dot
+        """(f_phi', f_theta', f_psi', f_z', g_z') with Omega-bar held constant (:func:`drift_rates`)."""
+        return drift_rates(self._k, phi, phi_dot, theta, theta_dot, psi_dot, z_dot, phi_dd, theta_dd, psi_dd, z_dd, omega_bar)
 
     # -- physical actuation (plant side) ----------------------------------------------------------
     def actuation(

@@ -7,15 +7,42 @@ from __future__ import annotations
 
 from typing import Any
 
+from fc.control import base, cascade_pid, pid_smc, sign_smc
 from fc.control.base import Controller, Diagnostics, constant_reference
 from fc.control.cascade_pid import CascadePid, CascadePidParams
 from fc.control.gains import PAPER_GAINS, ChannelGains
 from fc.control.pid_smc import AdaptationBounds, PidSmc, PidSmcParams
 from fc.control.sign_smc import SignSmc, SignSmcParams
+from smcpilot import model as _model
 from smcpilot.errors import ConfigError
 from smcpilot.model import PaperModel
 from smcpilot.protocol import CONTROLLER_NAMES
 
+#: the laws' pure functions (module level, tuples in and out; what the flight pipeline calls and
+#: what a compiler such as numba's ``njit`` takes unchanged), with the model equations they use.
+LAW_FUNCTIONS = (
+    pid_smc.pid_smc_law,
+    pid_smc.pid_smc_step,
+    pid_smc.pid_smc_step_measured,
+    pid_smc.pid_smc_integrate,
+    pid_smc.pid_smc_anti_windup,
+    pid_smc.pid_smc_initial_state,
+    pid_smc._channel,
+    pid_smc._chi_rate,
+    cascade_pid.cascade_pid_output,
+    cascade_pid.cascade_pid_step,
+    cascade_pid._cascade_channel,
+    sign_smc.sign_smc_output,
+    sign_smc.sign_smc_step,
+    sign_smc._sign_channel,
+    base.integrators_anti_windup,
+    _model.unmix,
+    _model.omega_bar,
+    _model.omega_bar_of_inputs,
+    _model.drift,
+    _model.drift_rates,
+    _model.tilt_cos,
+)
 
 
 def make_controller(name: str, model: PaperModel, **options: Any) -> Controller:
@@ -46,6 +73,7 @@ __all__ = [
     "ChannelGains",
     "Controller",
     "Diagnostics",
+    "LAW_FUNCTIONS",
     "PAPER_GAINS",
     "PidSmc",
     "PidSmcParams",

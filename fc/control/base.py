@@ -22,6 +22,11 @@ A controller offers the same law in two forms:
   controller inside the plant's ODE;
 - sampled data: :meth:`Controller.step` advances the state by ``dt_s`` (forward Euler of the
   same derivatives, zero-order hold) and returns the u to hold until the next step.
+
+Each law's sampled form is also a module-level pure function of tuples and a NamedTuple of
+constants (``pid_smc_step``, ``cascade_pid_step``, ``sign_smc_step``; anti-windup
+:func:`integrators_anti_windup` here for the baselines): what the flight pipeline calls. The
+classes validate their parameters once, flatten them (``consts``) and wrap those functions.
 """
 
 from __future__ import annotations
@@ -126,8 +131,18 @@ class IntegratingBaseline:
     def anti_windup(
         self, prev: Sequence[float], new: Sequence[float], u_realised: Sequence[float], limited: Sequence[bool]
     ) -> tuple[float, ...]:
-        """Integrators of limited channels keep their previous values."""
-        return tuple(prev[i] if limited[i] else new[i] for i in range(len(new)))
+        """Integrators of limited channels keep their previous values (:func:`integrators_anti_windup`)."""
+        return integrators_anti_windup(prev, new, limited)
+
+
+def integrators_anti_windup(prev: Sequence[float], new: Sequence[float], limited: Sequence[bool]) -> Vec4:
+    """Four integrators: those of ``limited`` channels keep their previous values (pure)."""
+    return (
+        prev[0] if limited[0] else new[0],
+        prev[1] if limited[1] else new[1],
+        prev[2] if limited[2] else new[2],
+        prev[3] if limited[3] else new[3],
+    )
 
 
 def constant_reference(targets: Sequence[float]) -> tuple[float, ...]:

@@ -15,11 +15,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 from fc.control.base import Diagnostics, IntegratingBaseline, Vec4
 from smcpilot.errors import InvalidGainError
-from smcpilot.model import PaperModel
+from smcpilot.model import PaperModel, drift, tilt_cos
 
 
 
@@ -45,8 +45,34 @@ class SignSmcParams:
             raise InvalidGainError(f"sign_smc gain kd must be > 0 (u divides by kd g), got {self.kd!r}")
 
 
+class SignSmcChannel(NamedTuple):
+    kp: float
+    ki: float
+    kd: float
+    eta: float
+    lam: float
+
+
+class SignSmcConsts(NamedTuple):
+    """:class:`SignSmcParams` and the model's constants, flattened for the pure step (``model``
+    and the ``k`` as plain tuples in ModelConsts and SignSmcChannel order, for CPython's fast unpacking)."""
+
+    model: tuple[float | bool, ...]
+    k: tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...], tuple[float, ...]]
+    tilt_cos_min: float
+
+
+def sign_smc_consts(model: PaperModel, params: SignSmcParams) -> SignSmcConsts:
+    p = params
+    k = tuple(tuple(SignSmcChannel(float(p.kp[i]), float(p.ki[i]), float(p.kd[i]), float(p.eta[i]), float(p.lam[i]))) for i in range(4))
+    return SignSmcConsts(tuple(model.consts()), (k[0], k[1], k[2], k[3]), float(p.tilt_cos_min))
+
+
 class SignSmc(IntegratingBaseline):
-    """State: ``(int e_phi, int e_theta, int e_psi, int e_z)``."""
+    """State: ``(int e_phi, int e_theta, int e_psi, int e_z)``.
+
+    The public face of the pure :func:`sign_smc_output` / :func:`sign_smc_step`.
+    """
 
     name = "sign_smc"
     state_names = ("int_e_phi", "int_e_theta", "int_e_psi", "int_e_z")
@@ -54,25 +80,46 @@ class SignSmc(IntegratingBaseline):
     def __init__(self, model: PaperModel, params: SignSmcParams = SignSmcParams()) -> None:
         self.model = model
         self.params = params
-        p = params
-        self._k = tuple((p.kp[i], p.ki[i], p.kd[i], p.eta[i], p.lam[i]) for i in range(4))
+        #: the flattened constants the pure functions take.
+        self.consts = sign_smc_consts(model, params)
 
     def _output(self, meas: Sequence[float], ref: Sequence[float], state: Sequence[float]) -> tuple[Vec4, Vec4, Diagnostics]:
         """(u, d(int e)/dt = e, diagnostics with sigma = s) for every channel."""
-        m = self.model
-        f = m.drift(meas[1], meas[3], meas[5], meas[7], 0.0)
-        g = (m.b1, m.b2, m.b3, m.tilt_cos(meas[0], meas[2], self.params.tilt_cos_min) / m.mass_kg)
-        u = [0.0] * 4
-        s = [0.0] * 4
-        e = [0.0] * 4
-        for i in range(4):
-            kp, ki, kd, eta, lam = self._k[i]
-            ei = meas[2 * i] - ref[4 * i]
-            edi = meas[2 * i + 1] - ref[4 * i + 1]
-            si = kp * ei + ki * state[i] + kd * edi
-            sgn = 1.0 if si > 0.0 else -1.0 if si < 0.0 else 0.0
-            u[i] = (-kp * edi - ki * ei - kd * (f[i] - ref[4 * i + 2]) - eta * sgn - lam * si) / (kd * g[i])
-            s[i] = si
-            e[i] = ei
-        uu = (u[0], u[1], u[2], u[3])
-        return uu, (e[0], e[1], e[2], e[3]), Diagnostics(None, (s[0], s[1], s[2], s[3]), None, uu, None)
+        u, e, s = sign_smc_output(meas, ref, state, self.consts)
+        return u, e, Diagnostics(None, s, None, u, None)
+
+    def step(
+        self, meas: Sequence[float], ref: Sequence[float], state: Sequence[float], dt_s: float, accel: Sequence[float] | None = None
+    ) -> tuple[Vec4, tuple[float, ...], Diagnostics]:
+        u, new, s = sign_smc_step(meas, ref, state, dt_s, self.consts)
+        return u, new, Diagnostics(None, s, None, u, None)
+
+
+def _sign_channel(k: tuple[float, ...], x: float, x_dot: float, r: float, r_d: float, r_dd: float, f: float, g: float, integ: float) -> tuple[float, float, float]:
+    """(u, e, s) of one channel."""
+    kp, ki, kd, eta, lam = k
+    ei = x - r
+    edi = x_dot - r_d
+    si = kp * ei + ki * integ + kd * edi
+    sgn = 1.0 if si > 0.0 else -1.0 if si < 0.0 else 0.0
+    return (-kp * edi - ki * ei - kd * (f - r_dd) - eta * sgn - lam * si) / (kd * g), ei, si
+
+
+def sign_smc_output(meas: Sequence[float], ref: Sequence[float], state: Sequence[float], p: SignSmcConsts) -> tuple[Vec4, Vec4, Vec4]:
+    """(u, d(int e)/dt = e, s) for every channel (pure)."""
+    m, k, tilt_min = p
+    f0, f1, f2, f3 = drift(m, meas[1], meas[3], meas[5], meas[7], 0.0)
+    gz = tilt_cos(meas[0], meas[2], tilt_min) / m[0]  # mass_kg
+    u0, e0, s0 = _sign_channel(k[0], meas[0], meas[1], ref[0], ref[1], ref[2], f0, m[13], state[0])  # b1
+    u1, e1, s1 = _sign_channel(k[1], meas[2], meas[3], ref[4], ref[5], ref[6], f1, m[14], state[1])  # b2
+    u2, e2, s2 = _sign_channel(k[2], meas[4], meas[5], ref[8], ref[9], ref[10], f2, m[15], state[2])  # b3
+    u3, e3, s3 = _sign_channel(k[3], meas[6], meas[7], ref[12], ref[13], ref[14], f3, gz, state[3])
+    return (u0, u1, u2, u3), (e0, e1, e2, e3), (s0, s1, s2, s3)
+
+
+def sign_smc_step(
+    meas: Sequence[float], ref: Sequence[float], state: Sequence[float], dt_s: float, p: SignSmcConsts
+) -> tuple[Vec4, Vec4, Vec4]:
+    """Sampled form: (u to hold for ``dt_s``, integrators after a forward-Euler step, s)."""
+    u, e, s = sign_smc_output(meas, ref, state, p)
+    return u, (state[0] + dt_s * e[0], state[1] + dt_s * e[1], state[2] + dt_s * e[2], state[3] + dt_s * e[3]), s

@@ -60,12 +60,18 @@ the vehicle on the ground: z = 0, velocity and body rates zero, attitude levelle
 yaw; while it rests there, x, y and yaw do not change. So the vehicle rests on the ground while
 the upward force is below its weight and lifts off when it is above. The ground has infinite
 friction and no bounce; that is all it models.
+
+Pure form: one RK4 step is :func:`rigid_body_step` (state, motor commands, armed, the
+environment's force and torque, time, step, :class:`RigidBodyParams`) -> (state, acceleration,
+ok), a function of tuples and floats only; the environment's random draws stay outside, in
+:class:`RigidBodyPlant`, which validates, splits steps, draws the environment and raises on
+divergence around it.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 from sim_bridge.environment import Environment
 from sim_bridge.disturbances import paper_disturbance
@@ -76,7 +82,10 @@ from smcpilot.errors import ConfigError, DivergenceError
 from smcpilot.frames import euler_from_quat, quat_from_euler, wrap_pi
 from smcpilot.vehicle import VehicleParams
 
-__all__ = ["RigidBodyPlant", "VehicleObservation", "STATE_NAMES", "DEFAULT_MAX_STEP_S"]
+__all__ = [
+    "RigidBodyPlant", "RigidBodyParams", "VehicleObservation", "STATE_NAMES", "DEFAULT_MAX_STEP_S",
+    "rigid_body_params", "rigid_body_step", "rigid_body_substep", "rigid_body_targets",
+]  # fmt: skip
 
 STATE_NAMES: tuple[str, ...] = (
     "x", "y", "z", "vx", "vy", "vz", "qw", "qx", "qy", "qz", "p", "q", "r", "w1", "w2", "w3", "w4",
@@ -95,8 +104,271 @@ _isfinite = math.isfinite
 _ceil = math.ceil
 
 
+class RigidBodyParams(NamedTuple):
+    """The vehicle's constants as the pure step reads them (floats; ``deriv`` a plain tuple)."""
+
+    #: Kp/m, d Kp/Ix, d Kp/Iy, Cd/Iz, 1/m, 1/Ix, 1/Iy, 1/Iz.
+    kp_m: float
+    dkp_x: float
+    dkp_y: float
+    cd_z: float
+    inv_m: float
+    inv_ix: float
+    inv_iy: float
+    inv_iz: float
+    #: idle rotor speed squared and the span to the largest, (rad/s)^2; largest speed, rad/s.
+    idle_sq: float
+    span_sq: float
+    w_max: float
+    #: motor time constant, s.
+    tau_m: float
+    ground_contact: bool
+    #: what the derivative reads, in this order (a plain tuple: unpacked four times a step):
+    #: g, drag/m (x, y, z), (Iy-Iz)/Ix, (Iz-Ix)/Iy, (Ix-Iy)/Iz, rotational drag/I (x, y, z),
+    #: Jr/Ix, Jr/Iy, and whether the paper's disturbances act.
+    deriv: tuple[float | bool, ...]
+
+
+def rigid_body_params(vehicle: VehicleParams, *, ground_contact: bool = True, paper_disturbance: bool = False) -> RigidBodyParams:
+    """Flatten a vehicle (once)."""
+    v = vehicle
+    inv_m = 1.0 / v.mass_kg
+    kp = v.thrust_coeff_n_s2
+    ix, iy, iz = v.ixx_kg_m2, v.iyy_kg_m2, v.izz_kg_m2
+    inv_ix, inv_iy, inv_iz = 1.0 / ix, 1.0 / iy, 1.0 / iz
+    idle_sq = v.rotor_speed_idle_radps**2
+    deriv = (
+        float(v.gravity_mps2),
+        v.lin_drag_x_n_s_m * inv_m,
+        v.lin_drag_y_n_s_m * inv_m,
+        v.lin_drag_z_n_s_m * inv_m,
+        (iy - iz) * inv_ix,
+        (iz - ix) * inv_iy,
+        (ix - iy) * inv_iz,
+        v.rot_drag_x_n_m_s2 * inv_ix,
+        v.rot_drag_y_n_m_s2 * inv_iy,
+        v.rot_drag_z_n_m_s2 * inv_iz,
+        v.rotor_inertia_kg_m2 * inv_ix,
+        v.rotor_inertia_kg_m2 * inv_iy,
+        bool(paper_disturbance),
+    )
+    return RigidBodyParams(
+        kp * inv_m,
+        v.arm_length_m * kp / v.ixx_kg_m2,
+        v.arm_length_m * kp / v.iyy_kg_m2,
+        v.drag_coeff_n_m_s2 / v.izz_kg_m2,
+        inv_m,
+        1.0 / v.ixx_kg_m2,
+        1.0 / v.iyy_kg_m2,
+        1.0 / v.izz_kg_m2,
+        float(idle_sq),
+        float(v.rotor_speed_max_radps**2 - idle_sq),
+        float(v.rotor_speed_max_radps),
+        float(v.motor_time_constant_s),
+        bool(ground_contact),
+        tuple(float(x) for x in deriv[:-1]) + (deriv[-1],),
+    )
+
+
+def rigid_body_targets(motor_commands: Sequence[float], armed: bool, p: RigidBodyParams) -> tuple[float, float, float, float]:
+    """Commanded rotor speeds [rad/s] of the motor commands (clamped, NaN -> 0); 0 when disarmed."""
+    if not armed:
+        return (0.0, 0.0, 0.0, 0.0)
+    idle_sq = p.idle_sq
+    span = p.span_sq
+    return (
+        _sqrt(idle_sq + sanitize_command(motor_commands[0]) * span),
+        _sqrt(idle_sq + sanitize_command(motor_commands[1]) * span),
+        _sqrt(idle_sq + sanitize_command(motor_commands[2]) * span),
+        _sqrt(idle_sq + sanitize_command(motor_commands[3]) * span),
+    )
+
+
+def _deriv(
+    k: tuple[float | bool, ...],
+    vx: float, vy: float, vz: float, qw: float, qx: float, qy: float, qz: float, p: float, q: float, r: float,
+    z: float, t: float, acc_t: float, ax_e: float, ay_e: float, az_e: float, alx: float, aly: float, alz: float, wbar: float,
+) -> tuple[float, ...]:  # fmt: skip
+    """d/dt of (vx, vy, vz, qw, qx, qy, qz, p, q, r).
+
+    acc_t: thrust / m [m/s^2]; ax_e..az_e: external force / m, world [m/s^2];
+    alx..alz: rotor + external torque / I, body [rad/s^2]; wbar: net rotor speed [rad/s].
+    """
+    g, kdx, kdy, kdz, cx, cy, cz, kax, kay, kaz, jr_x, jr_y, paper_dist = k
+    ax = acc_t * 2.0 * (qx * qz + qw * qy) - kdx * vx + ax_e
+    ay = acc_t * 2.0 * (qy * qz - qw * qx) - kdy * vy + ay_e
+    az = acc_t * (1.0 - 2.0 * (qx * qx + qy * qy)) - kdz * vz + az_e - g
+    dp = alx + cx * q * r - jr_x * wbar * q - kax * p * (p if p > 0.0 else -p)
+    dq = aly + cy * p * r + jr_y * wbar * p - kay * q * (q if q > 0.0 else -q)
+    dr = alz + cz * p * q - kaz * r * (r if r > 0.0 else -r)
+    if paper_dist:
+        phi = _atan2(2.0 * (qw * qx + qy * qz), 1.0 - 2.0 * (qx * qx + qy * qy))
+        st = 2.0 * (qw * qy - qz * qx)
+        theta = _asin(1.0 if st > 1.0 else (-1.0 if st < -1.0 else st))
+        psi = _atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+        d_phi, d_theta, d_psi, d_z = paper_disturbance(t, phi, theta, psi, z)
+        sp, cp = _sin(phi), _cos(phi)
+        sth, cth = _sin(theta), _cos(theta)
+        dp += d_phi - sth * d_psi
+        dq += cp * d_theta + sp * cth * d_psi
+        dr += -sp * d_theta + cp * cth * d_psi
+        az += d_z
+    return (
+        ax, ay, az,
+        -0.5 * (qx * p + qy * q + qz * r),
+        0.5 * (qw * p + qy * r - qz * q),
+        0.5 * (qw * q + qz * p - qx * r),
+        0.5 * (qw * r + qx * q - qy * p),
+        dp, dq, dr,
+    )  # fmt: skip
+
+
+def rigid_body_step(
+    s: Sequence[float],
+    motor_commands: Sequence[float],
+    armed: bool,
+    force_world_n: Sequence[float],
+    torque_body_n_m: Sequence[float],
+    t: float,
+    h: float,
+    p: RigidBodyParams,
+) -> tuple[tuple[float, ...], tuple[float, float, float], bool]:
+    """One RK4 step of ``h`` seconds from time ``t`` (``h`` at most the plant's largest step).
+
+    ``s``: the 17 states (:data:`STATE_NAMES`); the motor commands are held over the step, and so
+    are the environment's force (world NWU, N) and torque (body FLU, N m). Returns (new state,
+    acceleration (world, m/s^2), ok); ok False: the state became non-finite (``s`` is returned).
+    """
+    return rigid_body_substep(s, rigid_body_targets(motor_commands, armed, p), force_world_n, torque_body_n_m, t, h, p)
+
+
+def rigid_body_substep(
+    s: Sequence[float],
+    targets: tuple[float, float, float, float],
+    force_world_n: Sequence[float],
+    torque_body_n_m: Sequence[float],
+    t: float,
+    h: float,
+    p: RigidBodyParams,
+) -> tuple[tuple[float, ...], tuple[float, float, float], bool]:
+    """:func:`rigid_body_step` with the commanded rotor speeds (:func:`rigid_body_targets`) given."""
+    (kp_m, dkp_x, dkp_y, cd_z, inv_m, inv_ix, inv_iy, inv_iz, _idle_sq, _span_sq, w_max, tau_m,
+     ground_contact, k) = p  # fmt: skip
+    e_half = _exp(-0.5 * h / tau_m)
+    e_full = e_half * e_half
+    fx, fy, fz = force_world_n[0], force_world_n[1], force_world_n[2]
+    tqx, tqy, tqz = torque_body_n_m[0], torque_body_n_m[1], torque_body_n_m[2]
+    ax_e, ay_e, az_e = fx * inv_m, fy * inv_m, fz * inv_m
+    tex, tey, tez = tqx * inv_ix, tqy * inv_iy, tqz * inv_iz
+
+    x, y, z, vx, vy, vz, qw, qx, qy, qz, p_, q, r, w1, w2, w3, w4 = s
+    tg1, tg2, tg3, tg4 = targets
+    # exact rotor speeds at t + h/2 (m*) and t + h (n*)
+    m1 = tg1 + (w1 - tg1) * e_half
+    m2 = tg2 + (w2 - tg2) * e_half
+    m3 = tg3 + (w3 - tg3) * e_half
+    m4 = tg4 + (w4 - tg4) * e_half
+    n1 = tg1 + (w1 - tg1) * e_full
+    n2 = tg2 + (w2 - tg2) * e_full
+    n3 = tg3 + (w3 - tg3) * e_full
+    n4 = tg4 + (w4 - tg4) * e_full
+    # thrust/m, torques/I and net rotor speed at t (A), t + h/2 (B), t + h (C)
+    s1, s2, s3, s4 = w1 * w1, w2 * w2, w3 * w3, w4 * w4
+    tA = kp_m * (s1 + s2 + s3 + s4)
+    xA = dkp_x * (s3 - s1) + tex
+    yA = dkp_y * (s4 - s2) + tey
+    zA = cd_z * (s1 - s2 + s3 - s4) + tez
+    bA = w1 - w2 + w3 - w4
+    s1, s2, s3, s4 = m1 * m1, m2 * m2, m3 * m3, m4 * m4
+    tB = kp_m * (s1 + s2 + s3 + s4)
+    xB = dkp_x * (s3 - s1) + tex
+    yB = dkp_y * (s4 - s2) + tey
+    zB = cd_z * (s1 - s2 + s3 - s4) + tez
+    bB = m1 - m2 + m3 - m4
+    s1, s2, s3, s4 = n1 * n1, n2 * n2, n3 * n3, n4 * n4
+    tC = kp_m * (s1 + s2 + s3 + s4)
+    xC = dkp_x * (s3 - s1) + tex
+    yC = dkp_y * (s4 - s2) + tey
+    zC = cd_z * (s1 - s2 + s3 - s4) + tez
+    bC = n1 - n2 + n3 - n4
+
+    hh = 0.5 * h
+    a1, a2, a3, a4, a5, a6, a7, a8, a9, a10 = _deriv(
+        k, vx, vy, vz, qw, qx, qy, qz, p_, q, r, z, t, tA, ax_e, ay_e, az_e, xA, yA, zA, bA
+    )
+    b1, b2, b3, b4, b5, b6, b7, b8, b9, b10 = (
+        vx + hh * a1, vy + hh * a2, vz + hh * a3, qw + hh * a4, qx + hh * a5,
+        qy + hh * a6, qz + hh * a7, p_ + hh * a8, q + hh * a9, r + hh * a10,
+    )  # fmt: skip
+    c1, c2, c3, c4, c5, c6, c7, c8, c9, c10 = _deriv(
+        k, b1, b2, b3, b4, b5, b6, b7, b8, b9, b10, z + hh * vz, t + hh, tB, ax_e, ay_e, az_e, xB, yB, zB, bB
+    )
+    d1, d2, d3, d4, d5, d6, d7, d8, d9, d10 = (
+        vx + hh * c1, vy + hh * c2, vz + hh * c3, qw + hh * c4, qx + hh * c5,
+        qy + hh * c6, qz + hh * c7, p_ + hh * c8, q + hh * c9, r + hh * c10,
+    )  # fmt: skip
+    e1, e2, e3, e4, e5, e6, e7, e8, e9, e10 = _deriv(
+        k, d1, d2, d3, d4, d5, d6, d7, d8, d9, d10, z + hh * b3, t + hh, tB, ax_e, ay_e, az_e, xB, yB, zB, bB
+    )
+    f1, f2, f3, f4, f5, f6, f7, f8, f9, f10 = (
+        vx + h * e1, vy + h * e2, vz + h * e3, qw + h * e4, qx + h * e5,
+        qy + h * e6, qz + h * e7, p_ + h * e8, q + h * e9, r + h * e10,
+    )  # fmt: skip
+    g1, g2, g3, g4, g5, g6, g7, g8, g9, g10 = _deriv(
+        k, f1, f2, f3, f4, f5, f6, f7, f8, f9, f10, z + h * d3, t + h, tC, ax_e, ay_e, az_e, xC, yC, zC, bC
+    )
+    h6 = h / 6.0
+    vx1 = vx + h6 * (a1 + 2.0 * (c1 + e1) + g1)
+    vy1 = vy + h6 * (a2 + 2.0 * (c2 + e2) + g2)
+    vz1 = vz + h6 * (a3 + 2.0 * (c3 + e3) + g3)
+    qw1 = qw + h6 * (a4 + 2.0 * (c4 + e4) + g4)
+    qx1 = qx + h6 * (a5 + 2.0 * (c5 + e5) + g5)
+    qy1 = qy + h6 * (a6 + 2.0 * (c6 + e6) + g6)
+    qz1 = qz + h6 * (a7 + 2.0 * (c7 + e7) + g7)
+    p1 = p_ + h6 * (a8 + 2.0 * (c8 + e8) + g8)
+    q1 = q + h6 * (a9 + 2.0 * (c9 + e9) + g9)
+    r1 = r + h6 * (a10 + 2.0 * (c10 + e10) + g10)
+    x1 = x + h6 * (vx + 2.0 * (b1 + d1) + f1)
+    y1 = y + h6 * (vy + 2.0 * (b2 + d2) + f2)
+    z1 = z + h6 * (vz + 2.0 * (b3 + d3) + f3)
+
+    nq = qw1 * qw1 + qx1 * qx1 + qy1 * qy1 + qz1 * qz1
+    if not (_isfinite(nq + x1 + y1 + z1 + vx1 + vy1 + vz1 + p1 + q1 + r1) and nq > 0.0):
+        return (x, y, z, vx, vy, vz, qw, qx, qy, qz, p_, q, r, w1, w2, w3, w4), (0.0, 0.0, 0.0), False
+    inv = 1.0 / _sqrt(nq)
+    qw1 *= inv
+    qx1 *= inv
+    qy1 *= inv
+    qz1 *= inv
+
+    n1 = 0.0 if n1 < 0.0 else (w_max if n1 > w_max else n1)
+    n2 = 0.0 if n2 < 0.0 else (w_max if n2 > w_max else n2)
+    n3 = 0.0 if n3 < 0.0 else (w_max if n3 > w_max else n3)
+    n4 = 0.0 if n4 < 0.0 else (w_max if n4 > w_max else n4)
+
+    if z1 < 0.0 and ground_contact:
+        # On the ground: stop, level, keep the yaw (the one before the step if it was
+        # already resting: the ground does not let it slide or turn).
+        if z <= 0.0:
+            x1 = x
+            y1 = y
+            qw1, qx1, qy1, qz1 = qw, qx, qy, qz
+        yaw = _atan2(2.0 * (qw1 * qz1 + qx1 * qy1), 1.0 - 2.0 * (qy1 * qy1 + qz1 * qz1))
+        qw1, qx1, qy1, qz1 = _cos(0.5 * yaw), 0.0, 0.0, _sin(0.5 * yaw)
+        z1 = vx1 = vy1 = vz1 = p1 = q1 = r1 = 0.0
+
+    inv_h = 1.0 / h
+    return (
+        (x1, y1, z1, vx1, vy1, vz1, qw1, qx1, qy1, qz1, p1, q1, r1, n1, n2, n3, n4),
+        ((vx1 - vx) * inv_h, (vy1 - vy) * inv_h, (vz1 - vz) * inv_h),
+        True,
+    )
+
+
 class RigidBodyPlant(PlantBase):
     """Full rigid-body quadrotor plant with the same step/observe API as the paper plant adapter.
+
+    The stateful, validated wrapper of :func:`rigid_body_step` (it draws the environment).
 
     Args:
         vehicle: physical parameters.
@@ -114,29 +386,10 @@ class RigidBodyPlant(PlantBase):
         ground_contact: bool = True,
     ) -> None:
         super().__init__(vehicle, env, max_step_s=max_step_s, ground_contact=ground_contact)
-        v = vehicle
-        self._idle_sq = v.rotor_speed_idle_radps**2
-        self._span_sq = v.rotor_speed_max_radps**2 - self._idle_sq
-        self._w_max = v.rotor_speed_max_radps
-        self._tau_m = v.motor_time_constant_s
-        self._decay_h = -1.0
-        self._e_half = 0.0
-        self._e_full = 0.0
-        self._s: list[float] = [0.0] * 17
-        inv_m = 1.0 / v.mass_kg
-        kp = v.thrust_coeff_n_s2
-        #: per-step constants: Kp/m, d Kp/Ix, d Kp/Iy, Cd/Iz, 1/m, 1/Ix, 1/Iy, 1/Iz
-        self._k = (
-            kp * inv_m,
-            v.arm_length_m * kp / v.ixx_kg_m2,
-            v.arm_length_m * kp / v.iyy_kg_m2,
-            v.drag_coeff_n_m_s2 / v.izz_kg_m2,
-            inv_m,
-            1.0 / v.ixx_kg_m2,
-            1.0 / v.iyy_kg_m2,
-            1.0 / v.izz_kg_m2,
-        )
-        self._deriv = self._make_deriv()
+        #: the vehicle's constants flattened for :func:`rigid_body_step`.
+        self.params = rigid_body_params(vehicle, ground_contact=self.ground_contact, paper_disturbance=self.env.paper_disturbance)
+        self._w_max = self.params.w_max
+        self._s: tuple[float, ...] = (0.0,) * 17
         self.reset()
 
     # -- state ------------------------------------------------------------------------------------
@@ -164,13 +417,13 @@ class RigidBodyPlant(PlantBase):
         qw, qx, qy, qz = quat_from_euler(roll_rad, pitch_rad, yaw_rad)
         w_max = self._w_max
         rot = [min(max(float(w), 0.0), w_max) for w in rotor_speeds_radps]
-        self._s = [
+        self._s = (
             *(float(a) for a in position_m),
             *(float(a) for a in velocity_mps),
             qw, qx, qy, qz,
             *(float(a) for a in body_rates_radps),
             *rot,
-        ]  # fmt: skip
+        )  # fmt: skip
         self._t_s = float(t_s)
         self._accel = (0.0, 0.0, 0.0)
         self._obs_cache = None
@@ -187,64 +440,6 @@ class RigidBodyPlant(PlantBase):
         return self.ground_contact and self._s[2] <= 0.0 and self._s[5] <= 0.0
 
     # -- dynamics ---------------------------------------------------------------------------------
-    def _make_deriv(self):  # noqa: ANN202 - returns the hot-path closure
-        """Build the derivative function of the 10 dynamic states (v, q, body rates)."""
-        v = self.vehicle
-        env = self.env
-        inv_m = 1.0 / v.mass_kg
-        g = v.gravity_mps2
-        kdx = v.lin_drag_x_n_s_m * inv_m
-        kdy = v.lin_drag_y_n_s_m * inv_m
-        kdz = v.lin_drag_z_n_s_m * inv_m
-        ix, iy, iz = v.ixx_kg_m2, v.iyy_kg_m2, v.izz_kg_m2
-        inv_ix, inv_iy, inv_iz = 1.0 / ix, 1.0 / iy, 1.0 / iz
-        cx, cy, cz = (iy - iz) * inv_ix, (iz - ix) * inv_iy, (ix - iy) * inv_iz
-        kax = v.rot_drag_x_n_m_s2 * inv_ix
-        kay = v.rot_drag_y_n_m_s2 * inv_iy
-        kaz = v.rot_drag_z_n_m_s2 * inv_iz
-        jr_x = v.rotor_inertia_kg_m2 * inv_ix
-        jr_y = v.rotor_inertia_kg_m2 * inv_iy
-        paper_dist = env.paper_disturbance
-
-        def deriv(
-            s: Sequence[float], z: float, t: float, acc_t: float, ax_e: float, ay_e: float, az_e: float,
-            alx: float, aly: float, alz: float, wbar: float,
-        ) -> tuple[float, ...]:
-            """d/dt of (vx, vy, vz, qw, qx, qy, qz, p, q, r).
-
-            acc_t: thrust / m [m/s^2]; ax_e..az_e: external force / m, world [m/s^2];
-            alx..alz: rotor + external torque / I, body [rad/s^2]; wbar: net rotor speed [rad/s].
-            """
-            vx, vy, vz, qw, qx, qy, qz, p, q, r = s
-            ax = acc_t * 2.0 * (qx * qz + qw * qy) - kdx * vx + ax_e
-            ay = acc_t * 2.0 * (qy * qz - qw * qx) - kdy * vy + ay_e
-            az = acc_t * (1.0 - 2.0 * (qx * qx + qy * qy)) - kdz * vz + az_e - g
-            dp = alx + cx * q * r - jr_x * wbar * q - kax * p * (p if p > 0.0 else -p)
-            dq = aly + cy * p * r + jr_y * wbar * p - kay * q * (q if q > 0.0 else -q)
-            dr = alz + cz * p * q - kaz * r * (r if r > 0.0 else -r)
-            if paper_dist:
-                phi = _atan2(2.0 * (qw * qx + qy * qz), 1.0 - 2.0 * (qx * qx + qy * qy))
-                st = 2.0 * (qw * qy - qz * qx)
-                theta = _asin(1.0 if st > 1.0 else (-1.0 if st < -1.0 else st))
-                psi = _atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
-                d_phi, d_theta, d_psi, d_z = paper_disturbance(t, phi, theta, psi, z)
-                sp, cp = _sin(phi), _cos(phi)
-                sth, cth = _sin(theta), _cos(theta)
-                dp += d_phi - sth * d_psi
-                dq += cp * d_theta + sp * cth * d_psi
-                dr += -sp * d_theta + cp * cth * d_psi
-                az += d_z
-            return (
-                ax, ay, az,
-                -0.5 * (qx * p + qy * q + qz * r),
-                0.5 * (qw * p + qy * r - qz * q),
-                0.5 * (qw * q + qz * p - qx * r),
-                0.5 * (qw * r + qx * q - qy * p),
-                dp, dq, dr,
-            )  # fmt: skip
-
-        return deriv
-
     def step(self, t_s: float, dt_s: float, motor_commands: Sequence[float], armed: bool) -> None:
         """Advance from time ``t_s`` by ``dt_s`` seconds with the motor commands held constant.
 
@@ -258,117 +453,21 @@ class RigidBodyPlant(PlantBase):
         if n < 1:
             n = 1
         h = dt_s / n
-        c1, c2, c3, c4 = motor_commands
-        if armed:
-            idle_sq = self._idle_sq
-            span = self._span_sq
-            tg1 = _sqrt(idle_sq + sanitize_command(c1) * span)
-            tg2 = _sqrt(idle_sq + sanitize_command(c2) * span)
-            tg3 = _sqrt(idle_sq + sanitize_command(c3) * span)
-            tg4 = _sqrt(idle_sq + sanitize_command(c4) * span)
-        else:
-            tg1 = tg2 = tg3 = tg4 = 0.0
-        targets = (tg1, tg2, tg3, tg4)
+        p = self.params
+        targets = rigid_body_targets(motor_commands, armed, p)
+        env = self.env
+        s = self._s
         for i in range(n):
-            self._substep(t_s + i * h, h, targets)
+            t = t_s + i * h
+            env.advance(h)
+            s, accel, ok = rigid_body_substep(s, targets, env.force_world_n, env.torque_body_n_m, t, h, p)
+            if not ok:
+                self._s = s
+                raise DivergenceError("rigid-body plant state became non-finite", t + h)
+            self._s = s
+            self._accel = accel
         self._t_s = t_s + dt_s
         self._obs_cache = None
-
-    def _substep(self, t: float, h: float, targets: tuple[float, float, float, float]) -> None:
-        """One RK4 step of size h from time t (hot path: plain floats, locals only)."""
-        if h != self._decay_h:
-            self._e_half = _exp(-0.5 * h / self._tau_m)
-            self._e_full = self._e_half * self._e_half
-            self._decay_h = h
-        e_half = self._e_half
-        e_full = self._e_full
-        kp_m, dkp_x, dkp_y, cd_z, inv_m, inv_ix, inv_iy, inv_iz = self._k
-        env = self.env
-        env.advance(h)
-        fx, fy, fz = env.force_world_n
-        tqx, tqy, tqz = env.torque_body_n_m
-        ax_e, ay_e, az_e = fx * inv_m, fy * inv_m, fz * inv_m
-        tex, tey, tez = tqx * inv_ix, tqy * inv_iy, tqz * inv_iz
-
-        s = self._s
-        x, y, z, vx, vy, vz, qw, qx, qy, qz, p, q, r, w1, w2, w3, w4 = s
-        tg1, tg2, tg3, tg4 = targets
-        # exact rotor speeds at t + h/2 (m*) and t + h (n*)
-        m1 = tg1 + (w1 - tg1) * e_half
-        m2 = tg2 + (w2 - tg2) * e_half
-        m3 = tg3 + (w3 - tg3) * e_half
-        m4 = tg4 + (w4 - tg4) * e_half
-        n1 = tg1 + (w1 - tg1) * e_full
-        n2 = tg2 + (w2 - tg2) * e_full
-        n3 = tg3 + (w3 - tg3) * e_full
-        n4 = tg4 + (w4 - tg4) * e_full
-        # thrust/m, torques/I and net rotor speed at t (A), t + h/2 (B), t + h (C)
-        s1, s2, s3, s4 = w1 * w1, w2 * w2, w3 * w3, w4 * w4
-        tA = kp_m * (s1 + s2 + s3 + s4)
-        xA = dkp_x * (s3 - s1) + tex
-        yA = dkp_y * (s4 - s2) + tey
-        zA = cd_z * (s1 - s2 + s3 - s4) + tez
-        bA = w1 - w2 + w3 - w4
-        s1, s2, s3, s4 = m1 * m1, m2 * m2, m3 * m3, m4 * m4
-        tB = kp_m * (s1 + s2 + s3 + s4)
-        xB = dkp_x * (s3 - s1) + tex
-        yB = dkp_y * (s4 - s2) + tey
-        zB = cd_z * (s1 - s2 + s3 - s4) + tez
-        bB = m1 - m2 + m3 - m4
-        s1, s2, s3, s4 = n1 * n1, n2 * n2, n3 * n3, n4 * n4
-        tC = kp_m * (s1 + s2 + s3 + s4)
-        xC = dkp_x * (s3 - s1) + tex
-        yC = dkp_y * (s4 - s2) + tey
-        zC = cd_z * (s1 - s2 + s3 - s4) + tez
-        bC = n1 - n2 + n3 - n4
-
-        deriv = self._deriv
-        hh = 0.5 * h
-        y0 = (vx, vy, vz, qw, qx, qy, qz, p, q, r)
-        k1 = deriv(y0, z, t, tA, ax_e, ay_e, az_e, xA, yA, zA, bA)
-        y2 = [a + hh * b for a, b in zip(y0, k1)]
-        k2 = deriv(y2, z + hh * vz, t + hh, tB, ax_e, ay_e, az_e, xB, yB, zB, bB)
-        y3 = [a + hh * b for a, b in zip(y0, k2)]
-        k3 = deriv(y3, z + hh * y2[2], t + hh, tB, ax_e, ay_e, az_e, xB, yB, zB, bB)
-        y4 = [a + h * b for a, b in zip(y0, k3)]
-        k4 = deriv(y4, z + h * y3[2], t + h, tC, ax_e, ay_e, az_e, xC, yC, zC, bC)
-        h6 = h / 6.0
-        vx1, vy1, vz1, qw1, qx1, qy1, qz1, p1, q1, r1 = [
-            a + h6 * (b1 + 2.0 * (b2 + b3) + b4) for a, b1, b2, b3, b4 in zip(y0, k1, k2, k3, k4)
-        ]
-        x1 = x + h6 * (vx + 2.0 * (y2[0] + y3[0]) + y4[0])
-        y1 = y + h6 * (vy + 2.0 * (y2[1] + y3[1]) + y4[1])
-        z1 = z + h6 * (vz + 2.0 * (y2[2] + y3[2]) + y4[2])
-
-        nq = qw1 * qw1 + qx1 * qx1 + qy1 * qy1 + qz1 * qz1
-        if not (_isfinite(nq + x1 + y1 + z1 + vx1 + vy1 + vz1 + p1 + q1 + r1) and nq > 0.0):
-            raise DivergenceError("rigid-body plant state became non-finite", t + h)
-        inv = 1.0 / _sqrt(nq)
-        qw1 *= inv
-        qx1 *= inv
-        qy1 *= inv
-        qz1 *= inv
-
-        w_max = self._w_max
-        n1 = 0.0 if n1 < 0.0 else (w_max if n1 > w_max else n1)
-        n2 = 0.0 if n2 < 0.0 else (w_max if n2 > w_max else n2)
-        n3 = 0.0 if n3 < 0.0 else (w_max if n3 > w_max else n3)
-        n4 = 0.0 if n4 < 0.0 else (w_max if n4 > w_max else n4)
-
-        if z1 < 0.0 and self.ground_contact:
-            # On the ground: stop, level, keep the yaw (the one before the step if it was
-            # already resting: the ground does not let it slide or turn).
-            if z <= 0.0:
-                x1 = x
-                y1 = y
-                qw1, qx1, qy1, qz1 = qw, qx, qy, qz
-            yaw = _atan2(2.0 * (qw1 * qz1 + qx1 * qy1), 1.0 - 2.0 * (qy1 * qy1 + qz1 * qz1))
-            qw1, qx1, qy1, qz1 = _cos(0.5 * yaw), 0.0, 0.0, _sin(0.5 * yaw)
-            z1 = vx1 = vy1 = vz1 = p1 = q1 = r1 = 0.0
-
-        inv_h = 1.0 / h
-        self._accel = ((vx1 - vx) * inv_h, (vy1 - vy) * inv_h, (vz1 - vz) * inv_h)
-        self._s = [x1, y1, z1, vx1, vy1, vz1, qw1, qx1, qy1, qz1, p1, q1, r1, n1, n2, n3, n4]
 
     # -- observation --------------------------------------------------------------------------------
     def truth(self) -> VehicleObservation:
@@ -385,3 +484,7 @@ class RigidBodyPlant(PlantBase):
             rotor_speed_radps=(w1, w2, w3, w4),
             quaternion=(qw, qx, qy, qz),
         )
+
+
+#: the pure step and everything it calls (checked and compiled by ``tests/test_compilable.py``).
+PURE_FUNCTIONS = (rigid_body_step, rigid_body_substep, rigid_body_targets, _deriv, sanitize_command, paper_disturbance)

@@ -1,0 +1,338 @@
+"""The hot path stays pure and compilable.
+
+Without numba: the rules, checked on the code and on the data — every function of
+:data:`fc.pipeline.PURE_FUNCTIONS` (and of the rigid-body plant's step,
+:data:`sim_bridge.plants.rigid_body.PURE_FUNCTIONS`) is a module-level function with no closure whose body has no
+lists, dicts, sets, comprehensions, strings, f-strings, exceptions, lambdas, nested functions,
+``getattr``/``isinstance`` or method calls, and calls only pure functions (by plain name), ``math`` functions,
+``abs``/``min``/``max`` and NamedTuple classes; the parameters, state and inputs it takes (built
+from real configurations) are tuples and NamedTuples whose leaves are all floats, ints or bools,
+with the same types on every tick.
+
+With numba (``pytest.importorskip``): the same functions, unchanged, compiled by ``numba.njit``
+give the same bits as CPython over a closed-loop take-off, ALT_HOLD and landing of each FC
+controller; the law steps do on random inputs, and the plant step over a flight with gusts and the
+paper's disturbances.
+"""
+
+from __future__ import annotations
+
+import ast
+import builtins
+import contextlib
+import inspect
+import math
+import random
+import textwrap
+import time
+import types
+
+import pytest
+
+from fc.config import FcConfig
+from fc.control import LAW_FUNCTIONS, PidSmc, PidSmcParams
+from fc.control.cascade_pid import CascadePid
+from fc.control.pid_smc import AdaptationBounds, ChannelConsts
+from fc.control.sign_smc import SignSmc
+from fc.flight import FlightControl
+from fc.pipeline import (
+    PURE_FUNCTIONS,
+    PipelineInputs,
+    PipelineParams,
+    PipelineState,
+    VehicleState,
+    pipeline_reset,
+    pipeline_step,
+)
+from lab.runner import wire_state
+from sim_bridge.environment import Environment, EnvironmentParams
+from sim_bridge.plants import rigid_body
+from sim_bridge.plants.rigid_body import RigidBodyPlant, rigid_body_params, rigid_body_step
+from smcpilot.model import ModelConsts, PaperModel
+from smcpilot.typos import TYPOS
+from smcpilot.vehicle import DEFAULT_VEHICLE
+
+FC_CONTROLLERS = ("adaptive_pid_smc", "pid_smc", "cascade_pid")
+_ALLOWED_BUILTINS = {abs, min, max}
+_MATH = {v for v in vars(math).values() if callable(v)}
+_FORBIDDEN_NODES = (
+    ast.List, ast.ListComp, ast.Dict, ast.DictComp, ast.Set, ast.SetComp, ast.GeneratorExp, ast.JoinedStr,
+    ast.Raise, ast.Try, ast.Assert, ast.Lambda, ast.ClassDef, ast.Global, ast.Nonlocal, ast.Yield, ast.YieldFrom,
+    ast.With, ast.Await, ast.Starred, ast.Delete, ast.Import, ast.ImportFrom,
+)  # fmt: skip
+
+
+def _is_namedtuple_class(v: object) -> bool:
+    return isinstance(v, type) and issubclass(v, tuple) and hasattr(v, "_fields")
+
+
+def _resolve(fn: types.FunctionType, name: str) -> object:
+    if name in fn.__globals__:
+        return fn.__globals__[name]
+    return getattr(builtins, name, None)
+
+
+PLANT_FUNCTIONS = rigid_body.PURE_FUNCTIONS
+ALL_PURE = PURE_FUNCTIONS + tuple(f for f in PLANT_FUNCTIONS if f not in PURE_FUNCTIONS)
+
+
+# -- the rules, on the code ---------------------------------------------------------------------------
+def test_the_pure_functions_are_listed_once_and_cover_the_law() -> None:
+    assert len(set(PURE_FUNCTIONS)) == len(PURE_FUNCTIONS)
+    assert set(LAW_FUNCTIONS) <= set(PURE_FUNCTIONS)
+
+
+@pytest.mark.parametrize("fn", ALL_PURE, ids=lambda f: f"{f.__module__}.{f.__name__}")
+def test_pure_function_follows_the_rules(fn: types.FunctionType) -> None:
+    assert isinstance(fn, types.FunctionType) and fn.__qualname__ == fn.__name__, "a module-level function"
+    assert fn.__closure__ is None and not fn.__code__.co_freevars, "no closure"
+    tree = ast.parse(textwrap.dedent(inspect.getsource(fn)))
+    root = tree.body[0]
+    assert isinstance(root, ast.FunctionDef)
+    body = root.body
+    if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant):
+        body = body[1:]  # the docstring
+    pure = set(ALL_PURE)
+    problems = []
+    for node in (n for stmt in body for n in ast.walk(stmt)):
+        where = f"{fn.__name__} line {getattr(node, 'lineno', '?')}"
+        if isinstance(node, _FORBIDDEN_NODES) or (isinstance(node, ast.FunctionDef)):
+            problems.append(f"{where}: {type(node).__name__}")
+        elif isinstance(node, ast.Constant) and isinstance(node.value, (str, bytes)):
+            problems.append(f"{where}: string constant {node.value!r}")
+        elif isinstance(node, ast.Call):
+            f = node.func
+            if isinstance(f, ast.Attribute) and isinstance(f.value, ast.Name) and _resolve(fn, f.value.id) is math:
+                continue  # math.isfinite(...)
+            if not isinstance(f, ast.Name):
+                problems.append(f"{where}: call of {ast.unparse(f)} (only plain names and math functions)")
+                continue
+            if node.keywords:
+                problems.append(f"{where}: keyword arguments in a call of {node.func.id}")
+            target = _resolve(fn, node.func.id)
+            if not (target in pure or target in _ALLOWED_BUILTINS or target in _MATH or _is_namedtuple_class(target)):
+                problems.append(f"{where}: calls {node.func.id} = {target!r}, not a pure function")
+        elif isinstance(node, ast.Name) and isinstance(node.ctx, ast.Load):
+            v = _resolve(fn, node.id)
+            if node.id not in fn.__code__.co_varnames and v is not None and isinstance(v, (list, dict, set)):
+                problems.append(f"{where}: reads the mutable global {node.id}")
+    assert not problems, "\n".join(problems)
+
+
+# -- the rules, on the data ---------------------------------------------------------------------------
+def leaf_types(x: object, path: str = "") -> list[tuple[str, type]]:
+    """(path, type) of every leaf; containers must be tuples (NamedTuples included)."""
+    if isinstance(x, tuple):
+        names = getattr(type(x), "_fields", None) or [str(i) for i in range(len(x))]
+        return [lt for name, v in zip(names, x) for lt in leaf_types(v, f"{path}.{name}")]
+    assert type(x) in (float, int, bool), f"{path}: {type(x).__name__} leaf {x!r}"
+    return [(path, type(x))]
+
+
+def _configs() -> list[FcConfig]:
+    return [FcConfig(controller=c) for c in FC_CONTROLLERS] + [
+        FcConfig(speed_max_xy_mps=2, land_detect_s=1, chi_hat0=0, rate_hz=250)  # ints where floats are meant
+    ]
+
+
+def test_plant_parameters_and_state_are_flat_tuples_of_floats() -> None:
+    for env in (Environment(), Environment(EnvironmentParams(paper_disturbance=True))):
+        plant = RigidBodyPlant(DEFAULT_VEHICLE, env)
+        assert [path for path, t in leaf_types(plant.params) if t is not float] == [".ground_contact", ".deriv.12"]
+        plant.step(0.0, 0.001, (0.5, 0.5, 0.5, 0.5), True)
+        assert {t for _, t in leaf_types(plant.state)} == {float} and len(plant.state) == 17
+
+
+def test_parameters_state_and_inputs_are_flat_tuples_of_numbers() -> None:
+    signatures = set()
+    for cfg in _configs():
+        fl = FlightControl(cfg, DEFAULT_VEHICLE)
+        p = fl.params
+        assert isinstance(p, PipelineParams)
+        sig = tuple(leaf_types(p))
+        # Numbers meant as floats are floats even where the configuration gave ints; the only ints
+        # are the law's kind and state length.
+        assert [path for path, t in sig if t is int] == [".law_kind", ".law_n"], sig
+        signatures.add(tuple(t for _, t in sig))
+    # One layout and one set of leaf types for every controller: one compiled specialisation.
+    assert len(signatures) == 1
+    for name, ctrl in (("pid_smc", PidSmc(PaperModel.from_vehicle(), PidSmcParams(typos=frozenset(TYPOS)))),
+                       ("cascade", CascadePid(PaperModel.from_vehicle())), ("sign", SignSmc(PaperModel.from_vehicle()))):  # fmt: skip
+        assert not [path for path, t in leaf_types(ctrl.consts, name) if t is int]
+    assert len(PidSmc(PaperModel.from_vehicle()).consts.model) == len(ModelConsts._fields)
+    assert all(len(k) == len(ChannelConsts._fields) for k in PidSmc(PaperModel.from_vehicle()).consts.k)
+
+
+@pytest.mark.parametrize("controller", FC_CONTROLLERS)
+def test_state_keeps_its_types_from_tick_to_tick(controller: str) -> None:
+    fl = FlightControl(FcConfig(controller=controller), DEFAULT_VEHICLE)
+    st = VehicleState(*(0.0,) * 12)
+    ps = pipeline_reset(st, fl.params)
+    first = tuple(t for _, t in leaf_types(ps))
+    cmd = PipelineInputs(0.0, 0.0, 2.0, 0.5, True, False, True, 3.0)
+    assert tuple(t for _, t in leaf_types(cmd)) == (float,) * 4 + (bool,) * 3 + (float,)
+    out0 = None
+    for k in range(50):
+        ps, out = pipeline_step(ps, st, cmd._replace(landing=k > 25), fl.params, 0.002)
+        assert isinstance(ps, PipelineState) and tuple(t for _, t in leaf_types(ps)) == first
+        sig = tuple(t for _, t in leaf_types(out))
+        assert out0 is None or sig == out0
+        out0 = sig
+    # The law state not yet there (after a change of controller while armed) is filled in the same types.
+    ps, _ = pipeline_step(ps._replace(law_n=0), st, cmd, fl.params, 0.002)
+    assert tuple(t for _, t in leaf_types(ps)) == first
+
+
+# -- numba: the same functions, compiled ---------------------------------------------------------------
+_DISPATCHERS: dict = {}
+
+
+@contextlib.contextmanager
+def compiled():
+    """Every pure function as a numba dispatcher, in every module that calls it (undone after)."""
+    numba = pytest.importorskip("numba")
+    if not _DISPATCHERS:
+        _DISPATCHERS.update({fn: numba.njit(fn) for fn in ALL_PURE})
+    modules = {inspect.getmodule(fn) for fn in ALL_PURE}
+    with pytest.MonkeyPatch.context() as mp:
+        for mod in modules:
+            for name, value in list(vars(mod).items()):
+                if isinstance(value, types.FunctionType) and value in _DISPATCHERS:
+                    mp.setattr(mod, name, _DISPATCHERS[value])
+        yield _DISPATCHERS
+
+
+def bits(x: object) -> object:
+    if isinstance(x, float):
+        return x.hex()
+    if isinstance(x, tuple):
+        return tuple(bits(v) for v in x)
+    return x
+
+
+def _closed_loop(controller: str) -> list[tuple]:
+    """Interpreted: (state, vehicle state, inputs, params) of every tick of a take-off to 3 m with a
+    heading change, 100 ticks of ALT_HOLD, then landing; and what the pipeline returned."""
+    cfg = FcConfig(controller=controller)
+    fl = FlightControl(cfg, DEFAULT_VEHICLE)
+    p = fl.params
+    plant = RigidBodyPlant(DEFAULT_VEHICLE)
+    st = wire_state(plant.observe())
+    ps = pipeline_reset(st, p)
+    rows = []
+    t = 0.0
+    for k in range(700):
+        st = wire_state(plant.observe())
+        cmd = PipelineInputs(0.5, -0.3, 3.0, 1.2, True, k >= 500, not 400 <= k < 500, cfg.speed_max_xy_mps)
+        new, out = pipeline_step(ps, st, cmd, p, 0.002)
+        rows.append((ps, st, cmd, p, new, out))
+        ps = new
+        for _ in range(2):
+            plant.step(t, 0.001, out[0], True)
+            t += 0.001
+    assert rows[399][0].z_r > 0.3, "took off"
+    return rows
+
+
+def test_compiled_pipeline_step_gives_the_same_bits() -> None:
+    pytest.importorskip("numba")
+    flights = {c: _closed_loop(c) for c in FC_CONTROLLERS}
+    # and a touchdown on the ground
+    fl = FlightControl(FcConfig(), DEFAULT_VEHICLE)
+    ground = VehicleState(*(0.0,) * 12)
+    ps = pipeline_reset(ground, fl.params)
+    cmd = PipelineInputs(0.0, 0.0, 0.0, 0.0, True, True, True, 3.0)
+    rows = []
+    for _ in range(300):
+        new, out = pipeline_step(ps, ground, cmd, fl.params, 0.002)
+        rows.append((ps, ground, cmd, fl.params, new, out))
+        ps = new
+    assert any(r[5][9] for r in rows), "touched down"
+    flights["touchdown"] = rows
+    with compiled() as jit:
+        step = jit[pipeline_step]
+        t0 = time.perf_counter()
+        step(*rows[0][:4], 0.002)
+        compile_s = time.perf_counter() - t0
+        for name, rows in flights.items():
+            for k, (ps, st, cmd, p, new, out) in enumerate(rows):
+                got = step(ps, st, cmd, p, 0.002)
+                assert bits(got) == bits((new, out)), f"{name}: tick {k} differs"
+                assert type(got[0]) is PipelineState
+        assert len(step.signatures) == 1, "one specialisation for every controller"
+    print(f"\nnumba compiled pipeline_step (with everything it calls) in {compile_s:.1f} s")
+
+
+def test_compiled_law_steps_give_the_same_bits() -> None:
+    pytest.importorskip("numba")
+    from fc.control.cascade_pid import cascade_pid_step
+    from fc.control.pid_smc import pid_smc_anti_windup, pid_smc_step, pid_smc_step_measured
+    from fc.control.sign_smc import sign_smc_step
+
+    r = random.Random(5)
+    model = PaperModel.from_vehicle()
+    consts = [
+        PidSmc(model, PidSmcParams()).consts,
+        PidSmc(model, PidSmcParams(adaptive=False)).consts,
+        PidSmc(model, PidSmcParams(sigma_source="oracle", typos=frozenset(TYPOS))).consts,
+        PidSmc(PaperModel.from_vehicle(typos=frozenset(TYPOS)), PidSmcParams(
+            adaptation=AdaptationBounds(0.2, 0.3, 0.1, 2.0), u_min=(-0.1, -0.1, -0.005, 4.0), u_max=(0.1, 0.1, 0.005, 10.0))).consts,
+    ]  # fmt: skip
+    cp = CascadePid(model).consts
+    ss = SignSmc(model).consts
+    cases = []
+    for k in range(300):
+        meas = tuple(r.uniform(-1.0, 1.0) for _ in range(8))
+        ref = tuple(r.uniform(-1.0, 1.0) for _ in range(16))
+        state = tuple(r.uniform(-1.0, 1.0) for _ in range(7)) + (r.uniform(4.0, 10.0),) + tuple(r.uniform(0.0, 3.0) for _ in range(4))
+        accel = tuple(r.uniform(-5.0, 5.0) for _ in range(4))
+        limited = tuple(r.random() < 0.3 for _ in range(4))
+        c = consts[k % len(consts)]
+        cases.append((meas, ref, state, accel, limited, c, (
+            pid_smc_step(meas, ref, state, 0.002, c),
+            pid_smc_step_measured(meas, ref, state, 0.002, c, accel),
+            pid_smc_anti_windup(state, state[::-1], accel, limited),
+            cascade_pid_step(meas, ref, state[:4], 0.002, cp),
+            sign_smc_step(meas, ref, state[:4], 0.002, ss),
+        )))  # fmt: skip
+    with compiled() as jit:
+        for meas, ref, state, accel, limited, c, want in cases:
+            got = (
+                jit[pid_smc_step](meas, ref, state, 0.002, c),
+                jit[pid_smc_step_measured](meas, ref, state, 0.002, c, accel),
+                jit[pid_smc_anti_windup](state, state[::-1], accel, limited),
+                jit[cascade_pid_step](meas, ref, state[:4], 0.002, cp),
+                jit[sign_smc_step](meas, ref, state[:4], 0.002, ss),
+            )
+            assert bits(got) == bits(want)
+
+
+def _plant_steps() -> list[tuple]:
+    """(state, motors, armed, force, torque, t, h, params) and the result of every interpreted
+    plant step of a take-off with gusts and the paper's disturbances, a spin-down and a touchdown."""
+    env = Environment(EnvironmentParams(paper_disturbance=True, gust_force_std_xy_n=0.3, wind_force_n=(0.2, -0.1, 0.0)), random.Random(3))
+    p = rigid_body_params(DEFAULT_VEHICLE, paper_disturbance=True)
+    s = RigidBodyPlant(DEFAULT_VEHICLE).state
+    rows = []
+    t = 0.0
+    for k in range(1500):
+        motors = (0.52, 0.521, 0.519, 0.52) if k < 900 else (0.3, 0.3, 0.3, 0.3)
+        armed = k < 1300
+        env.advance(0.001)
+        args = (s, motors, armed, env.force_world_n, env.torque_body_n_m, t, 0.001, p)
+        out = rigid_body_step(*args)
+        assert out[2]
+        rows.append((args, out))
+        s = out[0]
+        t += 0.001
+    assert max(r[1][0][2] for r in rows) > 0.2 and rows[-1][1][0][2] == 0.0, "took off and came down"
+    return rows
+
+
+def test_compiled_plant_step_gives_the_same_bits() -> None:
+    pytest.importorskip("numba")
+    rows = _plant_steps()
+    with compiled() as jit:
+        step = jit[rigid_body_step]
+        for k, (args, want) in enumerate(rows):
+            assert bits(step(*args)) == bits(want), f"plant step {k} differs"
