@@ -31,9 +31,10 @@ import select
 import signal
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, TextIO
+from typing import TextIO
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -43,16 +44,16 @@ from fc.core import FlightCore
 from fc.flight import VehicleState
 from fc.gcs import GcsHandler
 from fc.params import ParamStore, param_messages
-from smcpilot.plan import PlanStep
 from fc.streams import StreamScheduler
-from smcpilot.geo import Home
 from smcpilot.clock import SimClock, WallClock
+from smcpilot.errors import RateMismatchError, WatchdogError
 from smcpilot.fastcodec import encode_debug_float_array, encode_hil_actuator_controls
 from smcpilot.frames import body_rates_to_euler_rates, euler_frd_to_flu, ned_to_nwu, rates_frd_to_flu
-from smcpilot.errors import RateMismatchError, WatchdogError
+from smcpilot.geo import Home
 from smcpilot.link import MavlinkUdp
-from smcpilot.tlog import TlogWriter
+from smcpilot.plan import PlanStep
 from smcpilot.protocol import ACTUATOR_FLAG_LOCKSTEP, FC_COMPONENT_ID, SMC_ARRAY_ID, SMC_ARRAY_NAME
+from smcpilot.tlog import TlogWriter
 from smcpilot.vehicle import VehicleParams
 
 FC_COMPONENT = FC_COMPONENT_ID
@@ -222,8 +223,8 @@ class FlightControllerApp:
             self.tlog.close()
 
     def run(self) -> int:
-        sim_addr = "%s:%d" % self.sim.local_address
-        gcs_addr = "%s:%d" % self.gcs.local_address if self.gcs else "-"
+        sim_addr = "{}:{}".format(*self.sim.local_address)
+        gcs_addr = "{}:{}".format(*self.gcs.local_address) if self.gcs else "-"
         self.say(f"FC_LISTENING sim={sim_addr} gcs={gcs_addr} pid={os.getpid()}")
         if self.tlog is not None:  # the configuration this flight flies, for the log's readers
             lm = self._logmav

@@ -6,18 +6,18 @@ import argparse
 import math
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Sequence
 
 from fc.app import EXIT_CONFIG, FlightControllerApp, install_signal_handlers
 from fc.config import FcConfig
-from smcpilot.protocol import FC_CONTROLLERS
 from fc.params import ParamStore, apply_scenario
-from smcpilot.plan import load_plan
-from smcpilot.geo import Home
-from smcpilot.scenario import Scenario
 from smcpilot.errors import SmcpilotError
+from smcpilot.geo import Home
+from smcpilot.plan import load_plan
+from smcpilot.protocol import FC_CONTROLLERS
+from smcpilot.scenario import Scenario
 from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
 
 

@@ -17,7 +17,7 @@ failsafe on the wall clock (a ground station lives in real time).
 from __future__ import annotations
 
 import math
-from typing import Callable
+from collections.abc import Callable
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 

@@ -18,7 +18,6 @@ from smcpilot.errors import ConfigError
 from smcpilot.protocol import FC_CONTROLLERS
 
 
-
 @dataclass(frozen=True)
 class FcConfig:
     """Everything that configures the flight controller besides the vehicle."""

@@ -23,15 +23,16 @@ process turns them into ``STATUSTEXT``, the in-process runner records them.
 
 from __future__ import annotations
 
-from typing import Callable, NamedTuple, Sequence
+from collections.abc import Callable, Sequence
+from typing import NamedTuple
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from fc.commander import Commander
 from fc.config import FcConfig
 from fc.flight import FlightControl, PipelineOutput, VehicleState
-from smcpilot.plan import PlanRunner, PlanStep
 from smcpilot.geo import Home
+from smcpilot.plan import PlanRunner, PlanStep
 from smcpilot.protocol import FLAG_ARMED, FLAG_FAILSAFE, FLAG_LANDING, FLAG_POSITION_HOLD
 from smcpilot.vehicle import VehicleParams
 

@@ -15,7 +15,8 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter
-from typing import Callable, Iterable, Protocol
+from collections.abc import Callable, Iterable
+from typing import Protocol
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 

@@ -12,8 +12,8 @@ Item 0 is home, as in ArduPilot; AUTO flies from item 1.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Callable
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -60,7 +60,7 @@ class MissionItem:
     z: float
 
     @classmethod
-    def from_msg(cls, m: mavlink.MAVLink_message) -> "MissionItem":
+    def from_msg(cls, m: mavlink.MAVLink_message) -> MissionItem:
         """From ``MISSION_ITEM_INT`` or ``MISSION_ITEM`` (float degrees become 1e7 integers)."""
         if m.get_type() == "MISSION_ITEM":
             x = int(round(m.x * 1e7)) if math.isfinite(m.x) else 2**31 - 1

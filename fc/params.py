@@ -12,15 +12,15 @@ from __future__ import annotations
 import math
 import os
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from fc.config import FcConfig
-from smcpilot.protocol import FC_CONTROLLERS
 from smcpilot.errors import ConfigError, InvalidGainError, ParamError
+from smcpilot.protocol import FC_CONTROLLERS
 from smcpilot.scenario import Scenario, ScenarioError
-
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+from fc.config import FcConfig
 from fc.control import LAW_FUNCTIONS
 from fc.control.base import integrators_anti_windup
 from fc.control.cascade_pid import CascadePid, CascadePidConsts, CascadePidParams, cascade_pid_consts, cascade_pid_output
@@ -39,7 +40,6 @@ from fc.control.pid_smc import (
     pid_smc_law,
 )
 from fc.control.sign_smc import SignSmc, SignSmcConsts, SignSmcParams, sign_smc_consts, sign_smc_output
-from fc.config import FcConfig
 from fc.mixer import MixerParams, mix, mixer_params
 from fc.position import PositionLoopParams, position_step
 from fc.prefilter import prefilter_step
@@ -169,9 +169,9 @@ def pipeline_params(config: FcConfig, vehicle: VehicleParams, law: PidSmc | Casc
     """Flatten a validated configuration, a vehicle and the law built for them (once, not per tick)."""
     kind = law_kind_of(law)
     model: PaperModel = law.model
-    smc = law.consts if kind == LAW_PID_SMC else pid_smc_consts(model, PidSmcParams())
-    cpid = law.consts if kind == LAW_CASCADE_PID else cascade_pid_consts(model, CascadePidParams())
-    ssmc = law.consts if kind == LAW_SIGN_SMC else sign_smc_consts(model, SignSmcParams())
+    smc = law.consts if isinstance(law, PidSmc) else pid_smc_consts(model, PidSmcParams())
+    cpid = law.consts if isinstance(law, CascadePid) else cascade_pid_consts(model, CascadePidParams())
+    ssmc = law.consts if isinstance(law, SignSmc) else sign_smc_consts(model, SignSmcParams())
     c = config
     return PipelineParams(
         pos_filter_omega_radps=float(c.pos_filter_omega_radps),

@@ -58,7 +58,7 @@ class PositionGains:
         if not 0.0 < self.tilt_max_rad < 1.4:
             raise ConfigError(f"tilt_max_rad must lie in (0, 1.4) rad, got {self.tilt_max_rad}")
 
-    def flat(self) -> "PositionLoopParams":
+    def flat(self) -> PositionLoopParams:
         """The gains as a :class:`PositionLoopParams` of floats."""
         return PositionLoopParams(
             float(self.kp_1ps2), float(self.kd_1ps), float(self.ki_1ps3),

@@ -22,7 +22,8 @@ the law's internals at full rate; :data:`smcpilot.protocol.SMC_FIELDS` names its
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Callable, NamedTuple, Sequence
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, NamedTuple
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -35,7 +36,7 @@ from smcpilot.frames import (
     rates_flu_to_frd,
 )
 from smcpilot.geo import Home, ned_to_global
-from smcpilot.protocol import CHI_NAMES, OVERRUN_NAME, SIG_NAMES, SMC_FIELDS
+from smcpilot.protocol import CHI_NAMES, OVERRUN_NAME, SIG_NAMES
 
 if TYPE_CHECKING:  # pragma: no cover
     from fc.core import FlightCore, TickOutput
@@ -159,7 +160,7 @@ def smc_data(out: PipelineOutput, target: Sequence[float], yaw_target: float, fl
     return data
 
 
-def smc_record(core: "FlightCore", out: "TickOutput") -> list[float]:
+def smc_record(core: FlightCore, out: TickOutput) -> list[float]:
     """The per-tick ``SMC`` record of a flight-core tick (every runner logs the same one)."""
     f = core.flight
     return smc_data(out.pipeline, f.target, f.yaw_target_rad, out.flags, out.mode)

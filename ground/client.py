@@ -21,11 +21,15 @@ from ground.vehicle.errors import (
     VehicleTimeout,
 )
 from ground.vehicle.items import MissionItem
-from ground.vehicle.link import GCS_COMPONENT_ID as GCS_COMPONENT_ID, GCS_SYSTEM_ID as GCS_SYSTEM_ID
+from ground.vehicle.link import GCS_COMPONENT_ID as GCS_COMPONENT_ID
+from ground.vehicle.link import GCS_SYSTEM_ID as GCS_SYSTEM_ID
 from ground.vehicle.modes import COPTER_MODES, mode_name, mode_number
-from ground.vehicle.names import command_name as command_name, mission_result_name as mission_result_name, result_name
+from ground.vehicle.names import command_name as command_name
+from ground.vehicle.names import mission_result_name as mission_result_name
+from ground.vehicle.names import result_name
 from ground.vehicle.subscription import Subscription
-from ground.vehicle.telemetry import HomePosition, StatusText, Telemetry, json_safe as json_safe
+from ground.vehicle.telemetry import HomePosition, StatusText, Telemetry
+from ground.vehicle.telemetry import json_safe as json_safe
 from ground.vehicle.vehicle import Vehicle
 
 __all__ = [

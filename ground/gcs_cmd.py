@@ -33,10 +33,11 @@ import math
 import os
 import sys
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, Callable, Sequence, TextIO
+from typing import Any, TextIO
 
-
+from ground.missions.schema import ItemSpec, MissionFileError, items_to_toml, load_mission
 from ground.vehicle import (
     COPTER_MODES,
     HomePosition,
@@ -48,7 +49,6 @@ from ground.vehicle import (
     json_safe,
     mode_number,
 )
-from ground.missions.schema import ItemSpec, MissionFileError, items_to_toml, load_mission
 from smcpilot.errors import ConfigError
 
 DEFAULT_CONNECT = "udpin:127.0.0.1:14550"
@@ -189,7 +189,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     mission = sub.add_parser("mission", help="upload, download, start or clear the mission", description="The mission protocol (item 0 is home and is handled by the client).")
     msub = mission.add_subparsers(dest="mission_command", metavar="ACTION")
     msub.required = True
-    s = msub.add_parser("upload", help="upload a mission TOML file", description="Upload the [[item]] list of a mission file (the format of `smcpilot mission`, see ground/missions/__init__.py; its [sitl] and [[expect]] tables are ignored here). north_m/east_m are converted to latitude/longitude through the vehicle's home.")
+    s = msub.add_parser("upload", help="upload a mission TOML file", description="Upload the [[item]] list of a mission file (the format of `smcpilot mission`, see"
+                        " ground/missions/__init__.py; its [sitl] and [[expect]] tables are ignored here). north_m/east_m"
+                        " are converted to latitude/longitude through the vehicle's home.")
     s.add_argument("file", type=Path, metavar="FILE", help="mission TOML file")
     s.set_defaults(gcs_handler=_mission_upload)
     s = msub.add_parser("download", help="download the mission (TOML to FILE or stdout)", description="Download the mission; home (item 0) is left out.")
@@ -202,7 +204,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     s = msub.add_parser("clear", help="delete the mission", description="MISSION_CLEAR_ALL.")
     s.set_defaults(gcs_handler=_mission_clear)
 
-    s = sub.add_parser("watch", help="live view of the vehicle (Ctrl-C ends)", description="Redraws state, mode, position, set-point, χ̂, σ and the last STATUSTEXT in place a few times a second; one line per update when stdout is not a terminal.")
+    s = sub.add_parser("watch", help="live view of the vehicle (Ctrl-C ends)", description="Redraws state, mode, position, set-point, χ̂, σ and the last STATUSTEXT in place a few times"
+                       " a second; one line per update when stdout is not a terminal.")
     s.add_argument("--once", action="store_true", help="print one frame and exit")
     s.add_argument("--rate-hz", type=float, default=4.0, metavar="HZ", help="updates per wall second (default 4)")
     s.set_defaults(gcs_handler=_watch)

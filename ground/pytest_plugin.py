@@ -46,14 +46,15 @@ import itertools
 import os
 import re
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import pytest
 
-from ground.vehicle import Vehicle
 from ground.sitl import SCENARIO_KEYWORDS, Sitl, SitlOptions
+from ground.vehicle import Vehicle
 from smcpilot.scenario import Scenario
 
 #: SitlOptions fields the marker may not set (the fixture owns them).

@@ -20,9 +20,10 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, TextIO
+from typing import Any, TextIO
 
 from smcpilot.errors import SmcpilotError
 from smcpilot.geo import Home
@@ -67,7 +68,7 @@ class SitlOptions:
     sim_args: tuple[str, ...] = ()
 
     @classmethod
-    def of(cls, **kw: Any) -> "SitlOptions":
+    def of(cls, **kw: Any) -> SitlOptions:
         """Options from flat keywords: the flight's (:data:`SCENARIO_KEYWORDS`: ``vehicle`` and
         ``plan`` as file paths, ``home`` as ``"LAT,LON,ALT"``, ``duration_s`` None for "until
         stopped") and the launch's (the other fields). A ``scenario`` keyword is the base."""
@@ -157,7 +158,7 @@ def _pdeathsig() -> None:  # pragma: no cover - runs in the child
 class Child:
     name: str
     proc: subprocess.Popen
-    lines: "queue.Queue[str]" = field(default_factory=queue.Queue)
+    lines: queue.Queue[str] = field(default_factory=queue.Queue)
     tail: list[str] = field(default_factory=list)
     summary: dict | None = None
     thread: threading.Thread | None = None
@@ -239,7 +240,7 @@ class Sitl:
         lines = [ln for ln in child.tail if not ln.startswith(("FC_SUMMARY", "SIM_SUMMARY"))][-8:]
         return (":\n  " + "\n  ".join(lines)) if lines else ""
 
-    def start(self, ready_timeout_s: float = 30.0) -> "Sitl":
+    def start(self, ready_timeout_s: float = 30.0) -> Sitl:
         o = self.options
         if o.tlog is not None:
             tlog = o.tlog
@@ -342,7 +343,7 @@ class Sitl:
                 c.proc.send_signal(signal.SIGTERM)
         self.stop(grace_s=0.0)
 
-    def __enter__(self) -> "Sitl":
+    def __enter__(self) -> Sitl:
         try:
             return self.start()
         except BaseException:

@@ -8,9 +8,10 @@ import math
 import signal
 import sys
 import time
+from collections.abc import Callable
 from importlib import resources
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from ground.sitl import Sitl, SitlError, SitlOptions, print_connect_help
 from smcpilot.errors import ConfigError

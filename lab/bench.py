@@ -9,12 +9,13 @@ from different machines can be compared as ratios.
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import platform
 import sys
 import time
 import timeit
-from typing import Callable
+from collections.abc import Callable
 
 from fc.control import CONTROLLER_NAMES
 from smcpilot.errors import ConfigError
@@ -37,9 +38,9 @@ def _best_us(fn: Callable[[], object], number: int, repeat: int) -> float:
 
 def bench_control(args: argparse.Namespace) -> int:
     from fc.control.base import constant_reference
+    from lab.closed_loop import simulate
     from lab.paper.run import PaperRunOptions, build_controller
     from lab.paper.scenario import PAPER_TARGETS, PAPER_X0, PaperScenario
-    from lab.closed_loop import simulate
     from sim_bridge.plants.paper import PaperPlant
     from smcpilot.integrate import rk4_step
     from smcpilot.model import PaperModel
@@ -62,7 +63,7 @@ def bench_control(args: argparse.Namespace) -> int:
     for name in CONTROLLER_NAMES:
         ctrl = build_controller(name, model, opts)
         st = ctrl.initial_state(meas)
-        us = _best_us(lambda: ctrl.step(meas, ref, st, 0.002), n, args.repeat)
+        us = _best_us(functools.partial(ctrl.step, meas, ref, st, 0.002), n, args.repeat)
         print(f"  {name:<18} {us:7.2f} µs/step   ({us / floor:.2f}× baseline; target ≤ 10 µs)")
 
     u = model.hover_inputs()
@@ -101,11 +102,11 @@ def bench_sitl(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from fc.config import FcConfig
-    from smcpilot.plan import load_plan
-    from lab.runner import fly
     from ground.sitl import Sitl, SitlOptions
     from ground.sitl_cmd import demo_plan_path
+    from lab.runner import fly
     from sim_bridge.plants.rigid_body import RigidBodyPlant
+    from smcpilot.plan import load_plan
     from smcpilot.vehicle import DEFAULT_VEHICLE
 
     if not args.duration > 0 or args.realtime_s < 0:
@@ -179,10 +180,10 @@ def _bench_codec() -> None:
     print("\nMAVLink codec per message (pymavlink → fast path, µs):")
     for name, m in msgs.items():
         pkt = m.pack(mav)
-        enc_slow = _best_us(lambda: m.pack(mav), 20000, 5)
-        enc_fast = _best_us(lambda: fastcodec.pack_message(m, 0, 1, 1), 20000, 5)
-        dec_slow = _best_us(lambda: dec.decode(bytearray(pkt)), 20000, 5)
-        dec_fast = _best_us(lambda: fastcodec.decode_packet(pkt), 20000, 5)
+        enc_slow = _best_us(functools.partial(m.pack, mav), 20000, 5)
+        enc_fast = _best_us(functools.partial(fastcodec.pack_message, m, 0, 1, 1), 20000, 5)
+        dec_slow = _best_us(lambda pkt=pkt: dec.decode(bytearray(pkt)), 20000, 5)  # type: ignore[misc]
+        dec_fast = _best_us(functools.partial(fastcodec.decode_packet, pkt), 20000, 5)
         print(f"  {name:<22} encode {enc_slow:5.2f} → {enc_fast:4.2f} ({enc_slow / enc_fast:.1f}×)"
               f"   decode {dec_slow:5.2f} → {dec_fast:4.2f} ({dec_slow / dec_fast:.1f}×)")  # fmt: skip
 

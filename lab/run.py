@@ -42,11 +42,11 @@ from smcpilot.geo import Home
 from smcpilot.protocol import (
     ACTUATOR_FLAG_LOCKSTEP,
     FC_COMPONENT_ID,
+    FC_CONTROLLERS,
     SIM_COMPONENT_ID,
     SMC_ARRAY_ID,
     SMC_ARRAY_NAME,
 )
-from smcpilot.protocol import FC_CONTROLLERS
 from smcpilot.scenario import Scenario, ScenarioError
 from smcpilot.tlog import TlogWriter
 

@@ -15,25 +15,25 @@ the core for a configuration and a plan.
 from __future__ import annotations
 
 import struct
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
 
 from fc.config import FcConfig
 from fc.core import FlightCore, TickOutput
 from fc.flight import VehicleState
-from smcpilot.plan import PlanStep
 from sim_bridge.plants.base import Plant
 from sim_bridge.sensors import VehicleObservation
 from smcpilot.frames import (
     body_rates_to_euler_rates,
-    euler_frd_to_flu,
     euler_flu_to_frd,
+    euler_frd_to_flu,
     ned_to_nwu,
     nwu_to_ned,
     rates_flu_to_frd,
     rates_frd_to_flu,
 )
 from smcpilot.geo import Home
+from smcpilot.plan import PlanStep
 from smcpilot.vehicle import VehicleParams
 
 _f32 = struct.Struct("<12f")

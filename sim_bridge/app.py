@@ -22,15 +22,16 @@ import os
 import signal
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable, TextIO
+from typing import TextIO
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from sim_bridge.plants.base import Plant
+from smcpilot.errors import DivergenceError, WatchdogError
 from smcpilot.fastcodec import encode_attitude, encode_local_position_ned
 from smcpilot.frames import euler_flu_to_frd, nwu_to_ned, rates_flu_to_frd
-from smcpilot.errors import DivergenceError, WatchdogError
 from smcpilot.link import MavlinkUdp
 from smcpilot.protocol import SIM_COMPONENT_ID
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 from sim_bridge.app import BridgeTiming, SimBridgeApp, install_signal_handlers
 from sim_bridge.build import make_plant, plant_for

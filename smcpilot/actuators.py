@@ -16,7 +16,7 @@ float command never crashes the plant. Rotor numbering is the paper's (see
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 from smcpilot.vehicle import VehicleParams
 

@@ -10,7 +10,8 @@ time stamps and MAVLink ``time_usec`` fields need). A :class:`WallClock` also sl
 from __future__ import annotations
 
 import time
-from typing import Callable, Protocol
+from collections.abc import Callable
+from typing import Protocol
 
 
 class Clock(Protocol):

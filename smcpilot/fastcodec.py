@@ -28,7 +28,7 @@ left to pymavlink by :mod:`smcpilot.link`.
 from __future__ import annotations
 
 import struct
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 

@@ -31,7 +31,7 @@ class Home:
                 raise ConfigError(f"home {name} must be a number in [{lo:g}, {hi:g}], got {v!r}")
 
     @classmethod
-    def parse(cls, text: str) -> "Home":
+    def parse(cls, text: str) -> Home:
         """``"LAT,LON,ALT"`` (degrees, degrees, metres AMSL)."""
         try:
             lat, lon, alt = (float(v) for v in text.split(","))

@@ -41,9 +41,10 @@ import select
 import socket
 import struct
 import time
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass
 from types import TracebackType
-from typing import Callable, Iterable, Literal, Sequence
+from typing import Literal
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 

@@ -199,12 +199,12 @@ class PaperModel:
 
     def consts(self) -> ModelConsts:
         """The coefficients as a :class:`ModelConsts` of plain floats (what the pure functions take)."""
-        return ModelConsts(*self._k)
+        return ModelConsts(*self._k)  # type: ignore[arg-type]  # _k holds exactly ModelConsts' fields
 
     @classmethod
     def from_vehicle(
         cls, vehicle: VehicleParams = DEFAULT_VEHICLE, typos: frozenset[str] | str | None = None
-    ) -> "PaperModel":
+    ) -> PaperModel:
         ty = parse_typos(typos) & MODEL_TYPOS
         v = vehicle
         ix, iy, iz = v.ixx_kg_m2, v.iyy_kg_m2, v.izz_kg_m2

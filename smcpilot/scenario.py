@@ -47,9 +47,10 @@ from __future__ import annotations
 import json
 import math
 import tomllib
+from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 from smcpilot.errors import ConfigError
 from smcpilot.plan import PlanError, PlanStep, parse_plan
@@ -162,13 +163,13 @@ class Scenario:
         """Control ticks of a full flight: t = 0, one period, ..., ``duration_s`` (both ends)."""
         return int(round(self.duration_s * self.rate_hz)) + 1
 
-    def with_changes(self, **changes: Any) -> "Scenario":
+    def with_changes(self, **changes: Any) -> Scenario:
         """A copy with some fields replaced (validated again)."""
         return replace(self, **changes)
 
     # -- TOML -------------------------------------------------------------------------------------
     @classmethod
-    def from_toml(cls, path: str | Path) -> "Scenario":
+    def from_toml(cls, path: str | Path) -> Scenario:
         p = Path(path)
         try:
             text = p.read_text(encoding="utf-8")
@@ -181,7 +182,7 @@ class Scenario:
         return cls.from_mapping(doc, source=str(p), base_dir=p.parent)
 
     @classmethod
-    def from_mapping(cls, doc: Mapping[str, Any], *, source: str = "scenario", base_dir: Path | None = None) -> "Scenario":
+    def from_mapping(cls, doc: Mapping[str, Any], *, source: str = "scenario", base_dir: Path | None = None) -> Scenario:
         """Build from a parsed TOML document; relative paths resolve against ``base_dir``."""
         try:
             return _parse(doc, source, base_dir)

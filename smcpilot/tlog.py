@@ -20,9 +20,9 @@ from __future__ import annotations
 
 import os
 import struct
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from types import TracebackType
-from typing import Iterable, Iterator
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 

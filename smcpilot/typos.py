@@ -8,7 +8,7 @@ typos change only the control law in :mod:`fc.control.pid_smc`.
 
 from __future__ import annotations
 
-from typing import Iterable
+from collections.abc import Iterable
 
 from smcpilot.errors import ConfigError
 

@@ -21,9 +21,10 @@ from __future__ import annotations
 import json
 import math
 import tomllib
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
 from smcpilot.errors import VehicleFileError
 
@@ -116,7 +117,7 @@ class VehicleParams:
         return asdict(self)
 
     @classmethod
-    def from_mapping(cls, data: Mapping[str, Any], *, source: str = "vehicle") -> "VehicleParams":
+    def from_mapping(cls, data: Mapping[str, Any], *, source: str = "vehicle") -> VehicleParams:
         """Build from a mapping of field names; unknown keys raise naming the key and the source."""
         known = {f.name for f in fields(cls)}
         data = dict(data)
@@ -136,7 +137,7 @@ class VehicleParams:
             raise VehicleFileError(f"{source}: {exc}") from None
 
     @classmethod
-    def from_toml(cls, path: str | Path) -> "VehicleParams":
+    def from_toml(cls, path: str | Path) -> VehicleParams:
         """Load a vehicle TOML file (keys under ``[vehicle]``)."""
         p = Path(path)
         try:

@@ -28,9 +28,9 @@ import socket
 import threading
 import time
 from collections import deque
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterator, Sequence
 
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as M

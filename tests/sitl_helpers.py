@@ -23,15 +23,15 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable, Sequence
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from smcpilot.protocol import SIM_COMPONENT_ID, SMC_ARRAY_ID, SMC_FIELDS
 from ground.sitl import Sitl, SitlOptions
+from smcpilot.protocol import SIM_COMPONENT_ID, SMC_ARRAY_ID, SMC_FIELDS
 from smcpilot.tlog import read_tlog
 
 PYTHON = sys.executable
@@ -193,7 +193,7 @@ class FcProcess:
             bufsize=1,
             env=env,
         )
-        self.lines: "queue.Queue[str]" = queue.Queue()
+        self.lines: queue.Queue[str] = queue.Queue()
         self.all_lines: list[str] = []
         self._thread = threading.Thread(target=self._pump, daemon=True)
         self._thread.start()

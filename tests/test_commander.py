@@ -13,13 +13,13 @@ from fc.config import FcConfig
 from fc.core import FlightCore
 from fc.mission import MissionItem, validate
 from fc.modes import Refusal
-from smcpilot.protocol import Mode
 from fc.params import PARAMS, ParamError, ParamStore, defaults_table
 from fc.streams import StreamScheduler
 from lab.runner import wire_state
 from sim_bridge.environment import Environment, EnvironmentParams
 from sim_bridge.plants.rigid_body import RigidBodyPlant
 from smcpilot.geo import Home, ned_to_global
+from smcpilot.protocol import Mode
 from smcpilot.vehicle import DEFAULT_VEHICLE
 
 M = mavlink

@@ -32,7 +32,6 @@ from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
 import pytest
-
 import yaml  # PyYAML, from the test extra
 
 REPO = Path(__file__).resolve().parents[1]
@@ -439,7 +438,7 @@ def compose_problems(data: dict, dockerfile_text: str, compose_dir: Path = COMPO
         problems.append(f"fc mounts no volume or bind mount at {LOG_DIR}")
     for src in log_mounts:
         is_bind = src.startswith((".", "/", "~", "$"))
-        if not is_bind and src not in ((data.get("volumes") or {})):
+        if not is_bind and src not in (data.get("volumes") or {}):
             problems.append(f"fc mounts the named volume {src!r}, which the top-level `volumes` does not declare")
     return problems
 

@@ -11,17 +11,16 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from sitl_helpers import TAKEOFF_3M, FakeSim, FcProcess, load_flight, parse_datagram, udp_socket, write_plan
 
 from fc.config import FcConfig
 from fc.mixer import Mixer
 from smcpilot.vehicle import DEFAULT_VEHICLE
-
-from sitl_helpers import TAKEOFF_3M, FakeSim, FcProcess, load_flight, parse_datagram, udp_socket, write_plan
 
 _ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
 

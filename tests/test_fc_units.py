@@ -13,7 +13,6 @@ from hypothesis import strategies as st
 from fc.config import FcConfig
 from fc.flight import FlightControl, VehicleState
 from fc.mixer import Mixer
-from smcpilot.plan import PlanError, PlanStep, parse_plan
 from fc.position import PositionGains, position_step
 from fc.prefilter import prefilter_step
 from lab.runner import fly
@@ -21,6 +20,7 @@ from sim_bridge.environment import Environment
 from sim_bridge.plants.rigid_body import RigidBodyPlant
 from smcpilot.frames import rotation_matrix_from_euler, wrap_pi
 from smcpilot.model import PaperModel
+from smcpilot.plan import PlanError, PlanStep, parse_plan
 from smcpilot.vehicle import DEFAULT_VEHICLE
 
 V = DEFAULT_VEHICLE

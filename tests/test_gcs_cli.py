@@ -10,16 +10,16 @@ import os
 import signal
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator
 
 import pytest
 
-from lab.cli import build_parser
 from ground.client import StatusText, Telemetry
 from ground.gcs_cmd import render_frame, render_line
 from ground.missions import load_mission
 from ground.sitl import Sitl, SitlOptions
+from lab.cli import build_parser
 
 LOOPBACK = "127.0.0.1"
 #: Wall-clock limit of one CLI run (only to turn a hang into a failure).

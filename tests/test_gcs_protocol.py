@@ -24,11 +24,6 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
-from pymavlink import mavutil
-from pymavlink.dialects.v20 import ardupilotmega as M
-
-from ground.sitl import Sitl, SitlOptions
-
 from gcs_helpers import (
     FC_COMPID,
     FC_SYSID,
@@ -50,6 +45,10 @@ from gcs_helpers import (
     upload_mission,
     waypoint,
 )
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import ardupilotmega as M
+
+from ground.sitl import Sitl, SitlOptions
 
 NAN = math.nan
 GUIDED, AUTO, LOITER, RTL, LAND, ALT_HOLD = (M.COPTER_MODE_GUIDED, M.COPTER_MODE_AUTO, M.COPTER_MODE_LOITER,
@@ -810,7 +809,7 @@ def test_ten_percent_packet_loss(tmp_path, fc):
             # a mission upload: the FC re-requests lost items, we resend lost counts
             items = standard_mission()
             mark = g.mark()
-            for attempt in range(5):
+            for attempt in range(5):  # noqa: B007 - the count is reported after the loop
                 ack = upload_mission(g, items, resend_count_after_s=2.5, timeout=60)
                 if ack.type == M.MAV_MISSION_ACCEPTED:
                     break

@@ -11,19 +11,19 @@ import argparse
 import json
 import math
 import struct
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from smcpilot.protocol import FLAG_ARMED, FLAG_LANDING, FLAG_POSITION_HOLD, SMC_ARRAY_ID, SMC_FIELDS
 from ground import logtools
 from ground.logtools import LogError, load_log, plot_log, print_summary, summarize
 from smcpilot.errors import SmcpilotError
 from smcpilot.fastcodec import encode_debug_float_array
 from smcpilot.frames import euler_frd_to_flu, ned_to_nwu
+from smcpilot.protocol import FLAG_ARMED, FLAG_LANDING, FLAG_POSITION_HOLD, SMC_ARRAY_ID, SMC_FIELDS
 from smcpilot.tlog import TlogWriter
 
 NAN = float("nan")

@@ -184,7 +184,7 @@ def _states(n: int, seed: int) -> list[VehicleState]:
     r = random.Random(seed)
     out = []
     z = 0.0
-    for k in range(n):
+    for _k in range(n):
         z = max(0.0, z + r.uniform(-0.01, 0.03))
         out.append(VehicleState(r.uniform(-0.1, 0.1), r.uniform(-0.1, 0.1), z, r.uniform(-0.2, 0.2), r.uniform(-0.2, 0.2),
                                 r.uniform(-0.3, 0.3), r.uniform(-0.05, 0.05), r.uniform(-0.05, 0.05), r.uniform(-3.2, 3.2),

@@ -24,15 +24,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
-
-from fc.config import FcConfig
-from smcpilot.plan import PlanStep
-from lab.runner import fly
-from ground.sitl import Sitl, SitlError
-from sim_bridge.environment import Environment
-from sim_bridge.plants.rigid_body import RigidBodyPlant
-from smcpilot.vehicle import DEFAULT_VEHICLE
-
 from sitl_helpers import (
     HANG_TIMEOUT_S,
     Flight,
@@ -46,6 +37,14 @@ from sitl_helpers import (
     udp_socket,
     wrap_deg,
 )
+
+from fc.config import FcConfig
+from ground.sitl import Sitl, SitlError
+from lab.runner import fly
+from sim_bridge.environment import Environment
+from sim_bridge.plants.rigid_body import RigidBodyPlant
+from smcpilot.plan import PlanStep
+from smcpilot.vehicle import DEFAULT_VEHICLE
 
 HOLD_TOL_M = 0.05
 LEVEL_TOL_DEG = 1.0

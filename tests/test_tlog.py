@@ -150,7 +150,7 @@ def test_small_buffer_hands_only_whole_records_to_the_os(tmp_path: Path) -> None
     path = tmp_path / "small.tlog"
     boundaries = {0}
     total = 0
-    for time_us, packet in records:
+    for _time_us, packet in records:
         total += 8 + len(packet)
         boundaries.add(total)
     with TlogWriter(path, buffer_bytes=100) as writer:

@@ -31,7 +31,8 @@ classes validate their parameters once, flatten them (``consts``) and wrap those
 
 from __future__ import annotations
 
-from typing import NamedTuple, Protocol, Sequence
+from collections.abc import Sequence
+from typing import NamedTuple, Protocol
 
 Meas = Sequence[float]
 Ref = Sequence[float]

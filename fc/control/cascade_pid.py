@@ -17,13 +17,13 @@ Altitude: P -> climb-rate PI with gravity and tilt feed-forward::
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import NamedTuple, Sequence
+from typing import NamedTuple
 
 from fc.control.base import Diagnostics, IntegratingBaseline, Vec4
 from smcpilot.errors import InvalidGainError
 from smcpilot.model import PaperModel, tilt_cos
-
 
 
 @dataclass(frozen=True)
@@ -76,7 +76,7 @@ class CascadePid(IntegratingBaseline):
     """
 
     name = "cascade_pid"
-    state_names = ("int_rate_err_phi", "int_rate_err_theta", "int_rate_err_psi", "int_climb_err_z")
+    state_names: tuple[str, ...] = ("int_rate_err_phi", "int_rate_err_theta", "int_rate_err_psi", "int_climb_err_z")
 
     def __init__(self, model: PaperModel, params: CascadePidParams = CascadePidParams()) -> None:
         self.model = model

@@ -7,8 +7,9 @@ per-channel defaults for nu and the known bound chi differ and live in :data:`PA
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, fields, replace
-from typing import Any, Mapping
+from typing import Any
 
 from smcpilot.errors import InvalidGainError
 from smcpilot.model import CHANNELS
@@ -59,7 +60,7 @@ class ChannelGains:
             if getattr(self, name) < 0.0:
                 raise InvalidGainError(f"gain {name} must be >= 0, got {getattr(self, name)}")
 
-    def with_(self, **changes: Any) -> "ChannelGains":
+    def with_(self, **changes: Any) -> ChannelGains:
         return replace(self, **changes)
 
 

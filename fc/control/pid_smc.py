@@ -27,8 +27,9 @@ allocation of lists, nothing a compiler such as numba's ``njit`` would refuse). 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Literal, NamedTuple, Sequence
+from typing import Literal, NamedTuple
 
 from fc.control.base import Diagnostics, Vec4
 from fc.control.gains import PAPER_GAINS, ChannelGains, Gains4
@@ -258,9 +259,9 @@ class PidSmc:
             lo, hi = p.u_lo, p.u_hi
             at = [(state[4 + i] >= hi[i] and ud[i] > 0.0) or (state[4 + i] <= lo[i] and ud[i] < 0.0) for i in range(4)]
             if any(at):
-                ud = tuple(0.0 if at[i] else ud[i] for i in range(4))
-                ds = tuple(0.0 if at[i] else s[i] for i in range(4))
-                rate = tuple(0.0 if at[i] else rate[i] for i in range(4))
+                ud = tuple(0.0 if at[i] else ud[i] for i in range(4))  # type: ignore[assignment]
+                ds = tuple(0.0 if at[i] else s[i] for i in range(4))  # type: ignore[assignment]
+                rate = tuple(0.0 if at[i] else rate[i] for i in range(4))  # type: ignore[assignment]
                 u = (state[4], state[5], state[6], state[7])
                 return ds + ud + rate, Diagnostics(s, sg, chi, u, ud)
         u = (state[4], state[5], state[6], state[7])

@@ -14,13 +14,13 @@ algebraic, the gyroscopic term uses Omega-bar = 0 (its hover value).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import NamedTuple, Sequence
+from typing import NamedTuple
 
 from fc.control.base import Diagnostics, IntegratingBaseline, Vec4
 from smcpilot.errors import InvalidGainError
 from smcpilot.model import PaperModel, drift, tilt_cos
-
 
 
 @dataclass(frozen=True)
@@ -75,7 +75,7 @@ class SignSmc(IntegratingBaseline):
     """
 
     name = "sign_smc"
-    state_names = ("int_e_phi", "int_e_theta", "int_e_psi", "int_e_z")
+    state_names: tuple[str, ...] = ("int_e_phi", "int_e_theta", "int_e_psi", "int_e_z")
 
     def __init__(self, model: PaperModel, params: SignSmcParams = SignSmcParams()) -> None:
         self.model = model

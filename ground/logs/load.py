@@ -36,6 +36,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -356,7 +357,7 @@ def load_log(path: str | os.PathLike[str]) -> FlightLog:
         m = np.asarray(smc_rows, dtype=float)
         log.smc_t_s = (np.asarray(smc_t, dtype=float) - t0) * 1e-6
         log.smc = {name: m[:, i] for i, name in enumerate(SMC_FIELDS)}
-        col = log.smc
+        col: dict[str, Any] = log.smc  # numpy columns through the scalar frame functions (they broadcast)
         log.s = m[:, _SMC_INDEX["s_phi"] : _SMC_INDEX["s_phi"] + 4]
         log.u = m[:, _SMC_INDEX["u_phi"] : _SMC_INDEX["u_phi"] + 4]
         roll_r, pitch_r, yaw_r = euler_flu_to_frd(col["ref_phi"], col["ref_theta"], col["ref_psi"])
@@ -365,7 +366,7 @@ def load_log(path: str | os.PathLike[str]) -> FlightLog:
         log.ref_yaw_deg = _wrap_deg(np.degrees(yaw_r))
         log.ref_alt_m = col["ref_z"].copy()  # paper z is already up
         north, east, down = nwu_to_ned((col["target_x"], col["target_y"], col["target_z"]))
-        log.target_north_m, log.target_east_m, log.target_alt_m = north, east, -down
+        log.target_north_m, log.target_east_m, log.target_alt_m = north, east, -down  # type: ignore[assignment]
         log.target_yaw_deg = _wrap_deg(np.degrees(euler_flu_to_frd(0.0, 0.0, col["target_yaw"])[2]))
         mask = col["limited_mask"]
         log.limited_mask = np.where(np.isfinite(mask), mask, 0).astype(int)

@@ -163,13 +163,14 @@ public names (``__all__`` as before, and ``PROGRESS_EVERY_SIM_S``, ``LANDED_MAX_
 
 from __future__ import annotations
 
-from ground.missions.cli import EXIT_FAILED as EXIT_FAILED, EXIT_PASSED as EXIT_PASSED, EXIT_USAGE as EXIT_USAGE
+from ground.missions.cli import EXIT_FAILED as EXIT_FAILED
+from ground.missions.cli import EXIT_PASSED as EXIT_PASSED
+from ground.missions.cli import EXIT_USAGE as EXIT_USAGE
 from ground.missions.cli import add_arguments, main
 from ground.missions.errors import MissionFileError, MissionRunError
 from ground.missions.expectations import (
     CHANNELS,
     EXPECTATION_KINDS,
-    LANDED_MAX_ALT_M as LANDED_MAX_ALT_M,
     ChiHat,
     Expectation,
     ExpectationResult,
@@ -180,9 +181,13 @@ from ground.missions.expectations import (
     Reach,
     evaluate,
 )
+from ground.missions.expectations import (
+    LANDED_MAX_ALT_M as LANDED_MAX_ALT_M,
+)
 from ground.missions.record import FlightRecord, TelemetryRecorder, record_from_log
 from ground.missions.report import MissionReport, print_report
-from ground.missions.runner import PROGRESS_EVERY_SIM_S as PROGRESS_EVERY_SIM_S, run_mission
+from ground.missions.runner import PROGRESS_EVERY_SIM_S as PROGRESS_EVERY_SIM_S
+from ground.missions.runner import run_mission
 from ground.missions.schema import (
     DEFAULT_MAX_DURATION_S,
     ITEM_TYPES,

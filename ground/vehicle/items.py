@@ -47,7 +47,7 @@ class MissionItem:
     autocontinue: bool = True
 
     @classmethod
-    def takeoff(cls, alt_m: float) -> "MissionItem":
+    def takeoff(cls, alt_m: float) -> MissionItem:
         """NAV_TAKEOFF to ``alt_m`` above home, over the current position."""
         return cls(mavlink.MAV_CMD_NAV_TAKEOFF, alt_m=float(alt_m))
 
@@ -61,7 +61,7 @@ class MissionItem:
         hold_s: float = 0.0,
         acceptance_radius_m: float = 0.0,
         yaw_deg: float | None = None,
-    ) -> "MissionItem":
+    ) -> MissionItem:
         """NAV_WAYPOINT at ``alt_m`` above home; hold ``hold_s`` s there; radius 0 = WP_RADIUS;
         ``yaw_deg`` None (NaN on the wire) keeps the heading."""
         return cls(
@@ -77,31 +77,31 @@ class MissionItem:
     @classmethod
     def loiter_time(
         cls, hold_s: float, lat_deg: float = 0.0, lon_deg: float = 0.0, alt_m: float = 0.0
-    ) -> "MissionItem":
+    ) -> MissionItem:
         """NAV_LOITER_TIME: hold ``hold_s`` s at the position (0, 0 = here) and ``alt_m`` above home."""
         return cls(
             mavlink.MAV_CMD_NAV_LOITER_TIME, param1=float(hold_s), lat_deg=float(lat_deg), lon_deg=float(lon_deg), alt_m=float(alt_m)
         )
 
     @classmethod
-    def land(cls, lat_deg: float = 0.0, lon_deg: float = 0.0) -> "MissionItem":
+    def land(cls, lat_deg: float = 0.0, lon_deg: float = 0.0) -> MissionItem:
         """NAV_LAND at the position (0, 0 = where the vehicle is)."""
         return cls(mavlink.MAV_CMD_NAV_LAND, lat_deg=float(lat_deg), lon_deg=float(lon_deg))
 
     @classmethod
-    def rtl(cls) -> "MissionItem":
+    def rtl(cls) -> MissionItem:
         """NAV_RETURN_TO_LAUNCH."""
         return cls(mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH)
 
     @classmethod
-    def change_speed(cls, speed_mps: float) -> "MissionItem":
+    def change_speed(cls, speed_mps: float) -> MissionItem:
         """DO_CHANGE_SPEED: horizontal speed ``speed_mps`` (ground speed; -1 = no change)."""
         return cls(
             mavlink.MAV_CMD_DO_CHANGE_SPEED, frame=mavlink.MAV_FRAME_MISSION, param1=1.0, param2=float(speed_mps), param3=-1.0
         )
 
     @classmethod
-    def home(cls, home: HomePosition | None) -> "MissionItem":
+    def home(cls, home: HomePosition | None) -> MissionItem:
         """Item 0 (home): a NAV_WAYPOINT in MAV_FRAME_GLOBAL (altitude AMSL); zeros if unknown."""
         if home is None:
             return cls(mavlink.MAV_CMD_NAV_WAYPOINT, frame=mavlink.MAV_FRAME_GLOBAL)
@@ -138,7 +138,7 @@ class MissionItem:
         )
 
     @classmethod
-    def from_message(cls, msg: mavlink.MAVLink_message) -> "MissionItem":
+    def from_message(cls, msg: mavlink.MAVLink_message) -> MissionItem:
         """From MISSION_ITEM_INT (lat/lon ×1e7) or MISSION_ITEM (float degrees)."""
         if msg.get_type() == "MISSION_ITEM_INT":
             lat, lon = msg.x * 1e-7, msg.y * 1e-7
@@ -157,7 +157,7 @@ class MissionItem:
             autocontinue=bool(msg.autocontinue),
         )
 
-    def close_to(self, other: "MissionItem", *, pos_tol_deg: float = 2e-7, tol: float = 1e-4) -> bool:
+    def close_to(self, other: MissionItem, *, pos_tol_deg: float = 2e-7, tol: float = 1e-4) -> bool:
         """Same command, frame and autocontinue, and numbers equal within the wire's resolution
         (lat/lon to ``pos_tol_deg``, the rest to ``tol`` relative; NaN equals NaN)."""
 

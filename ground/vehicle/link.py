@@ -18,8 +18,9 @@ import logging
 import math
 import threading
 import time
+from collections.abc import Callable, Iterable
 from types import TracebackType
-from typing import Callable, Iterable, Self
+from typing import Self
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 

@@ -16,7 +16,8 @@ the vehicle (:meth:`Mission.set_current`, :attr:`~ground.vehicle.telemetry.Telem
 from __future__ import annotations
 
 import time
-from typing import TYPE_CHECKING, Callable, Sequence
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -127,7 +128,7 @@ class Mission:
                 reply = self._exchange(
                     sub,
                     mav.mission_request_int_encode(ts, tc, seq, mtype),
-                    lambda m, s=seq: m.get_type() in ("MISSION_ITEM_INT", "MISSION_ITEM")
+                    lambda m, s=seq: m.get_type() in ("MISSION_ITEM_INT", "MISSION_ITEM")  # type: ignore[misc]
                     and m.seq == s
                     and getattr(m, "mission_type", 0) == mtype,
                     f"mission item {seq}",

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import logging
 import queue
-from typing import TYPE_CHECKING, Callable, Iterator
+from collections.abc import Callable, Iterator
+from typing import TYPE_CHECKING
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -35,7 +36,7 @@ class Subscription:
         self._vehicle = vehicle
         self.types = types
         self.callback = callback
-        self.queue: "queue.Queue[mavlink.MAVLink_message]" = queue.Queue(maxsize=maxsize)
+        self.queue: queue.Queue[mavlink.MAVLink_message] = queue.Queue(maxsize=maxsize)
         self.dropped = 0
 
     def wants(self, msg_type: str) -> bool:
@@ -77,7 +78,7 @@ class Subscription:
     def close(self) -> None:
         self._vehicle._unsubscribe(self)
 
-    def __enter__(self) -> "Subscription":
+    def __enter__(self) -> Subscription:
         return self
 
     def __exit__(self, *exc: object) -> None:

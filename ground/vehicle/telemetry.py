@@ -13,8 +13,9 @@ from __future__ import annotations
 import collections
 import math
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
-from typing import Any, Mapping
+from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 

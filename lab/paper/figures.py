@@ -180,7 +180,7 @@ def write_figures(run: PaperRun, out_dir: str | Path) -> list[Path]:
         tv = [float(np.sum(np.abs(np.diff(trs[nm].u[:, i])))) for nm in names]
         tv = [v if np.isfinite(v) and v > 0 else np.nan for v in tv]
         ax2.bar(range(len(names)), np.nan_to_num(tv, nan=0.0), color=[COLORS[nm] for nm in names])
-        for k, v in enumerate(tv):
+        for k, _v in enumerate(tv):
             if trs[names[k]].diverged:
                 ax2.annotate("diverged", (k, 0), xytext=(0, 3), textcoords="offset points", ha="center", fontsize=6, rotation=90)
         ax2.set_xticks(range(len(names)), [LABELS[nm].replace(" ", "\n", 1) for nm in names], fontsize=7)

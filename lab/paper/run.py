@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields
-from typing import Any, Callable, Literal
+from typing import Any, Literal
 
 from fc.control import CONTROLLER_NAMES, make_controller
 from fc.control.gains import PAPER_GAINS, Gains4

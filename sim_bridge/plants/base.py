@@ -4,7 +4,8 @@ noisy observation. Plants implement ``reset``, ``step`` and ``truth``."""
 from __future__ import annotations
 
 import math
-from typing import Protocol, Sequence
+from collections.abc import Sequence
+from typing import Protocol
 
 from sim_bridge.environment import Environment
 from sim_bridge.sensors import VehicleObservation

@@ -13,7 +13,7 @@ disturbances when enabled.
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 from sim_bridge.disturbances import paper_disturbance
 from smcpilot.model import PaperModel

@@ -29,7 +29,7 @@ keeps psi unwrapped); the acceleration is dv/dt averaged over the last integrati
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 from sim_bridge.environment import Environment
 from sim_bridge.plants.base import PlantBase

@@ -71,10 +71,11 @@ divergence around it.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple, Sequence
+from collections.abc import Sequence
+from typing import NamedTuple
 
-from sim_bridge.environment import Environment
 from sim_bridge.disturbances import paper_disturbance
+from sim_bridge.environment import Environment
 from sim_bridge.plants.base import PlantBase
 from sim_bridge.sensors import VehicleObservation
 from smcpilot.actuators import sanitize_command
