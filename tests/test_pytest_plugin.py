@@ -109,3 +109,21 @@ def test_missing_vehicle_file_is_a_setup_error(pytester: pytest.Pytester) -> Non
     result = pytester.runpytest_subprocess("--sitl-vehicle", "nope.toml", "-p", "no:cacheprovider")
     result.assert_outcomes(errors=1)
     result.stdout.fnmatch_lines(["*SITL vehicle file not found: nope.toml*"])
+
+
+def test_marker_takes_a_whole_scenario_and_keywords_change_it(pytester: pytest.Pytester) -> None:
+    scenario = Path(__file__).resolve().parents[1] / "examples" / "scenarios" / "gusty-hold.toml"
+    pytester.makepyfile(
+        test_sc=f'''
+import pytest
+
+@pytest.mark.sitl_options(scenario={str(scenario)!r}, seed=11)
+def test_scenario(sitl, sitl_process):
+    sc = sitl_process.options.scenario
+    assert (sc.name, sc.seed, sc.environment.noise, sc.environment.gust_std_n) == ("gusty-hold", 11, True, 0.15)
+    assert len(sc.plan) == 3  # the scenario's plan: the FC flies it in simulated time
+    sitl.wait_altitude(3.0, tol_m=0.3, timeout_sim_s=15)
+'''
+    )
+    result = pytester.runpytest_subprocess("-p", "no:cacheprovider")
+    result.assert_outcomes(passed=1)

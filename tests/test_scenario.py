@@ -159,6 +159,15 @@ def test_each_example_flies_the_same_in_process_and_as_sitl(tmp_path: Path, path
     for key in ("ticks", "chi_hat_final", "position_error_final_m", "position_error_rms_m", "max_tilt_deg"):
         assert sa[key] == sb[key], key
     assert [t for _, t in a.events] == [t for _, t in b.events]
+    # Both ways flew the scenario's FC parameters: the FC logs its configuration at start.
+    from ground.logs import load_log
+
+    for res in (a, b):
+        logged = load_log(res.tlog).params
+        for name, value in sc.params:
+            assert logged[name] == pytest.approx(value, rel=1e-6), (res.mode, name)
+    if sc.name == "step-yaw":
+        assert dict(sc.params) == {"SMC_CHI_DZ": 0.3}
 
 
 def test_in_process_runs_are_deterministic_and_seeded(tmp_path: Path) -> None:
