@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -10,7 +11,7 @@ from pathlib import Path
 from sim_bridge.app import BridgeTiming, SimBridgeApp, install_signal_handlers
 from sim_bridge.build import make_plant, plant_for
 from smcpilot.errors import ConfigError, SmcpilotError
-from smcpilot.scenario import PLANTS, EnvironmentSpec, Scenario, ScenarioError
+from smcpilot.scenario import PLANTS, EnvironmentSpec, Scenario
 from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
 
 EXIT_CONFIG = 2
@@ -20,8 +21,8 @@ def _triple(text: str) -> tuple[float, float, float]:
         parts = tuple(float(p) for p in text.split(","))
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected three numbers N,E,D, got {text!r}") from None
-    if len(parts) != 3:
-        raise argparse.ArgumentTypeError(f"expected three numbers N,E,D, got {text!r}")
+    if len(parts) != 3 or not all(math.isfinite(v) for v in parts):
+        raise argparse.ArgumentTypeError(f"expected three finite numbers N,E,D, got {text!r}")
     return parts  # type: ignore[return-value]
 
 
@@ -59,15 +60,15 @@ def build_parser() -> argparse.ArgumentParser:
 
 def build_plant(args: argparse.Namespace, vehicle: VehicleParams):
     """The plant the command line describes (built as a scenario's is: :mod:`sim_bridge.build`)."""
-    try:
-        env = EnvironmentSpec(
-            noise=args.noise, noise_scale=args.noise_scale,
-            wind_force_ned_n=tuple(args.wind_force) if args.wind_force else (0.0, 0.0, 0.0),
-            gust_std_n=args.gust_std, gust_tau_s=args.gust_tau, paper_disturbance=args.paper_disturbance,
-        )  # fmt: skip
-    except ScenarioError as exc:  # name the command-line flag, not the scenario key
-        msg = str(exc).replace("environment.noise_scale", "--noise-scale").replace("environment.gust_std_n", "--gust-std")
-        raise ConfigError(msg.replace("environment.gust_tau_s", "--gust-tau").replace("environment.wind_force_ned_n", "--wind-force")) from None
+    for flag, value, ok in (("--noise-scale", args.noise_scale, args.noise_scale >= 0), ("--gust-std", args.gust_std, args.gust_std >= 0),
+                            ("--gust-tau", args.gust_tau, args.gust_tau > 0)):  # fmt: skip
+        if not ok:  # (NaN fails every comparison)
+            raise ConfigError(f"{flag} must be {'> 0' if flag == '--gust-tau' else '>= 0'}, got {value:g}")
+    env = EnvironmentSpec(
+        noise=args.noise, noise_scale=args.noise_scale,
+        wind_force_ned_n=tuple(args.wind_force) if args.wind_force else (0.0, 0.0, 0.0),
+        gust_std_n=args.gust_std, gust_tau_s=args.gust_tau, paper_disturbance=args.paper_disturbance,
+    )  # fmt: skip
     return make_plant(args.plant, vehicle, env, args.seed)
 
 
