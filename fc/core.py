@@ -78,7 +78,9 @@ class FlightCore:
         self.vehicle = vehicle
         self.home = home
         self._sink: EventSink = event if event is not None else (lambda severity, text: None)
-        self._tick_events: list[tuple[int, str]] | None = None
+        #: events raised during the tick in progress (one list, reused: no allocation per tick).
+        self._events: list[tuple[int, str]] = []
+        self._in_tick = False
         self.flight = FlightControl(config, vehicle)
         self.commander = Commander(self.flight, home, self.event, mav=mav, send_to=send_to, broadcast=broadcast)
         self.plan = PlanRunner(plan)
@@ -90,13 +92,15 @@ class FlightCore:
         self.ticks = 0
         #: time of the first tick, µs (plan times count from it).
         self.t0_us = 0
+        #: simulated time of the latest tick, µs (events raised between ticks carry it too).
+        self.t_us = 0
         self.last: TickOutput | None = None
 
     # -- events and configuration ---------------------------------------------------------------
     def event(self, severity: int, text: str) -> None:
         """Raise an event: to the sink now, and into the current tick's output."""
-        if self._tick_events is not None:
-            self._tick_events.append((severity, text))
+        if self._in_tick:
+            self._events.append((severity, text))
         self._sink(severity, text)
 
     def reconfigure(self, config: FcConfig) -> None:
@@ -145,17 +149,22 @@ class FlightCore:
         if self.ticks == 0:
             self.t0_us = t_us
         self.ticks += 1
-        events: list[tuple[int, str]] = []
-        self._tick_events = events
+        self.t_us = t_us
+        self._in_tick = True
         try:
             out = self._step(t_us, state, fresh)
             if wall_s is not None:
                 self.commander.check_gcs(wall_s)
         finally:
-            self._tick_events = None
+            self._in_tick = False
+        events = self._events
+        tick_events = _NO_EVENTS
+        if events:  # rare: most ticks raise none, and then nothing is allocated
+            tick_events = tuple(events)
+            events.clear()
         f = self.flight
         mode = int(self.commander.current.number)
-        result = TickOutput(out.motors, f.armed, self.flags(), mode, out, tuple(events) if events else _NO_EVENTS)
+        result = TickOutput(out.motors, f.armed, self.flags(), mode, out, tick_events)
         self.last = result
         return result
 

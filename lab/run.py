@@ -30,6 +30,7 @@ from fc.core import FlightCore, TickOutput
 from fc.flight import VehicleState
 from fc.params import config_for, param_messages
 from lab.runner import simulate
+from sim_bridge.app import EXIT_DIVERGED
 from sim_bridge.build import plant_for
 from smcpilot.errors import DivergenceError, SmcpilotError
 from smcpilot.fastcodec import (
@@ -110,12 +111,11 @@ class _TlogRecorder:
         self._fc_seq = 0
         self._log_seq = 0
         self._mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=FC_COMPONENT_ID)
-        self.t_us = 0
         mav = self._mav
         self.tlog.write_many(0, [m.pack(mav) for m in param_messages(mav, core.config)])
 
     def event(self, severity: int, text: str) -> None:
-        self.tlog.write(self.t_us, telemetry.statustext(self._mav, severity, text).pack(self._mav))
+        self.tlog.write(self.core.t_us, telemetry.statustext(self._mav, severity, text).pack(self._mav))
 
     def on_tick(self, k: int, t_us: int, w: tuple[float, ...], st: VehicleState, out: TickOutput, motors: tuple[float, ...]) -> None:
         tl = self.tlog
@@ -134,7 +134,6 @@ class _TlogRecorder:
         data = telemetry.smc_record(self.core, out)
         tl.write(t_us, encode_debug_float_array(self._log_seq, sysid, FC_COMPONENT_ID, t_us, SMC_ARRAY_NAME, SMC_ARRAY_ID, data))
         self._log_seq = (self._log_seq + 1) & 0xFF
-        self.t_us = t_us + self.core.config.period_us
 
     def close(self) -> None:
         self.tlog.close()
@@ -145,13 +144,11 @@ def fly_in_process(scenario: Scenario, tlog_path: Path, *, echo=None) -> FlightR
     config = config_for(scenario)
     home = Home(*scenario.home) if scenario.home is not None else Home()
     events: list[tuple[float, str]] = []
-    rec: list[_TlogRecorder] = []
 
-    def event(severity: int, text: str) -> None:
-        t_s = rec[0].t_us * 1e-6 if rec else 0.0
+    def event(severity: int, text: str) -> None:  # stamped with the tick that raised it
+        t_s = core.t_us * 1e-6
         events.append((t_s, text))
-        if rec:
-            rec[0].event(severity, text)
+        recorder.event(severity, text)
         if echo is not None:
             echo(f"[{t_s:7.2f} s] {text}")
 
@@ -159,7 +156,6 @@ def fly_in_process(scenario: Scenario, tlog_path: Path, *, echo=None) -> FlightR
     plant = plant_for(scenario)
     tlog_path.parent.mkdir(parents=True, exist_ok=True)
     recorder = _TlogRecorder(tlog_path, core)
-    rec.append(recorder)
     status, message = "ok", ""
     t0 = time.perf_counter()
     ticks = 0
@@ -193,13 +189,11 @@ def fly_sitl(scenario: Scenario, tlog_path: Path, *, echo=None) -> FlightResult:
         if rc != 0:
             status, message = "error", f"SITL ended with exit code {rc}"
     except SitlError as exc:
-        status, message = "error", str(exc)
+        diverged = sitl.sim is not None and sitl.sim.proc.returncode == EXIT_DIVERGED
+        status, message = ("diverged" if diverged else "error"), str(exc)
     wall = time.perf_counter() - t0
     param_file.unlink(missing_ok=True)
     fcs = sitl.fc_summary or {}
-    sims = sitl.sim_summary or {}
-    if sims.get("diverged"):
-        status = "diverged"
     return FlightResult(scenario, "sitl", tlog_path, int(fcs.get("ticks", 0)), float(fcs.get("sim_time_s") or 0.0), wall, status, message)
 
 

@@ -134,12 +134,10 @@ def fly(
     ``record_every`` = 0 records nothing but the events (benchmarks).
     """
     run = InProcessRun()
-    t_now = [0.0]
-    core = FlightCore(config, vehicle, home=home, plan=plan, event=lambda severity, text: run.events.append((t_now[0], text)))
+    core = FlightCore(config, vehicle, home=home, plan=plan, event=lambda severity, text: run.events.append((core.t_us * 1e-6, text)))
     flight = core.flight
 
     def record(k: int, t_us: int, wire: tuple[float, ...], st: VehicleState, out: TickOutput, motors: tuple[float, ...]) -> None:
-        t_now[0] = (t_us + core.config.period_us) * 1e-6  # events of the next tick carry its time
         if record_every and k % record_every == 0:
             run.t_s.append(t_us * 1e-6)
             run.states.append(st)

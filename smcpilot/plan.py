@@ -28,13 +28,13 @@ the FC converts them to its internal frame with :mod:`smcpilot.frames`.
 from __future__ import annotations
 
 import math
-import tomllib
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from smcpilot.errors import ConfigError
+from smcpilot.tomlfile import read_toml
 
 ACTIONS = ("takeoff", "goto", "land", "disarm")
 _KEYS = {
@@ -102,13 +102,7 @@ def parse_plan(doc: dict[str, Any], source: str = "plan") -> tuple[PlanStep, ...
 
 def load_plan(path: str | Path) -> tuple[PlanStep, ...]:
     p = Path(path)
-    try:
-        doc = tomllib.loads(p.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise PlanError(f"cannot read plan {p}: {exc.strerror or exc}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise PlanError(f"{p}: not valid TOML: {exc}") from None
-    return parse_plan(doc, str(p))
+    return parse_plan(read_toml(p, PlanError, "plan"), str(p))
 
 
 def plan_duration_s(steps: Iterable[PlanStep]) -> float:

@@ -46,15 +46,15 @@ from __future__ import annotations
 
 import json
 import math
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
 from smcpilot.errors import ConfigError
-from smcpilot.plan import PlanError, PlanStep, parse_plan
+from smcpilot.plan import PlanError, PlanStep, load_plan, parse_plan
 from smcpilot.protocol import FC_CONTROLLERS
+from smcpilot.tomlfile import read_toml
 from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
 
 PLANTS = ("rigid-body", "paper")
@@ -171,15 +171,7 @@ class Scenario:
     @classmethod
     def from_toml(cls, path: str | Path) -> Scenario:
         p = Path(path)
-        try:
-            text = p.read_text(encoding="utf-8")
-        except OSError as exc:
-            raise ScenarioError(f"cannot read scenario {p}: {exc.strerror or exc}") from None
-        try:
-            doc = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as exc:
-            raise ScenarioError(f"{p}: not valid TOML: {exc}") from None
-        return cls.from_mapping(doc, source=str(p), base_dir=p.parent)
+        return cls.from_mapping(read_toml(p, ScenarioError, "scenario"), source=str(p), base_dir=p.parent)
 
     @classmethod
     def from_mapping(cls, doc: Mapping[str, Any], *, source: str = "scenario", base_dir: Path | None = None) -> Scenario:
@@ -352,8 +344,6 @@ def _parse(doc: Mapping[str, Any], source: str, base_dir: Path | None) -> Scenar
             ppath = doc["plan"]
             if not isinstance(ppath, str):
                 raise ScenarioError(f"plan must be a path string, got {ppath!r}")
-            from smcpilot.plan import load_plan
-
             pp = Path(ppath)
             kw["plan"] = load_plan(base_dir / pp if base_dir is not None and not pp.is_absolute() else pp)
     except PlanError as exc:

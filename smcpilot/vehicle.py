@@ -20,13 +20,13 @@ from __future__ import annotations
 
 import json
 import math
-import tomllib
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
 from smcpilot.errors import VehicleFileError
+from smcpilot.tomlfile import read_toml
 
 
 @dataclass(frozen=True)
@@ -140,14 +140,7 @@ class VehicleParams:
     def from_toml(cls, path: str | Path) -> VehicleParams:
         """Load a vehicle TOML file (keys under ``[vehicle]``)."""
         p = Path(path)
-        try:
-            text = p.read_text(encoding="utf-8")
-        except OSError as exc:
-            raise VehicleFileError(f"cannot read vehicle file {p}: {exc.strerror or exc}") from None
-        try:
-            doc = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as exc:
-            raise VehicleFileError(f"{p}: not valid TOML: {exc}") from None
+        doc = read_toml(p, VehicleFileError, "vehicle file")
         table = doc.get("vehicle")
         if not isinstance(table, dict):
             raise VehicleFileError(f"{p}: missing [vehicle] table")

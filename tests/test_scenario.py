@@ -214,3 +214,16 @@ def test_smcpilot_sitl_flies_a_scenario_and_flags_change_it(tmp_path: Path) -> N
     sc = Scenario.from_toml(written)
     assert sc.seed == 9 and sc.environment.noise and sc.environment.gust_std_n == 0.15 and len(sc.plan) == 3
     assert "1001 control ticks" in r.stdout
+
+
+def test_a_file_that_is_not_text_is_a_clear_error_for_every_toml_reader(tmp_path: Path) -> None:
+    from smcpilot.errors import VehicleFileError
+    from smcpilot.plan import PlanError, load_plan
+
+    path = tmp_path / "binary.toml"
+    path.write_bytes(b"\xff\xfe\x00garbage")
+    for load, error in ((Scenario.from_toml, ScenarioError), (VehicleParams.from_toml, VehicleFileError), (load_plan, PlanError)):
+        with pytest.raises(error, match=r"cannot read .*binary\.toml: not UTF-8 text"):
+            load(path)
+    with pytest.raises(ScenarioError, match="cannot read scenario"):
+        Scenario.from_toml(tmp_path)  # a directory
