@@ -74,7 +74,6 @@ _yield = getattr(os, "sched_yield", lambda: None)
 class FcStats:
     """Counters reported at exit (and summarised from the log by ``smcpilot log summary``)."""
 
-    ticks: int = 0
     overruns: int = 0
     lateness_s: list[float] = field(default_factory=list)
     rx_invalid_state: int = 0
@@ -90,7 +89,6 @@ class FcStats:
             return late[min(len(late) - 1, int(p * (len(late) - 1) + 0.5))]
 
         return {
-            "ticks": self.ticks,
             "overruns": self.overruns,
             "lateness_p50_s": pct(0.5),
             "lateness_p99_s": pct(0.99),
@@ -242,6 +240,7 @@ class FlightControllerApp:
             self._exit_code = EXIT_CONFIG
         finally:
             summary = self.stats.summary()
+            summary["ticks"] = self.core.ticks
             summary["failsafe_events"] = self.core.failsafe_events
             summary["sim_time_s"] = self.clock.now_s()
             summary["links"] = {"sim": self.sim.counters.as_dict(), "gcs": self.gcs.counters.as_dict() if self.gcs else None}
@@ -287,9 +286,9 @@ class FlightControllerApp:
                 poll_gcs()
             if not readable:
                 now = mono()
-                limit = self.cfg.watchdog_s if self.stats.ticks else self.startup_timeout_s
+                limit = self.cfg.watchdog_s if self.core.ticks else self.startup_timeout_s
                 if now - last_rx > limit:
-                    what = "sent nothing" if not self.stats.ticks else f"has been silent for {now - last_rx:.1f} s"
+                    what = "sent nothing" if not self.core.ticks else f"has been silent for {now - last_rx:.1f} s"
                     raise WatchdogError(f"simulator {what} (lockstep watchdog {limit:g} s); stopping")
 
     def _run_realtime(self) -> None:
@@ -397,11 +396,9 @@ class FlightControllerApp:
 
     def _tick(self, t_us: int, *, stale: bool) -> None:
         """One tick of the flight core, its answer to the simulator, its log record, telemetry."""
-        stats = self.stats
         core = self.core
         if core.ticks == 0:
             self.say(f"FC_READY t={t_us * 1e-6:.3f}s controller={self.cfg.controller} lockstep={self.lockstep}")
-        stats.ticks += 1
         out = core.tick(t_us, self.state, fresh=not stale, wall_s=self._mono() if self.gcs is not None else None)
         m = out.motors
         sim = self.sim
