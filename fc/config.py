@@ -11,11 +11,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, fields
 
-from fc.control.gains import PAPER_GAINS, Gains4
-from fc.control.pid_smc import AdaptationBounds
+from fc.control.gains import PAPER_GAINS, Gains4, gains_with_overrides
+from fc.control.pid_smc import DISTURBANCE_ESTIMATES, AdaptationBounds
 from fc.position import PositionGains
 from smcpilot.errors import ConfigError
 from smcpilot.protocol import FC_CONTROLLERS
+
+#: the flight controller's default gains: the paper's (spec §5) with Theta = 1.
+FC_GAINS: Gains4 = gains_with_overrides(PAPER_GAINS, {"adapt_rate": 1.0})
 
 
 @dataclass(frozen=True)
@@ -26,14 +29,27 @@ class FcConfig:
     rate_hz: float = 500.0
     #: attitude/altitude law: adaptive_pid_smc (default), pid_smc or cascade_pid.
     controller: str = "adaptive_pid_smc"
-    gains: Gains4 = PAPER_GAINS
+    #: the paper's gains, with an adaptation rate Theta of 1 instead of 0.05: at 0.05 chi_hat moves by
+    #: about 0.03 during a motor fault's transient and cannot matter (docs/disturbance-observer.md).
+    gains: Gains4 = FC_GAINS
     #: keeps chi_hat bounded under noise (spec §4): a dead zone on |sigma| above its noise floor
-    #: (|sigma| averages 0.07-0.21 with the simulator's --noise) and a projection onto [0, 5].
+    #: (|sigma| averages 0.07-0.21 with the simulator's --noise), a slow leakage back to chi_hat(0)
+    #: (0.02/s: bounded in a 10 min noisy hover) and a projection onto [0, 20].
     adaptation: AdaptationBounds = field(
-        default_factory=lambda: AdaptationBounds(dead_zone=0.5, leakage_per_s=0.0, chi_hat_min=0.0, chi_hat_max=5.0)
+        default_factory=lambda: AdaptationBounds(dead_zone=0.5, leakage_per_s=0.02, chi_hat_min=0.0, chi_hat_max=20.0)
     )
     #: chi_hat(0) of the adaptive law, every channel.
     chi_hat0: float = 0.5
+    #: the PID-SMC's on-board disturbance estimate (:mod:`fc.control.observer`): "none" (the paper's
+    #: nominal-model sigma), "sigma" (estimated acceleration in sigma only) or "lumped" (the estimate
+    #: added to the model's drift f). See docs/disturbance-observer.md.
+    disturbance_estimate: str = "input"
+    #: disturbance-observer bandwidth of the roll, pitch and yaw channels, rad/s.
+    dob_bandwidth_att_radps: float = 40.0
+    #: disturbance-observer bandwidth of the altitude channel, rad/s.
+    dob_bandwidth_z_radps: float = 10.0
+    #: the observer models the rotors' first-order lag (the vehicle's motor time constant).
+    dob_motor_lag: bool = True
     position: PositionGains = field(default_factory=PositionGains)
     #: bandwidth of the position and altitude reference prefilters, rad/s.
     pos_filter_omega_radps: float = 1.8
@@ -78,6 +94,10 @@ class FcConfig:
     fs_gcs_timeout_s: float = 5.0
 
     def __post_init__(self) -> None:
+        if self.disturbance_estimate not in DISTURBANCE_ESTIMATES:
+            raise ConfigError(
+                f"disturbance_estimate must be one of {', '.join(DISTURBANCE_ESTIMATES)}, got {self.disturbance_estimate!r}"
+            )
         if self.controller not in FC_CONTROLLERS:
             raise ConfigError(f"unknown controller {self.controller!r}; choose from: {', '.join(FC_CONTROLLERS)}")
         for f in fields(self):
@@ -98,6 +118,8 @@ class FcConfig:
             "failsafe_state_timeout_s",
             "watchdog_s",
             "telemetry_rate_hz",
+            "dob_bandwidth_att_radps",
+            "dob_bandwidth_z_radps",
         ):
             if getattr(self, name) <= 0.0:
                 raise ConfigError(f"FC setting {name} must be > 0, got {getattr(self, name)!r}")

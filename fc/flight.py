@@ -61,9 +61,25 @@ class PipelineOutput(NamedTuple):
     diag: Diagnostics | None
     #: references the law tracked: (phi_r, theta_r, psi_r, z_r).
     ref: tuple[float, float, float, float]
+    #: the disturbance observer's estimate d_hat (rad/s^2 x3, m/s^2; zeros without one).
+    d_hat: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
 
 
 _ZERO_STATE = PipelineState(*(0.0,) * 20, (0.0,) * 12, 0, 0.0)
+
+
+def observer_authority(vehicle: VehicleParams) -> tuple[float, float, float, float]:
+    """Largest |d_hat| worth estimating per channel: the angular accelerations full differential thrust
+    gives (rad/s^2) and 2 g vertically (m/s^2). Beyond that no input can cancel it anyway."""
+    v = vehicle
+    f_max = v.thrust_coeff_n_s2 * v.rotor_speed_max_radps**2
+    q_max = v.drag_coeff_n_m_s2 * v.rotor_speed_max_radps**2
+    return (
+        2.0 * v.arm_length_m * f_max / v.ixx_kg_m2,
+        2.0 * v.arm_length_m * f_max / v.iyy_kg_m2,
+        4.0 * q_max / v.izz_kg_m2,
+        2.0 * v.gravity_mps2,
+    )
 
 
 class FlightControl:
@@ -97,7 +113,8 @@ class FlightControl:
         """Apply new settings between control steps; the law keeps its state (same layout)."""
         old = self.config
         self.config = config
-        if (config.gains, config.adaptation, config.controller) != (old.gains, old.adaptation, old.controller):
+        law_keys = ("gains", "adaptation", "controller", "disturbance_estimate", "dob_bandwidth_att_radps", "dob_bandwidth_z_radps", "dob_motor_lag")
+        if any(getattr(config, k) != getattr(old, k) for k in law_keys):
             n = self.pipeline_state.law_n
             self.law = self._make_law(config)
             if n != len(self.law.state_names) and self.armed:
@@ -108,7 +125,14 @@ class FlightControl:
     def _make_law(self, cfg: FcConfig):
         opts: dict = {}
         if cfg.controller in ("adaptive_pid_smc", "pid_smc"):
-            opts = {"gains": cfg.gains, "adaptation": cfg.adaptation, "chi_hat0": (cfg.chi_hat0,) * 4}
+            wa, wz = cfg.dob_bandwidth_att_radps, cfg.dob_bandwidth_z_radps
+            opts = {
+                "gains": cfg.gains, "adaptation": cfg.adaptation, "chi_hat0": (cfg.chi_hat0,) * 4,
+                "disturbance_estimate": cfg.disturbance_estimate,
+                "observer_bandwidth_radps": (wa, wa, wa, wz),
+                "observer_motor_tau_s": self.vehicle.motor_time_constant_s if cfg.dob_motor_lag else 0.0,
+                "observer_d_max": observer_authority(self.vehicle),
+            }  # fmt: skip
         return make_controller(cfg.controller, self.model, **opts)
 
     # -- commands ------------------------------------------------------------------------------
@@ -169,7 +193,7 @@ class FlightControl:
         cmd = _tuple_new(PipelineInputs, (
             tx, ty, tz, self._psi_target, True, self.landing, self.position_hold, p.speed_max_xy_mps if vxy is None else vxy
         ))  # fmt: skip
-        self.pipeline_state, (motors, u, limited, s, sigma, chi, u_law, u_dot, ref, touchdown) = pipeline_step(
+        self.pipeline_state, (motors, u, limited, s, sigma, chi, u_law, u_dot, ref, touchdown, d_hat) = pipeline_step(
             self.pipeline_state, st, cmd, p, dt_s
         )
         kind = p.law_kind
@@ -181,7 +205,7 @@ class FlightControl:
             diag = Diagnostics(None, sigma, None, u_law, None)
         if touchdown:
             self.disarm()
-        return PipelineOutput(motors, u, limited, diag, ref)
+        return PipelineOutput(motors, u, limited, diag, ref, d_hat)
 
     def failsafe_step(self) -> PipelineOutput:
         """Open loop (no state): level, thrust a fraction of hover, no yaw. Used when the state is lost."""

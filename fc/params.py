@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from fc.config import FcConfig
+from fc.control.pid_smc import DISTURBANCE_ESTIMATES
 from smcpilot.errors import ConfigError, InvalidGainError, ParamError
 from smcpilot.protocol import FC_CONTROLLERS
 from smcpilot.scenario import Scenario, ScenarioError
@@ -86,6 +87,14 @@ def _attr(path: str, scale: float = 1.0, cast: Callable[[float], object] = float
     return get, set_
 
 
+def _dob_get(c: FcConfig) -> float:
+    return float(DISTURBANCE_ESTIMATES.index(c.disturbance_estimate))
+
+
+def _dob_set(c: FcConfig, v: float) -> FcConfig:
+    return replace(c, disturbance_estimate=DISTURBANCE_ESTIMATES[int(v)])
+
+
 def _controller_get(c: FcConfig) -> float:
     return float(FC_CONTROLLERS.index(c.controller))
 
@@ -110,6 +119,14 @@ def _build() -> tuple[ParamSpec, ...]:
     add("SMC_CHI_MAX", "adaptation.chi_hat_max", 0.0, 1000.0, "", "chi_hat projection: upper bound")
     add("SMC_CHI_DZ", "adaptation.dead_zone", 0.0, 10.0, "", "chi_hat grows only while |sigma| exceeds this dead zone")
     add("SMC_CHI_LEAK", "adaptation.leakage_per_s", 0.0, 10.0, "1/s", "sigma-modification pulling chi_hat back to chi_hat(0)")
+    specs.append(
+        ParamSpec("SMC_DOB", "", 0.0, float(len(DISTURBANCE_ESTIMATES) - 1),
+                  "PID-SMC disturbance estimate: " + ", ".join(f"{i} {n}" for i, n in enumerate(DISTURBANCE_ESTIMATES)),
+                  _dob_get, _dob_set, is_int=True)
+    )  # fmt: skip
+    add("SMC_DOB_W", "dob_bandwidth_att_radps", 1.0, 200.0, "rad/s", "disturbance observer bandwidth, roll/pitch/yaw")
+    add("SMC_DOB_WZ", "dob_bandwidth_z_radps", 1.0, 100.0, "rad/s", "disturbance observer bandwidth, altitude")
+    add("SMC_DOB_LAG", "dob_motor_lag", 0.0, 1.0, "", "1: the observer models the motors' lag (vehicle time constant)", is_int=True, cast=bool)
     add("PSC_POS_KP", "position.kp_1ps2", 0.0, 20.0, "1/s^2", "position loop: gain on position error")
     add("PSC_VEL_KD", "position.kd_1ps", 0.0, 20.0, "1/s", "position loop: gain on velocity error")
     add("PSC_POS_KI", "position.ki_1ps3", 0.0, 5.0, "1/s^3", "position loop: integral gain")

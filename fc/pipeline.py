@@ -29,6 +29,7 @@ from fc.config import FcConfig
 from fc.control import LAW_FUNCTIONS
 from fc.control.base import integrators_anti_windup
 from fc.control.cascade_pid import CascadePid, CascadePidConsts, CascadePidParams, cascade_pid_consts, cascade_pid_output
+from fc.control.observer import observer_estimate, observer_reset, observer_update
 from fc.control.pid_smc import (
     PidSmc,
     PidSmcConsts,
@@ -44,7 +45,7 @@ from fc.mixer import MixerParams, mix, mixer_params
 from fc.position import PositionLoopParams, position_step
 from fc.prefilter import prefilter_step
 from smcpilot.frames import wrap_pi
-from smcpilot.model import PaperModel
+from smcpilot.model import PaperModel, tilt_cos
 from smcpilot.vehicle import VehicleParams
 
 _INF = math.inf
@@ -135,6 +136,8 @@ class PipelineState(NamedTuple):
     law_n: int
     #: time spent settled on the ground while landing, s.
     landed_s: float
+    #: the disturbance observer's state (:mod:`fc.control.observer`; 8 floats, zeros when unused).
+    dob: tuple[float, ...] = _ZERO8
 
 
 class PipelineInputs(NamedTuple):
@@ -206,22 +209,24 @@ def law_initial_state(meas: tuple[float, ...], p: PipelineParams) -> tuple[float
 def pipeline_reset(st: VehicleState, p: PipelineParams) -> PipelineState:
     """The state on arming at ``st``: references start where the vehicle is, the law at hover trim."""
     law = law_initial_state((0.0, 0.0, 0.0, 0.0, st.psi_rad, 0.0, st.z_m, 0.0), p)
+    meas = (st.phi_rad, st.phi_dot_radps, st.theta_rad, st.theta_dot_radps, st.psi_rad, st.psi_dot_radps, st.z_m, st.vz_mps)
+    dob = observer_reset(meas, (law[4], law[5], law[6], law[7]), p.smc.dob_w) if p.law_kind == LAW_PID_SMC else _ZERO8
     return PipelineState(
         st.x_m, st.vx_mps, 0.0, st.y_m, st.vy_mps, 0.0, st.z_m, st.vz_mps, 0.0,
         st.phi_rad, 0.0, 0.0, st.theta_rad, 0.0, 0.0, st.psi_rad, 0.0, 0.0,
-        0.0, 0.0, law, p.law_n, 0.0,
+        0.0, 0.0, law, p.law_n, 0.0, dob,
     )  # fmt: skip
 
 
 Vec4 = tuple[float, float, float, float]
 #: the outputs of :func:`pipeline_step`, in order (see there).
-PipelineOutputs = tuple[Vec4, Vec4, tuple[bool, bool, bool, bool], Vec4, Vec4, Vec4, Vec4, Vec4, Vec4, bool]
+PipelineOutputs = tuple[Vec4, Vec4, tuple[bool, bool, bool, bool], Vec4, Vec4, Vec4, Vec4, Vec4, Vec4, bool, Vec4]
 
 
 def pipeline_off() -> PipelineOutputs:
     """The outputs when disarmed: motors stopped, nothing limited, references unknown."""
     return (_ZERO4, _ZERO4, (False, False, False, False), _ZERO4, _ZERO4, _ZERO4, _ZERO4, _ZERO4,
-            (_NAN, _NAN, _NAN, _NAN), False)  # fmt: skip
+            (_NAN, _NAN, _NAN, _NAN), False, _ZERO4)  # fmt: skip
 
 
 def pipeline_step(
@@ -229,23 +234,26 @@ def pipeline_step(
 ) -> tuple[PipelineState, PipelineOutputs]:
     """One control tick of ``dt_s`` seconds: (new state, outputs). Disarmed: motors stopped, state unchanged.
 
-    The outputs are a tuple ``(motors, u, limited, s, sigma, chi_hat, u_law, u_dot, ref, touchdown)``:
+    The outputs are a tuple ``(motors, u, limited, s, sigma, chi_hat, u_law, u_dot, ref, touchdown, d_hat)``:
     motor commands c1..c4 in [0, 1]; the inputs the motors realise (u_phi N, u_theta N, u_psi N m,
     u_z N); which channels the mixer limited; the law's S, sigma, chi_hat in use (0 where the law
     has none), its u before the mixer and u_dot; the references it tracked (phi_r, theta_r, psi_r,
-    z_r); and True once landed long enough while landing (the caller then disarms).
+    z_r); True once landed long enough while landing (the caller then disarms); and the
+    disturbance estimate d_hat (zeros without an observer).
     """
     x_m, y_m, z_m, vx_m, vy_m, vz_m, phi, theta, psi, phi_dot, theta_dot, psi_dot = st
     tx, ty, tz, psi_target, armed, landing, position_hold, vxy = cmd
     if not armed:
         return ps, pipeline_off()
     (px, pvx, pax, py, pvy, pay, pz, pvz, paz, a0x, a0v, a0a, a1x, a1v, a1a, yx, yv, ya,
-     int_x, int_y, law, law_n, landed_s) = ps  # fmt: skip
+     int_x, int_y, law, law_n, landed_s, dob) = ps  # fmt: skip
     (w, amax, _vxy_max, vz_max, land_speed, wa, wy, yaw_rate_max, land_h, land_s, g,
      pos, mixp, kind, n, smc, cpid, ssmc) = p  # fmt: skip
     if law_n == 0:
         law = law_initial_state((phi, 0.0, theta, 0.0, psi, 0.0, z_m, 0.0), p)
         law_n = n
+        if kind == LAW_PID_SMC:
+            dob = observer_reset((phi, phi_dot, theta, theta_dot, psi, psi_dot, z_m, vz_m), (law[4], law[5], law[6], law[7]), smc.dob_w)
     # 1. Position/altitude references.
     if landing:
         tz = z_m - 10.0  # keep descending until touchdown
@@ -277,8 +285,12 @@ def pipeline_step(
     # 3. The law, on the wrapped yaw error.
     ref = (phi_r, phi_v, phi_a, phi_j, th_r, th_v, th_a, th_j, psi_r, psi_v, psi_a, psi_j, z_r, vz_r, az_r, jz_r)
     meas = (phi, phi_dot, theta, theta_dot, psi_r + wrap_pi(psi - psi_r), psi_dot, z_m, vz_m)
+    dob_on = kind == LAW_PID_SMC and smc.dob_mode != 0
+    d_hat = _ZERO4
+    if dob_on and z_m >= land_h:  # on the ground the ground's reaction is no disturbance to cancel
+        d_hat = observer_estimate(dob, meas, smc.dob_w, smc.dob_max)
     if kind == LAW_PID_SMC:
-        s, sg, chi, ud, rate = pid_smc_law(meas, ref, law, smc, _ZERO4, False)
+        s, sg, chi, ud, rate = pid_smc_law(meas, ref, law, smc, _ZERO4, False, d_hat)
         new = pid_smc_integrate(law, s, ud, rate, dt_s, smc)
         u = (new[4], new[5], new[6], new[7])
     elif kind == LAW_CASCADE_PID:
@@ -289,16 +301,34 @@ def pipeline_step(
         u, e, sg = sign_smc_output(meas, ref, law, ssmc)
         new = (law[0] + dt_s * e[0], law[1] + dt_s * e[1], law[2] + dt_s * e[2], law[3] + dt_s * e[3]) + _ZERO8
         s = chi = ud = _ZERO4
-    # 4. Mixer with priorities, and the realised inputs fed back (anti-windup).
+    # 4. Disturbance compensation at the input ("input" estimate: u_cmd = u - d_hat/g), then the
+    #    mixer with priorities, and the realised inputs fed back (anti-windup).
+    c0 = c1 = c2 = c3 = 0.0
+    if dob_on and smc.dob_mode == 3:
+        mm = smc.model
+        c0 = d_hat[0] / mm[13]
+        c1 = d_hat[1] / mm[14]
+        c2 = d_hat[2] / mm[15]
+        c3 = d_hat[3] / (tilt_cos(phi, theta, smc.tilt_min) * smc.inv_mass)
+        u = (u[0] - c0, u[1] - c1, u[2] - c2, u[3] - c3)
     motors, realised, limited = mix(mixp, u[0], u[1], u[2], u[3])
     if landing and z_m < 3.0 * land_h:
         # Ground contact is not a disturbance to learn: freeze the z channel's integrators.
         limited = (limited[0], limited[1], limited[2], True)
     if limited[0] or limited[1] or limited[2] or limited[3]:
         if kind == LAW_PID_SMC:
-            new = pid_smc_anti_windup(law, new, realised, limited)
+            # the law's own share of what was realised (the compensation is not the law's state)
+            law_realised = (realised[0] + c0, realised[1] + c1, realised[2] + c2, realised[3] + c3) if c0 or c1 or c2 or c3 else realised
+            new = pid_smc_anti_windup(law, new, law_realised, limited)
         else:
             new = integrators_anti_windup(law, new, limited) + _ZERO8
+    if dob_on:
+        tau = smc.dob_tau
+        lag_a = lag_b = 0.0
+        if tau > 0.0:
+            lag_a = math.exp(-dt_s / tau)
+            lag_b = tau * (1.0 - lag_a) / dt_s
+        dob = observer_update(dob, meas, d_hat, realised, smc.model, smc.dob_w, smc.tilt_min, smc.inv_mass, lag_a, lag_b, dt_s)
     # 5. Touchdown while landing -> the caller disarms.
     touchdown = False
     if landing:
@@ -310,9 +340,9 @@ def pipeline_step(
             landed_s = 0.0
     state = PipelineState(
         x_r, vx_r, ax_r, y_r, vy_r, ay_r, z_r, vz_r, az_r, phi_r, phi_v, phi_a, th_r, th_v, th_a,
-        psi_r, psi_v, psi_a, int_x, int_y, new, law_n, landed_s,
+        psi_r, psi_v, psi_a, int_x, int_y, new, law_n, landed_s, dob,
     )  # fmt: skip
-    return state, (motors, realised, limited, s, sg, chi, u, ud, (phi_r, th_r, psi_r, z_r), touchdown)
+    return state, (motors, realised, limited, s, sg, chi, u, ud, (phi_r, th_r, psi_r, z_r), touchdown, d_hat)
 
 
 #: every function the per-tick pipeline runs (the pure hot path): what ``tests/test_compilable.py``
@@ -326,5 +356,8 @@ PURE_FUNCTIONS = (
     position_step,
     mix,
     wrap_pi,
+    observer_reset,
+    observer_estimate,
+    observer_update,
     *LAW_FUNCTIONS,
 )

@@ -151,14 +151,14 @@ def test_parameters_state_and_inputs_are_flat_tuples_of_numbers() -> None:
         assert isinstance(p, PipelineParams)
         sig = tuple(leaf_types(p))
         # Numbers meant as floats are floats even where the configuration gave ints; the only ints
-        # are the law's kind and state length.
-        assert [path for path, t in sig if t is int] == [".law_kind", ".law_n"], sig
+        # are the law's kind and state length, and how the disturbance estimate is used.
+        assert [path for path, t in sig if t is int] == [".law_kind", ".law_n", ".smc.dob_mode"], sig
         signatures.add(tuple(t for _, t in sig))
     # One layout and one set of leaf types for every controller: one compiled specialisation.
     assert len(signatures) == 1
     for name, ctrl in (("pid_smc", PidSmc(PaperModel.from_vehicle(), PidSmcParams(typos=frozenset(TYPOS)))),
                        ("cascade", CascadePid(PaperModel.from_vehicle())), ("sign", SignSmc(PaperModel.from_vehicle()))):  # fmt: skip
-        assert not [path for path, t in leaf_types(ctrl.consts, name) if t is int]
+        assert [path for path, t in leaf_types(ctrl.consts, name) if t is int] == (["pid_smc.dob_mode"] if name == "pid_smc" else [])
     assert len(PidSmc(PaperModel.from_vehicle()).consts.model) == len(ModelConsts._fields)
     assert all(len(k) == len(ChannelConsts._fields) for k in PidSmc(PaperModel.from_vehicle()).consts.k)
 

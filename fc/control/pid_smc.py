@@ -38,6 +38,12 @@ from smcpilot.model import CHANNELS, PaperModel, drift, drift_rates, omega_bar_o
 from smcpilot.typos import CONTROLLER_TYPOS, parse_typos
 
 _INF = math.inf
+#: :attr:`PidSmcParams.disturbance_estimate` values, in the order of :attr:`PidSmcConsts.dob_mode`.
+DISTURBANCE_ESTIMATES = ("none", "sigma", "lumped", "input")
+DOB_NONE = 0
+DOB_SIGMA = 1
+DOB_LUMPED = 2
+DOB_INPUT = 3
 _copysign = math.copysign
 _ZERO4 = (0.0, 0.0, 0.0, 0.0)
 
@@ -91,6 +97,19 @@ class PidSmcParams:
     tilt_cos_min: float = 0.05
     #: controller typos to reproduce literally (see smcpilot.typos); model typos go to PaperModel.
     typos: frozenset[str] = frozenset()
+    #: the on-board disturbance estimate d_hat (:mod:`fc.control.observer`) and how the law uses it:
+    #: "none" (the paper's nominal-model sigma), "sigma" (a = f + g u + d_hat in S' only: the
+    #: measured-acceleration sigma made real), "lumped" (d_hat added to f: sigma and the equivalent
+    #: control), "input" (the law stays nominal and the flight pipeline cancels d_hat at its input,
+    #: u_cmd = u - d_hat/g: the classical disturbance-observer compensation). The observer runs in
+    #: the flight pipeline; the law takes d_hat as an input.
+    disturbance_estimate: Literal["none", "sigma", "lumped", "input"] = "none"
+    #: observer bandwidth L per channel, rad/s.
+    observer_bandwidth_radps: Vec4 = (25.0, 25.0, 25.0, 10.0)
+    #: the rotors' time constant the observer models, s (0: the input acts at once).
+    observer_motor_tau_s: float = 0.0
+    #: largest |d_hat| per channel (rad/s^2, rad/s^2, rad/s^2, m/s^2).
+    observer_d_max: Vec4 = (_INF, _INF, _INF, _INF)
 
     def __post_init__(self) -> None:
         if len(self.gains) != 4 or not all(isinstance(g, ChannelGains) for g in self.gains):
@@ -111,6 +130,18 @@ class PidSmcParams:
             raise InvalidGainError("u_min must be below u_max in every channel")
         if not 0.0 < self.tilt_cos_min < 1.0:
             raise InvalidGainError(f"tilt_cos_min must lie in (0, 1), got {self.tilt_cos_min}")
+        if self.disturbance_estimate not in DISTURBANCE_ESTIMATES:
+            raise InvalidGainError(
+                f"disturbance_estimate must be one of {', '.join(DISTURBANCE_ESTIMATES)}, got {self.disturbance_estimate!r}"
+            )
+        bw = self.observer_bandwidth_radps
+        if len(bw) != 4 or not all(math.isfinite(x) and x > 0.0 for x in bw):
+            raise InvalidGainError(f"observer_bandwidth_radps needs 4 finite values > 0 rad/s, got {bw!r}")
+        if not (math.isfinite(self.observer_motor_tau_s) and self.observer_motor_tau_s >= 0.0):
+            raise InvalidGainError(f"observer_motor_tau_s must be a finite number >= 0 s, got {self.observer_motor_tau_s!r}")
+        dm = self.observer_d_max
+        if len(dm) != 4 or not all(x > 0.0 for x in dm):
+            raise InvalidGainError(f"observer_d_max needs 4 values > 0, got {dm!r}")
         object.__setattr__(self, "typos", parse_typos(self.typos) & CONTROLLER_TYPOS)
 
 
@@ -165,6 +196,15 @@ class PidSmcConsts(NamedTuple):
     u0: Vec4
     tilt_min: float
     inv_mass: float
+    #: how the disturbance estimate is used: :data:`DOB_NONE`, :data:`DOB_SIGMA`, :data:`DOB_LUMPED`,
+    #: :data:`DOB_INPUT` (the last by the pipeline, not the law).
+    dob_mode: int
+    #: observer bandwidth per channel, rad/s.
+    dob_w: Vec4
+    #: the rotors' time constant modelled by the observer, s.
+    dob_tau: float
+    #: largest |d_hat| per channel.
+    dob_max: Vec4
 
 
 def _f4(v: Sequence[float]) -> Vec4:
@@ -210,6 +250,10 @@ def pid_smc_consts(model: PaperModel, params: PidSmcParams) -> PidSmcConsts:
         u0=_f4(params.u0) if params.u0 is not None else _ZERO4,
         tilt_min=float(params.tilt_cos_min),
         inv_mass=1.0 / model.mass_kg,
+        dob_mode=DISTURBANCE_ESTIMATES.index(params.disturbance_estimate),
+        dob_w=_f4(params.observer_bandwidth_radps),
+        dob_tau=float(params.observer_motor_tau_s),
+        dob_max=_f4(params.observer_d_max),
     )
 
 
@@ -316,21 +360,33 @@ def pid_smc_initial_state(meas: Sequence[float], p: PidSmcConsts) -> tuple[float
 
 
 def pid_smc_law(
-    meas: Sequence[float], ref: Sequence[float], state: Sequence[float], p: PidSmcConsts, accel: Sequence[float], use_accel: bool
+    meas: Sequence[float],
+    ref: Sequence[float],
+    state: Sequence[float],
+    p: PidSmcConsts,
+    accel: Sequence[float],
+    use_accel: bool,
+    dist: Sequence[float] = _ZERO4,
 ) -> tuple[Vec4, Vec4, Vec4, Vec4, Vec4]:
     """(S, sigma, chi_hat in use, u_dot, chi_hat_dot) for every channel; the one copy of the law.
 
     ``accel`` (measured accelerations) is used for S' only if ``use_accel`` and the constants say
-    "oracle"; otherwise pass any 4-tuple.
+    "oracle"; otherwise pass any 4-tuple. ``dist`` is the disturbance estimate d_hat
+    (:mod:`fc.control.observer`), used as the constants' ``dob_mode`` says (ignored for "none").
     """
     (m, k, adaptive, algebraic_chi, theta_uses_phi_chi, oracle, dead_zone, leak, chi_lo, chi_hi, chi0,
-     _u_lo, _u_hi, _has_limits, _has_u0, _u0, tilt_min, inv_mass) = p  # fmt: skip
+     _u_lo, _u_hi, _has_limits, _has_u0, _u0, tilt_min, inv_mass, dob_mode, _dob_w, _dob_tau, _dob_max) = p  # fmt: skip
     phi, phi_d, th, th_d, psi, psi_d, z, z_d = meas
     u0, u1, u2, u3 = state[4], state[5], state[6], state[7]
     wbar = omega_bar_of_inputs(m, u0, u1, u2, u3)
     gz = tilt_cos(phi, th, tilt_min) * inv_mass
     f0, f1, f2, f3 = drift(m, phi_d, th_d, psi_d, z_d, wbar)
     g0, g1, g2 = m[13], m[14], m[15]  # b1, b2, b3
+    if dob_mode == 2:  # DOB_LUMPED: the estimate is part of the drift
+        f0 += dist[0]
+        f1 += dist[1]
+        f2 += dist[2]
+        f3 += dist[3]
     a0 = f0 + g0 * u0
     a1 = f1 + g1 * u1
     a2 = f2 + g2 * u2
@@ -338,6 +394,8 @@ def pid_smc_law(
     fd0, fd1, fd2, fd3, gzd = drift_rates(m, phi, phi_d, th, th_d, psi_d, z_d, a0, a1, a2, a3, wbar)
     if use_accel and oracle:
         m0, m1, m2, m3 = accel[0], accel[1], accel[2], accel[3]
+    elif dob_mode == 1:  # DOB_SIGMA: estimated acceleration in S' only
+        m0, m1, m2, m3 = a0 + dist[0], a1 + dist[1], a2 + dist[2], a3 + dist[3]
     else:
         m0, m1, m2, m3 = a0, a1, a2, a3
     k0, k1, k2, k3 = k
