@@ -79,6 +79,21 @@ def _run(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=run.main)
 
 
+def _compare(sub: argparse._SubParsersAction) -> None:
+    from lab import compare
+
+    p = sub.add_parser(
+        "compare",
+        help="robustness study: fault and disturbance cases x controllers x seeds, in-process; table and figures",
+        description="Fly each case (motor loss at hover and mid-step, wind, gusts, mass and inertia errors the FC is"
+        " not told of, gyro bias, a position dropout, the paper's disturbances) with each controller and several"
+        " noise seeds on the flight core in this process; write results.csv, summary.json, table.md (mean and 95 %"
+        " interval per metric) and figures. docs/robustness.md holds a run of it and its reading.",
+    )
+    compare.add_arguments(p)
+    p.set_defaults(handler=compare.main)
+
+
 def _plot(sub: argparse._SubParsersAction) -> None:
     from ground.logs import cli as logs_cli
 
@@ -130,7 +145,7 @@ def _mission(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=missions_cli.main)
 
 
-SUBCOMMANDS = (_run, _paper, _sitl, _demo, _bench, _plot, _log, _gcs, _mission)
+SUBCOMMANDS = (_run, _compare, _paper, _sitl, _demo, _bench, _plot, _log, _gcs, _mission)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,457 @@
+"""``smcpilot compare``: the robustness study: scenarios × controllers × seeds, in-process, one table.
+
+Each flight is the flight core (:class:`fc.core.FlightCore`, the FC's own tick) on the simulator's
+rigid-body plant (:func:`sim_bridge.build.plant_for`), as ``smcpilot run`` flies it: take-off to
+3 m, then the case's fault, disturbance or model error, with sensor noise on (the seed decides the
+noise and gust draws). Every flight is scored with :func:`ground.logs.metrics.flight_metrics`
+(the same code ``smcpilot log summary`` uses; definitions in ``docs/metrics.md``).
+
+Outputs in ``--out`` (default ``out/compare``):
+
+- ``results.csv``: one row per flight (case, controller, seed, status, every metric);
+- ``summary.json`` and ``table.md``: per case × controller, the mean and 95 % confidence interval
+  (Student t over the seeds) of each metric, and the crash rate;
+- ``figures/``: box plots of the main metrics per case, and the worst flight's time series per case
+  (position error and tilt of every controller);
+- each case's scenario as ``scenarios/<case>.toml`` (``smcpilot run`` flies it; the plant-side
+  model errors of ``mass+30`` and ``inertia+30`` are the one thing a scenario file cannot say).
+
+The cases are those of issue 9's study (:func:`study_cases`); the controllers are the FC's laws
+and the adaptive PID-SMC without its disturbance observer (the paper's law as printed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import os
+import sys
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fc.core import FlightCore, TickOutput
+from fc.flight import VehicleState
+from fc.params import config_for
+from lab.runner import simulate
+from sim_bridge.build import plant_for
+from smcpilot.errors import ConfigError, DivergenceError
+from smcpilot.faults import FaultSpec
+from smcpilot.plan import PlanStep
+from smcpilot.scenario import EnvironmentSpec, Scenario
+from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
+
+#: the metrics the table reports, in order, with their labels.
+TABLE_METRICS = (
+    ("max_tilt_deg", "max tilt °"),
+    ("max_pos_err_m", "max pos. err. m"),
+    ("iae_pos_m_s", "IAE pos. m·s"),
+    ("iae_att_rad_s", "IAE att. rad·s"),
+    ("recover_s", "recover s"),
+    ("motor_tv_per_s", "motor TV /s"),
+)
+
+
+@dataclass(frozen=True)
+class Variant:
+    """A controller as the study flies it: the FC's law plus parameter overrides."""
+
+    label: str
+    controller: str
+    params: tuple[tuple[str, float], ...] = ()
+    description: str = ""
+
+
+#: the controllers compared.
+VARIANTS: tuple[Variant, ...] = (
+    Variant("adaptive", "adaptive_pid_smc", (), "adaptive PID-SMC, disturbance observer at the input (FC default)"),
+    Variant("known-bound", "pid_smc", (), "PID-SMC with the known bound chi (Theorem 1), same observer"),
+    Variant("adaptive-paper", "adaptive_pid_smc", (("SMC_DOB", 0.0),), "adaptive PID-SMC without observer: the paper's nominal-model sigma"),
+    Variant("cascade", "cascade_pid", (), "cascaded PID (angle P, rate PID)"),
+)
+
+
+@dataclass(frozen=True)
+class Case:
+    """One scenario of the study; ``plant_vehicle`` (if given) is what the simulator flies while the FC
+    keeps the scenario's vehicle (a model error the FC is not told of)."""
+
+    name: str
+    description: str
+    scenario: Scenario
+    plant_vehicle: VehicleParams | None = None
+
+    @property
+    def fault_starts_s(self) -> tuple[float, ...]:
+        return tuple(sorted(f.start_s for f in self.scenario.faults))
+
+
+def study_cases(duration_s: float = 20.0, t_event_s: float = 10.0) -> tuple[Case, ...]:
+    """The study's cases: hover at 3 m (take-off at t = 0), the event at ``t_event_s``."""
+    takeoff = PlanStep(0.0, "takeoff", alt_m=3.0)
+    hover = (takeoff,)
+    noisy = EnvironmentSpec(noise=True)
+
+    def sc(name: str, description: str, *, plan=hover, env: EnvironmentSpec = noisy, faults: Sequence[FaultSpec] = ()) -> Scenario:
+        return Scenario(name=name, description=description, duration_s=duration_s, plan=tuple(plan), environment=env,
+                        faults=tuple(faults))  # fmt: skip
+
+    t = t_event_s
+    v = DEFAULT_VEHICLE
+    step = (takeoff, PlanStep(t, "goto", north_m=4.0, east_m=0.0, alt_m=3.0))
+    return (
+        Case("motor30-hover", "motor 1 at 70 % thrust at hover", sc("motor30-hover", "motor 1 at 70 % at hover",
+             faults=[FaultSpec("motor", start_s=t, motor=1, efficiency=0.7)])),
+        Case("motor30-step", "motor 1 at 70 % in the middle of a 4 m step", sc("motor30-step", "motor 1 at 70 % mid-step",
+             plan=step, faults=[FaultSpec("motor", start_s=t + 1.5, motor=1, efficiency=0.7)])),
+        Case("wind-0.5", "0.5 N constant wind from the north", sc("wind-0.5", "0.5 N wind", env=replace(noisy, wind_force_ned_n=(-0.5, 0.0, 0.0)))),
+        Case("wind-1.0", "1 N constant wind from the north", sc("wind-1.0", "1 N wind", env=replace(noisy, wind_force_ned_n=(-1.0, 0.0, 0.0)))),
+        Case("gusts", "gusts: 0.5 N force and 0.01 N m torque std, 1 s", sc("gusts", "force and torque gusts",
+             faults=[FaultSpec("gust", start_s=0.0, force_std_n=0.5, torque_std_n_m=0.01, tau_s=1.0)])),
+        Case("mass+30", "plant 30 % heavier than the FC's model", sc("mass+30", "mass +30 % (plant only)"),
+             plant_vehicle=replace(v, mass_kg=v.mass_kg * 1.3)),
+        Case("inertia+30", "plant inertia 30 % above the FC's model", sc("inertia+30", "inertia +30 % (plant only)"),
+             plant_vehicle=replace(v, ixx_kg_m2=v.ixx_kg_m2 * 1.3, iyy_kg_m2=v.iyy_kg_m2 * 1.3, izz_kg_m2=v.izz_kg_m2 * 1.3)),
+        Case("gyro-bias", "gyro bias 0.05 rad/s on roll and pitch", sc("gyro-bias", "gyro bias",
+             faults=[FaultSpec("sensor", start_s=t, sensor="gyro", mode="bias", value=(0.05, 0.05, 0.0))])),
+        Case("pos-dropout", "position lost for 0.5 s", sc("pos-dropout", "0.5 s position dropout",
+             faults=[FaultSpec("sensor", start_s=t, stop_s=t + 0.5, sensor="position", mode="dropout")])),
+        Case("paper-dist", "the paper's sensor-failure disturbances", sc("paper-dist", "paper disturbances",
+             env=replace(noisy, paper_disturbance=True))),
+    )  # fmt: skip
+
+
+# -- one flight ---------------------------------------------------------------------------------------
+@dataclass
+class Trace:
+    """Samples of one flight (every ``every`` ticks) and its metrics."""
+
+    t_s: list[float] = field(default_factory=list)
+    pos_err_m: list[float] = field(default_factory=list)
+    tilt_deg: list[float] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class Unit:
+    """One flight of the study."""
+
+    case: Case
+    variant: Variant
+    seed: int
+    record_every: int = 5
+
+    def scenario(self) -> Scenario:
+        return self.case.scenario.with_changes(controller=self.variant.controller, params=self.variant.params, seed=self.seed)
+
+
+def fly_unit(unit: Unit) -> tuple[dict[str, Any], Trace]:
+    """Fly one unit in this process: (the result row, the sampled trace)."""
+    from ground.logs.metrics import flight_metrics
+
+    sc = unit.scenario()
+    config = config_for(sc)
+    core = FlightCore(config, sc.vehicle, plan=sc.plan)
+    plant = plant_for(sc if unit.case.plant_vehicle is None else sc.with_changes(vehicle=unit.case.plant_vehicle))
+    n = sc.n_ticks
+    every = unit.record_every
+    m = n // every + 2
+    t = np.full(m, np.nan)
+    pos = np.full((m, 3), np.nan)
+    tgt = np.full((m, 3), np.nan)
+    eul = np.full((m, 3), np.nan)
+    ref = np.full((m, 3), np.nan)
+    mot = np.zeros((m, 4))
+    armed = np.zeros(m, dtype=bool)
+    landing = np.zeros(m, dtype=bool)
+    k_rec = [0]
+    flight = core.flight
+
+    def on_tick(k: int, t_us: int, wire: tuple[float, ...], st: VehicleState, out: TickOutput, motors: tuple[float, ...]) -> None:
+        if k % every:
+            return
+        i = k_rec[0]
+        k_rec[0] = i + 1
+        t[i] = t_us * 1e-6
+        pos[i] = (st.x_m, st.y_m, st.z_m)
+        tgt[i] = flight.target
+        eul[i] = (st.phi_rad, st.theta_rad, st.psi_rad)
+        r = out.pipeline.ref
+        ref[i] = (r[0], r[1], r[2])
+        mot[i] = motors
+        armed[i] = out.armed
+        landing[i] = flight.landing
+
+    status, message = "ok", ""
+    wall0 = time.perf_counter()
+    try:
+        simulate(core, plant, n, rate_hz=sc.rate_hz, physics_hz=sc.physics_hz, on_tick=on_tick)
+    except DivergenceError as exc:
+        status, message = "diverged", str(exc)
+    wall = time.perf_counter() - wall0
+    k = k_rec[0]
+    metrics = flight_metrics(
+        t[:k], pos[:k], tgt[:k], eul[:k], ref[:k], mot[:k], armed[:k], landing[:k], fault_starts_s=unit.case.fault_starts_s,
+    )
+    if status == "diverged":
+        metrics["crashed"] = True
+        metrics.setdefault("crash_reason", "diverged")
+    row: dict[str, Any] = {"case": unit.case.name, "controller": unit.variant.label, "seed": unit.seed, "status": status,
+                           "message": message, "wall_s": round(wall, 3), **metrics}  # fmt: skip
+    err = np.linalg.norm(pos[:k] - tgt[:k], axis=1)
+    tilt = np.degrees(np.arccos(np.clip(np.cos(eul[:k, 0]) * np.cos(eul[:k, 1]), -1.0, 1.0)))
+    return row, Trace(list(t[:k]), list(err), list(tilt))
+
+
+# -- the study ----------------------------------------------------------------------------------------
+@dataclass
+class StudyResult:
+    rows: list[dict[str, Any]]
+    #: the worst flight (largest max position error, crashes first) per (case, controller).
+    worst: dict[tuple[str, str], tuple[dict[str, Any], Trace]]
+
+
+def _badness(row: dict[str, Any]) -> tuple[int, float]:
+    v = row.get("max_pos_err_m")
+    return (1 if row.get("crashed") else 0, float(v) if isinstance(v, (int, float)) and math.isfinite(v) else math.inf)
+
+
+def run_study(
+    cases: Sequence[Case],
+    variants: Sequence[Variant],
+    seeds: int,
+    *,
+    jobs: int = 1,
+    progress: Callable[[int, int, int, float], None] | None = None,
+) -> StudyResult:
+    """Fly every case × variant × seed (seeds 0 .. ``seeds``-1); the result does not depend on ``jobs``."""
+    units = [Unit(c, v, s) for c in cases for v in variants for s in range(seeds)]
+    rows: list[dict[str, Any] | None] = [None] * len(units)
+    worst: dict[tuple[str, str], tuple[dict[str, Any], Trace]] = {}
+    t0 = time.perf_counter()
+    done = failed = 0
+
+    def take(i: int, row: dict[str, Any], trace: Trace) -> None:
+        nonlocal done, failed
+        rows[i] = row
+        done += 1
+        failed += bool(row.get("crashed")) or row["status"] != "ok"
+        key = (row["case"], row["controller"])
+        if key not in worst or _badness(row) > _badness(worst[key][0]):
+            worst[key] = (row, trace)
+        if progress is not None:
+            progress(done, len(units), failed, time.perf_counter() - t0)
+
+    if jobs <= 1:
+        for i, u in enumerate(units):
+            take(i, *fly_unit(u))
+    else:
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            for i, (row, trace) in enumerate(pool.map(fly_unit, units, chunksize=1)):
+                take(i, row, trace)
+    return StudyResult([r for r in rows if r is not None], worst)
+
+
+def _ci95(values: Sequence[float]) -> tuple[float, float, float] | None:
+    """(mean, low, high) of a Student-t 95 % interval; None without finite values."""
+    x = np.asarray([v for v in values if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)], dtype=float)
+    if x.size == 0:
+        return None
+    mean = float(x.mean())
+    if x.size < 2:
+        return mean, mean, mean
+    from scipy import stats
+
+    half = float(stats.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / math.sqrt(x.size))
+    return mean, mean - half, mean + half
+
+
+def summarize_study(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per case × controller: crash rate and the mean/95 % CI of every table metric."""
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for r in rows:
+        groups.setdefault((r["case"], r["controller"]), []).append(r)
+    out = []
+    for (case, ctrl), rs in groups.items():
+        entry: dict[str, Any] = {"case": case, "controller": ctrl, "flights": len(rs),
+                                 "crash_rate": sum(bool(r.get("crashed")) for r in rs) / len(rs)}  # fmt: skip
+        for key, _label in TABLE_METRICS:
+            ci = _ci95([r.get(key) for r in rs])
+            entry[key] = None if ci is None else {"mean": ci[0], "ci95": [ci[1], ci[2]]}
+        out.append(entry)
+    return out
+
+
+def _cell(entry: dict[str, Any], key: str) -> str:
+    v = entry.get(key)
+    if v is None:
+        return "–"
+    mean, (lo, hi) = v["mean"], v["ci95"]
+    digits = 1 if key == "max_tilt_deg" else 2 if abs(mean) >= 1 else 3
+    return f"{mean:.{digits}f} ± {max(hi - mean, mean - lo):.{digits}f}"
+
+
+def markdown_table(summary: Sequence[dict[str, Any]], variants: Sequence[Variant]) -> str:
+    """One row per case × controller: crashes, then the table metrics (mean ± 95 % CI half-width)."""
+    head = "| case | controller | crashed | " + " | ".join(label for _, label in TABLE_METRICS) + " |"
+    lines = [head, "|" + "---|" * (3 + len(TABLE_METRICS))]
+    order = {v.label: i for i, v in enumerate(variants)}
+    cases: list[str] = []
+    for e in summary:
+        if e["case"] not in cases:
+            cases.append(e["case"])
+    for case in cases:
+        for e in sorted((e for e in summary if e["case"] == case), key=lambda e: order.get(e["controller"], 99)):
+            crashed = f"{round(e['crash_rate'] * e['flights'])}/{e['flights']}"
+            lines.append(f"| {case} | {e['controller']} | {crashed} | " + " | ".join(_cell(e, k) for k, _ in TABLE_METRICS) + " |")
+    return "\n".join(lines) + "\n"
+
+
+# -- files and figures --------------------------------------------------------------------------------
+def write_outputs(result: StudyResult, cases: Sequence[Case], variants: Sequence[Variant], out: Path, *, figures: bool = True) -> dict[str, Path]:
+    out.mkdir(parents=True, exist_ok=True)
+    paths: dict[str, Path] = {}
+    keys: list[str] = []
+    for r in result.rows:
+        for k in r:
+            if k not in keys:
+                keys.append(k)
+    paths["results"] = out / "results.csv"
+    with paths["results"].open("w", newline="", encoding="utf-8") as f:
+        w = csv.DictWriter(f, fieldnames=keys)
+        w.writeheader()
+        for r in result.rows:
+            w.writerow({k: _csv_value(r.get(k)) for k in keys})
+    summary = summarize_study(result.rows)
+    paths["summary"] = out / "summary.json"
+    paths["summary"].write_text(json.dumps({"variants": [v.__dict__ for v in variants], "cases": [
+        {"name": c.name, "description": c.description} for c in cases], "groups": summary}, indent=2, default=str) + "\n", encoding="utf-8")
+    paths["table"] = out / "table.md"
+    paths["table"].write_text(markdown_table(summary, variants), encoding="utf-8")
+    sdir = out / "scenarios"
+    sdir.mkdir(exist_ok=True)
+    for c in cases:
+        c.scenario.save(sdir / f"{c.name}.toml")
+    if figures:
+        paths["figures"] = write_figures(result, cases, variants, out / "figures")
+    return paths
+
+
+def _csv_value(v: Any) -> Any:
+    if isinstance(v, (list, tuple)):
+        return json.dumps(list(v))
+    return "" if v is None else v
+
+
+def write_figures(result: StudyResult, cases: Sequence[Case], variants: Sequence[Variant], fig_dir: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig_dir.mkdir(parents=True, exist_ok=True)
+    labels = [v.label for v in variants]
+    for key, label in (("max_tilt_deg", "max tilt (°)"), ("max_pos_err_m", "max position error (m)"), ("iae_pos_m_s", "IAE position (m·s)")):
+        fig, axes = plt.subplots(1, len(cases), figsize=(2.2 * len(cases), 3.6), sharey=False, squeeze=False)
+        for ax, c in zip(axes[0], cases):
+            data = [[float(r[key]) for r in result.rows if r["case"] == c.name and r["controller"] == lab
+                     and isinstance(r.get(key), (int, float)) and math.isfinite(r[key])] for lab in labels]  # fmt: skip
+            ax.boxplot(data, tick_labels=labels, showfliers=True)
+            ax.set_title(c.name, fontsize=8)
+            ax.tick_params(axis="x", labelrotation=60, labelsize=7)
+            ax.tick_params(axis="y", labelsize=7)
+            if key != "iae_pos_m_s":
+                ax.set_yscale("symlog", linthresh=1.0 if key == "max_tilt_deg" else 0.1)
+        axes[0][0].set_ylabel(label)
+        fig.tight_layout()
+        fig.savefig(fig_dir / f"box_{key}.png", dpi=110)
+        plt.close(fig)
+    for c in cases:
+        fig, (a1, a2) = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
+        for lab in labels:
+            w = result.worst.get((c.name, lab))
+            if w is None:
+                continue
+            row, tr = w
+            a1.plot(tr.t_s, tr.pos_err_m, label=f"{lab} (seed {row['seed']})", lw=1)
+            a2.plot(tr.t_s, tr.tilt_deg, lw=1)
+        for t_f in c.fault_starts_s:
+            for ax in (a1, a2):
+                ax.axvline(t_f, color="k", ls=":", lw=0.8)
+        a1.set_ylabel("position error (m)")
+        a1.set_yscale("symlog", linthresh=0.1)
+        a2.set_ylabel("tilt (°)")
+        a2.set_xlabel("t (s)")
+        a1.set_title(f"{c.name}: worst flight per controller — {c.description}", fontsize=9)
+        a1.legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(fig_dir / f"worst_{c.name}.png", dpi=110)
+        plt.close(fig)
+    return fig_dir
+
+
+# -- command line -------------------------------------------------------------------------------------
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    names = [c.name for c in study_cases()]
+    p.add_argument("--cases", default="all", help=f"comma-separated cases, or all (default): {', '.join(names)}")
+    p.add_argument("--controllers", default="all",
+                   help="comma-separated controllers, or all (default): " + ", ".join(f"{v.label} ({v.description})" for v in VARIANTS))
+    p.add_argument("--seeds", type=int, default=5, help="seeds per case and controller (default 5): noise and gust draws")
+    p.add_argument("--duration", type=float, default=20.0, metavar="S", help="simulated seconds per flight (default 20; the event at 10 s)")
+    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="flights in parallel, one process each (default: the cores)")
+    p.add_argument("--out", type=Path, default=Path("out/compare"), help="output directory (default out/compare)")
+    p.add_argument("--no-plots", action="store_true", help="skip the figures")
+    p.add_argument("--quiet", action="store_true", help="no progress line")
+
+
+def _pick(spec: str, items: Sequence[Any], name: Callable[[Any], str], what: str) -> list[Any]:
+    if spec == "all":
+        return list(items)
+    known = {name(i): i for i in items}
+    out = []
+    for s in (x.strip() for x in spec.split(",") if x.strip()):
+        if s not in known:
+            raise ConfigError(f"unknown {what} {s!r}; choose from: {', '.join(known)}")
+        out.append(known[s])
+    if not out:
+        raise ConfigError(f"no {what} given")
+    return out
+
+
+def main(args: argparse.Namespace) -> int:
+    if args.seeds < 1 or args.jobs < 1:
+        raise ConfigError("--seeds and --jobs must be >= 1")
+    if not (math.isfinite(args.duration) and args.duration > 12.0):
+        raise ConfigError(f"--duration must be a finite number of seconds > 12 (the event is at 10 s), got {args.duration}")
+    cases = _pick(args.cases, study_cases(args.duration), lambda c: c.name, "case")
+    variants = _pick(args.controllers, VARIANTS, lambda v: v.label, "controller")
+    total = len(cases) * len(variants) * args.seeds
+    tty = sys.stderr.isatty()
+    last = [0.0]
+
+    def progress(done: int, n: int, failed: int, elapsed: float) -> None:
+        if args.quiet:
+            return
+        if not tty and done != n and elapsed - last[0] < 5.0:
+            return
+        last[0] = elapsed
+        rate = done / elapsed if elapsed > 0 else 0.0
+        eta = (n - done) / rate if rate > 0 else math.inf
+        line = f"compare: {done}/{n} flights, {failed} crashed or failed, {rate:.2f} flights/s, ETA {eta:4.0f} s"
+        print(("\r" + line) if tty else line, end="" if tty and done != n else "\n", file=sys.stderr, flush=True)
+
+    if not args.quiet:
+        print(f"compare: {total} flights ({len(cases)} cases × {len(variants)} controllers × {args.seeds} seeds), {args.jobs} at a time",
+              file=sys.stderr)  # fmt: skip
+    result = run_study(cases, variants, args.seeds, jobs=args.jobs, progress=progress)
+    paths = write_outputs(result, cases, variants, args.out, figures=not args.no_plots)
+    print(paths["table"].read_text(encoding="utf-8"), end="")
+    print(f"results: {paths['results']}  summary: {paths['summary']}  table: {paths['table']}"
+          + (f"  figures: {paths['figures']}/" if "figures" in paths else ""))  # fmt: skip
+    return 0
