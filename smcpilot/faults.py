@@ -370,8 +370,10 @@ def sensor_fault_from_params(sensor: str, mode_number: int, value: float, start_
     if not 1 <= mode_number <= len(SENSOR_MODES):
         raise FaultError(f"{SENSOR_FAULT_PARAM[sensor]} must be 0..{len(SENSOR_MODES)} ({_MODE_DOC}), got {mode_number!r}")
     mode = SENSOR_MODES[mode_number - 1]
+    name = SENSOR_FAULT_PARAM[sensor] + "_V"
+    if mode == "noise" and not value >= 0.0:
+        raise FaultError(f"{name}={value:g}: a noise std must be >= 0")
+    if mode == "delay" and not 0.0 <= value <= MAX_DELAY_S:
+        raise FaultError(f"{name}={value:g}: a delay must be 0..{MAX_DELAY_S:g} s")
     vec: Vec3 = (value, 0.0, 0.0) if mode == "delay" else (value, value, value)
-    try:
-        return FaultSpec("sensor", start_s=start_s, sensor=sensor, mode=mode, value=vec)
-    except FaultError as exc:
-        raise FaultError(f"{SENSOR_FAULT_PARAM[sensor]}_V = {value!r} with {mode}: {str(exc).split(': ', 1)[-1]}") from None
+    return FaultSpec("sensor", start_s=start_s, sensor=sensor, mode=mode, value=vec)
