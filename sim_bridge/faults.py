@@ -99,6 +99,7 @@ _BUFFER = int(MAX_DELAY_S * 1000) + 4
 class FaultEvent(NamedTuple):
     """A fault started or stopped (or a live change was refused): simulated time, severity, text."""
 
+    #: simulated time of the physics step or observation it acted on first, s (whole microseconds).
     t_s: float
     #: MAV_SEVERITY_*: WARNING for a start, INFO for a stop, ERROR for a refused parameter.
     severity: int
@@ -348,6 +349,7 @@ class SimFaults:
             self._rebuild()
 
     def _announce(self, t_s: float, start: bool, f: FaultSpec) -> None:
+        t_s = round(t_s, 6)  # the simulator's clock counts whole microseconds; t_s is a float sum of steps
         if start:
             self.started += 1
             self.events.append(FaultEvent(t_s, SEVERITY_START, PREFIX + f.describe()))

@@ -3,13 +3,21 @@ simulator's fault models against analytic values, determinism, and live PARAM_SE
 
 from __future__ import annotations
 
+import json
 import math
 import random
+import subprocess
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from sitl_helpers import HANG_TIMEOUT_S, PYTHON, parse_datagram, udp_socket
 
+from fc.params import config_for
+from lab.run import fly
+from lab.runner import fly as runner_fly
 from lab.runner import state_of_wire, wire_values
 from sim_bridge.build import plant_for
 from sim_bridge.environment import Environment, EnvironmentParams
@@ -21,6 +29,7 @@ from smcpilot.actuators import commands_to_omega_sq
 from smcpilot.faults import (
     FAULT_KINDS,
     SENSOR_FAULT_PARAM,
+    SIM_PARAM_INDEX,
     SIM_PARAMS,
     FaultError,
     FaultSpec,
@@ -30,7 +39,10 @@ from smcpilot.faults import (
     sim_param,
 )
 from smcpilot.frames import euler_flu_to_frd, nwu_to_ned, quat_from_euler, rates_flu_to_frd
+from smcpilot.plan import PlanStep
+from smcpilot.protocol import ACTUATOR_FLAG_LOCKSTEP, SIM_COMPONENT_ID
 from smcpilot.scenario import EnvironmentSpec, Scenario, ScenarioError
+from smcpilot.tlog import read_tlog
 from smcpilot.vehicle import DEFAULT_VEHICLE
 
 
@@ -559,3 +571,156 @@ def test_live_stuck_keeps_its_value_across_other_changes() -> None:
     f.set_param("SIM_DIST_FN", 1.0, 0.01)  # another change re-evaluates the live faults
     moved = obs[0]._replace(t_s=0.002, euler_rad=(0.3, 0.2, 0.1))
     assert f.observe(moved).euler_rad == first
+
+
+# -- live PARAM_SET over real UDP to a real simulator process, in lockstep -------------------------------
+class FakeFc:
+    """Plays the flight controller on the sim link: answers every state with disarmed actuator
+    commands stamped with its time, and can put other messages before or after the answer."""
+
+    def __init__(self) -> None:
+        self.sock = udp_socket(HANG_TIMEOUT_S)
+        self.port = self.sock.getsockname()[1]
+        self.mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+        self.sim_addr: tuple[str, int] | None = None
+        #: every message from the simulator, in arrival order
+        self.received: list[mavlink.MAVLink_message] = []
+
+    def next_state(self) -> tuple[mavlink.MAVLink_message, mavlink.MAVLink_message, list[mavlink.MAVLink_message]]:
+        """(ATTITUDE, LOCAL_POSITION_NED, the other messages that came before them)."""
+        others = []
+        while True:
+            data, addr = self.sock.recvfrom(65535)
+            self.sim_addr = addr
+            msgs = parse_datagram(data)
+            self.received += msgs
+            kinds = [m.get_type() for m in msgs]
+            if "ATTITUDE" in kinds:
+                return msgs[kinds.index("ATTITUDE")], msgs[kinds.index("LOCAL_POSITION_NED")], others
+            others += msgs
+
+    def param_set(self, name: str, value: float) -> bytes:
+        return bytes(self.mav.param_set_encode(1, SIM_COMPONENT_ID, name.encode(), value, mavlink.MAV_PARAM_TYPE_REAL32).pack(self.mav))
+
+    def answer(self, t_ms: int, before: Sequence[bytes] = (), after: Sequence[bytes] = ()) -> None:
+        act = self.mav.hil_actuator_controls_encode(t_ms * 1000, [0.0] * 16, 0, ACTUATOR_FLAG_LOCKSTEP).pack(self.mav)
+        assert self.sim_addr is not None
+        self.sock.sendto(b"".join([*before, bytes(act), *after]), self.sim_addr)
+
+
+def _f32(x: float) -> float:
+    return float(np.float32(x))
+
+
+def test_live_param_set_over_udp_to_the_simulator_process(tmp_path: Path) -> None:
+    sc = Scenario(duration_s=0.2, faults=(FaultSpec("sensor", start_s=0.05, stop_s=0.1, sensor="velocity", mode="bias", value=(0.5, 0.0, 0.0)),))
+    path = sc.save(tmp_path / "s.toml")
+    fc = FakeFc()
+    proc = subprocess.Popen([PYTHON, "-m", "sim_bridge", "--fc", f"udp:127.0.0.1:{fc.port}", "--lockstep", "--scenario", str(path),
+                             "--duration", "0.2"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=tmp_path)  # fmt: skip
+    try:
+        states = {}
+        between: dict[int, list] = {}
+        for tick in range(101):
+            att, pos, others = fc.next_state()
+            t_ms = att.time_boot_ms
+            assert t_ms == 2 * tick
+            states[t_ms] = (att, pos)
+            between[t_ms] = others
+            if t_ms == 20:  # before the answer: acts on the period from 20 ms
+                fc.answer(t_ms, before=[fc.param_set("SIM_GYR_FAULT_V", 0.1), fc.param_set("SIM_GYR_FAULT", 2),
+                                        fc.param_set("SIM_ENGINE_MUL", 1.5)])  # fmt: skip
+            elif t_ms == 30:  # after the answer in the same datagram: the state at 32 ms is sent first, so from 34 ms on
+                fc.answer(t_ms, after=[fc.param_set("SIM_POS_FAULT", 4)])
+            elif t_ms == 40:
+                fc.answer(t_ms, before=[fc.param_set("SIM_POS_FAULT", 0), bytes(fc.mav.param_request_list_encode(1, SIM_COMPONENT_ID).pack(fc.mav))])
+            else:
+                fc.answer(t_ms)
+        out, _ = proc.communicate(timeout=HANG_TIMEOUT_S)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        fc.sock.close()
+    assert proc.returncode == 0, out
+    # the bias: not in the state at 20 ms (already sent), in every one after; the vehicle rests (rates 0)
+    assert (states[20][0].rollspeed, states[20][0].pitchspeed, states[20][0].yawspeed) == (0.0, 0.0, 0.0)
+    for t_ms in range(22, 201, 2):
+        a = states[t_ms][0]
+        assert (a.rollspeed, a.pitchspeed, a.yawspeed) == (_f32(0.1),) * 3, t_ms
+    # answered: PARAM_VALUE with the value in force, its index and the count; STATUSTEXT for the start and the refusal
+    got = [(m.get_type(), m.param_id, m.param_value, m.param_index, m.param_count) if m.get_type() == "PARAM_VALUE" else
+           (m.get_type(), m.severity, m.text) for m in between[22]]  # fmt: skip
+    n = len(SIM_PARAMS)
+    assert got == [
+        ("PARAM_VALUE", "SIM_GYR_FAULT_V", _f32(0.1), SIM_PARAM_INDEX["SIM_GYR_FAULT_V"], n),
+        ("PARAM_VALUE", "SIM_GYR_FAULT", 2.0, SIM_PARAM_INDEX["SIM_GYR_FAULT"], n),
+        ("STATUSTEXT", mavlink.MAV_SEVERITY_WARNING, "SIM: gyro bias 0.1 rad/s"),
+        ("PARAM_VALUE", "SIM_ENGINE_MUL", 1.0, 0, n),  # refused: the old value
+        ("STATUSTEXT", mavlink.MAV_SEVERITY_ERROR, "SIM: SIM_ENGINE_MUL out of range [0, 1]: 1.5"),
+    ]
+    # position dropout set after the answer at 30 ms: applied at 32 ms, after that state went out; NaN only in x, y, z
+    for t_ms in (30, 32, 34, 40, 42):
+        pos = states[t_ms][1]
+        dropped = 34 <= t_ms <= 40
+        assert all(math.isnan(v) for v in (pos.x, pos.y, pos.z)) == dropped, t_ms
+        assert all(math.isfinite(v) for v in (pos.vx, pos.vy, pos.vz))
+        assert math.isfinite(states[t_ms][0].roll)
+    assert [m.text for m in between[34] if m.get_type() == "STATUSTEXT"] == ["SIM: position dropout"]
+    listed = [m for m in between[42] if m.get_type() == "PARAM_VALUE"]
+    assert [m.param_id for m in listed] == ["SIM_POS_FAULT"] + [p.name for p in SIM_PARAMS]
+    assert {m.param_id: m.param_value for m in listed[1:]}["SIM_GYR_FAULT"] == 2.0
+    assert [(m.severity, m.text) for m in between[42] if m.get_type() == "STATUSTEXT"] == [(mavlink.MAV_SEVERITY_INFO, "SIM: position ok")]
+    # the scenario's timed fault: announced right after the first state it acts on (50 ms) and the
+    # first it no longer does (100 ms), the velocity biased in between
+    texts = {t: [m.text for m in ms if m.get_type() == "STATUSTEXT"] for t, ms in between.items()}
+    assert texts[52] == ["SIM: velocity bias 0.5,0,0 m/s"] and texts[102] == ["SIM: velocity ok"]
+    assert [t for t, tx in texts.items() if tx] == [22, 34, 42, 52, 102]
+    assert states[48][1].vx == 0.0 and states[50][1].vx == _f32(0.5) and states[98][1].vx == _f32(0.5) and states[100][1].vx == 0.0
+    summary = json.loads(next(line for line in out.splitlines() if line.startswith("SIM_SUMMARY "))[len("SIM_SUMMARY "):])
+    assert (summary["params_set"], summary["params_rejected"], summary["faults_started"], summary["faults_stopped"]) == (4, 1, 3, 2)
+
+
+# -- the same faults in-process and as the two SITL processes ---------------------------------------------
+def _sim_statustexts(tlog: Path) -> list[tuple[int, int, str]]:
+    """(time_us, severity, text) of the simulator component's STATUSTEXT in a .tlog."""
+    return [(t, m.severity, m.text) for t, m in read_tlog(tlog)
+            if m.get_type() == "STATUSTEXT" and m.get_srcComponent() == SIM_COMPONENT_ID]  # fmt: skip
+
+
+def _actuators(tlog: Path) -> list[tuple[int, tuple[float, ...]]]:
+    return [(m.time_usec, tuple(m.controls[:4])) for _, m in read_tlog(tlog) if m.get_type() == "HIL_ACTUATOR_CONTROLS"]
+
+
+def test_faults_fly_the_same_in_process_and_as_sitl_and_are_logged(tmp_path: Path) -> None:
+    faults = (
+        FaultSpec("gust", start_s=1.0, force_std_n=0.2, torque_std_n_m=0.002),
+        FaultSpec("motor", start_s=1.5, stop_s=2.5, motor=1, efficiency=0.9),
+        FaultSpec("sensor", start_s=2.0, sensor="gyro", mode="bias", value=(0.01, 0.0, 0.0)),
+        FaultSpec("torque", start_s=2.2, stop_s=2.4, torque_frd_n_m=(0.0, 0.0, 0.01)),
+    )
+    sc = Scenario(name="faulty", duration_s=3.0, seed=3, plan=(PlanStep(0.0, "takeoff", alt_m=2.0),), faults=faults)
+    a = fly(sc, tmp_path / "inproc")
+    b = fly(sc, tmp_path / "sitl", sitl=True)
+    assert a.status == b.status == "ok", (a.message, b.message)
+    ma, mb = _actuators(a.tlog), _actuators(b.tlog)
+    assert len(ma) == sc.n_ticks and ma == mb  # bit for bit, tick for tick, faults and gust draws included
+    clean = fly(sc.with_changes(faults=()), tmp_path / "clean")
+    mc = _actuators(clean.tlog)
+    first = next(i for i, (x, y) in enumerate(zip(ma, mc)) if x != y)
+    assert ma[first][0] == 1_002_000  # the gust from 1.0 s moves the vehicle; the FC reacts at the next state
+    want = [(1_000_000, mavlink.MAV_SEVERITY_WARNING, "SIM: gust 0.2 N 0.002 Nm tau 1 s"),
+            (1_500_000, mavlink.MAV_SEVERITY_WARNING, "SIM: motor 1 at 90%"),
+            (2_000_000, mavlink.MAV_SEVERITY_WARNING, "SIM: gyro bias 0.01,0,0 rad/s"),
+            (2_200_000, mavlink.MAV_SEVERITY_WARNING, "SIM: torque 0,0,0.01 Nm FRD"),
+            (2_400_000, mavlink.MAV_SEVERITY_INFO, "SIM: torque off"),
+            (2_500_000, mavlink.MAV_SEVERITY_INFO, "SIM: motor 1 ok")]  # fmt: skip
+    assert _sim_statustexts(a.tlog) == want
+    assert [(sev, text) for _, sev, text in _sim_statustexts(b.tlog)] == [(sev, text) for _, sev, text in want]
+    assert [e for e in a.events if e[1].startswith("SIM: ")] == [(round(t_us * 1e-6, 6), text) for t_us, _, text in want]
+
+
+def test_in_process_runner_records_fault_events() -> None:
+    sc = Scenario(duration_s=1.0, faults=(FaultSpec("force", start_s=0.5, stop_s=0.75, force_ned_n=(0.0, 0.0, -1.0)),))
+    run = runner_fly(config_for(sc), sc.vehicle, plant_for(sc), (PlanStep(0.0, "takeoff", alt_m=1.0),), sc.duration_s, record_every=1)
+    assert [e for e in run.events if e[1].startswith("SIM")] == [(0.5, "SIM: force 0,0,-1 N NED"), (0.75, "SIM: force off")]
