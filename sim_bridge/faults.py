@@ -135,9 +135,10 @@ class _SensorFault:
 class _Gust:
     """One gust's Gauss-Markov state: force N, E (world NED, N) and torque x, y, z (body FRD, N m)."""
 
-    __slots__ = ("force_std", "torque_std", "tau_s", "state", "last_h", "a", "b")
+    __slots__ = ("spec", "force_std", "torque_std", "tau_s", "state", "last_h", "a", "b")
 
     def __init__(self, spec: FaultSpec, rng: random.Random) -> None:
+        self.spec = spec
         self.force_std = spec.force_std_n
         self.torque_std = spec.torque_std_n_m
         self.tau_s = spec.tau_s
@@ -382,7 +383,7 @@ class SimFaults:
                 torque = [torque[0] + tb[0], torque[1] + tb[1], torque[2] + tb[2]]
             elif k == "gust":
                 old_g = self._gusts.get(src)
-                gusts[src] = old_g if old_g is not None else _Gust(f, self._gust_rng)
+                gusts[src] = old_g if old_g is not None and old_g.spec == f else _Gust(f, self._gust_rng)
             elif k == "paper_disturbance":
                 paper = True
             else:

@@ -703,6 +703,7 @@ def test_faults_fly_the_same_in_process_and_as_sitl_and_are_logged(tmp_path: Pat
     a = fly(sc, tmp_path / "inproc")
     b = fly(sc, tmp_path / "sitl", sitl=True)
     assert a.status == b.status == "ok", (a.message, b.message)
+    assert Scenario.from_toml(b.tlog.with_name("faulty.scenario.toml")).faults == faults  # what both processes read
     ma, mb = _actuators(a.tlog), _actuators(b.tlog)
     assert len(ma) == sc.n_ticks and ma == mb  # bit for bit, tick for tick, faults and gust draws included
     clean = fly(sc.with_changes(faults=()), tmp_path / "clean")
@@ -724,3 +725,21 @@ def test_in_process_runner_records_fault_events() -> None:
     sc = Scenario(duration_s=1.0, faults=(FaultSpec("force", start_s=0.5, stop_s=0.75, force_ned_n=(0.0, 0.0, -1.0)),))
     run = runner_fly(config_for(sc), sc.vehicle, plant_for(sc), (PlanStep(0.0, "takeoff", alt_m=1.0),), sc.duration_s, record_every=1)
     assert [e for e in run.events if e[1].startswith("SIM")] == [(0.5, "SIM: force 0,0,-1 N NED"), (0.75, "SIM: force off")]
+
+
+def test_live_gust_change_takes_the_new_std() -> None:
+    f = SimFaults(seed=2)
+    f.set_param("SIM_GUST_F", 0.1, 0.0)
+    f.set_param("SIM_GUST_T", 0.0, 0.0)  # unchanged: the same gust goes on, no announcement
+    assert [e.text for e in f.take_events()] == ["SIM: gust 0.1 N 0 Nm tau 1 s"]
+    f.set_param("SIM_GUST_F", 5.0, 1.0)
+    assert [e.text for e in f.take_events()] == ["SIM: gust 5 N 0 Nm tau 1 s"]
+    xs = []
+    for k in range(20_000):
+        f.advance(1.0 + k * 0.001, 0.001)
+        xs.append(f.force_world_n[0])
+    assert np.std(xs) == pytest.approx(5.0, rel=0.25)
+    f.set_param("SIM_GUST_F", 0.0, 30.0)
+    assert [(e.severity, e.text) for e in f.take_events()] == [(SEVERITY_STOP, "SIM: gust off")]
+    f.advance(30.0, 0.001)
+    assert f.force_world_n == (0.0, 0.0, 0.0) and not f.physics_on
