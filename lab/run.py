@@ -7,6 +7,11 @@ per-tick ``SMC`` record, events), from which the same summary is computed
 fast as the machine allows; ``--sitl`` runs the real processes in lockstep on free ports. A
 lockstep flight is deterministic: the two ways give the same motor commands tick for tick.
 
+Faults (the scenario's ``[[fault]]`` tables, :mod:`smcpilot.faults`) are acted out by the
+simulator side either way; their starts and stops are in the ``.tlog`` as the simulator's
+``STATUSTEXT`` (component :data:`smcpilot.protocol.SIM_COMPONENT_ID`), as the FC process logs them
+when they arrive on its sim link, and in the results' events.
+
 Output (``--out DIR``, default ``out/run/<scenario name>``): ``<name>.tlog``, the effective
 scenario ``<name>.scenario.toml`` (re-runnable), the figures of ``smcpilot plot``, and with
 ``--json PATH`` the results.
@@ -32,6 +37,7 @@ from fc.params import config_for, param_messages
 from lab.runner import simulate
 from sim_bridge.app import EXIT_DIVERGED
 from sim_bridge.build import plant_for
+from sim_bridge.faults import FaultEvent
 from smcpilot.errors import DivergenceError, SmcpilotError
 from smcpilot.fastcodec import (
     encode_attitude,
@@ -111,11 +117,17 @@ class _TlogRecorder:
         self._fc_seq = 0
         self._log_seq = 0
         self._mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=FC_COMPONENT_ID)
+        self._sim_mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=SIM_COMPONENT_ID)
         mav = self._mav
         self.tlog.write_many(0, [m.pack(mav) for m in param_messages(mav, core.config)])
 
     def event(self, severity: int, text: str) -> None:
         self.tlog.write(self.core.t_us, telemetry.statustext(self._mav, severity, text).pack(self._mav))
+
+    def sim_event(self, ev: FaultEvent) -> None:
+        """A fault start/stop as the simulator sends it (its component's STATUSTEXT), at its time."""
+        mav = self._sim_mav
+        self.tlog.write(int(round(ev.t_s * 1e6)), telemetry.statustext(mav, ev.severity, ev.text).pack(mav))
 
     def on_tick(self, k: int, t_us: int, w: tuple[float, ...], st: VehicleState, out: TickOutput, motors: tuple[float, ...]) -> None:
         tl = self.tlog
@@ -152,6 +164,12 @@ def fly_in_process(scenario: Scenario, tlog_path: Path, *, echo=None) -> FlightR
         if echo is not None:
             echo(f"[{t_s:7.2f} s] {text}")
 
+    def fault_event(ev: FaultEvent) -> None:  # the simulator's announcement
+        events.append((ev.t_s, ev.text))
+        recorder.sim_event(ev)
+        if echo is not None:
+            echo(f"[{ev.t_s:7.2f} s] {ev.text}")
+
     core = FlightCore(config, scenario.vehicle, home=home, plan=scenario.plan, event=event)
     plant = plant_for(scenario)
     tlog_path.parent.mkdir(parents=True, exist_ok=True)
@@ -160,7 +178,8 @@ def fly_in_process(scenario: Scenario, tlog_path: Path, *, echo=None) -> FlightR
     t0 = time.perf_counter()
     ticks = 0
     try:
-        ticks = simulate(core, plant, scenario.n_ticks, rate_hz=scenario.rate_hz, physics_hz=scenario.physics_hz, on_tick=recorder.on_tick)
+        ticks = simulate(core, plant, scenario.n_ticks, rate_hz=scenario.rate_hz, physics_hz=scenario.physics_hz,
+                         on_tick=recorder.on_tick, on_fault_event=fault_event)  # fmt: skip
     except DivergenceError as exc:
         status, message = "diverged", f"the simulation diverged at t = {exc.time_s:.3f} s: {exc}"
         ticks = core.ticks

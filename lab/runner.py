@@ -10,6 +10,12 @@ same per-tick motor commands, bit for bit.
 
 :func:`simulate` is the loop (parts passed in, as rotorpy's ``simulate()``); :func:`fly` builds
 the core for a configuration and a plan.
+
+Faults: the plant's (:mod:`sim_bridge.faults`) act as in the simulator process — the observation
+is the faulty sensors' (a dropped-out sensor's wire values are NaN and pass through
+:func:`state_of_wire` unconverted: NaN in, NaN out), and every fault start/stop is handed to
+``on_fault_event`` (``simulate``) or recorded in :attr:`InProcessRun.events` (``fly``) as the
+simulator process would send it as STATUSTEXT.
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ from dataclasses import dataclass, field
 from fc.config import FcConfig
 from fc.core import FlightCore, TickOutput
 from fc.flight import VehicleState
+from sim_bridge.faults import FaultEvent
 from sim_bridge.plants.base import Plant
 from sim_bridge.sensors import VehicleObservation
 from smcpilot.frames import (
@@ -67,6 +74,8 @@ def wire_state(obs: VehicleObservation) -> VehicleState:
 
 #: called after each tick with (tick index, t_us, wire values, state, tick output, motors as sent).
 TickHook = Callable[[int, int, tuple[float, ...], VehicleState, TickOutput, tuple[float, ...]], None]
+#: called with each fault start/stop of the plant (:class:`sim_bridge.faults.FaultEvent`).
+FaultHook = Callable[[FaultEvent], None]
 
 
 def simulate(
@@ -78,10 +87,13 @@ def simulate(
     physics_hz: float = 1000.0,
     on_tick: TickHook | None = None,
     stop: Callable[[], bool] | None = None,
+    on_fault_event: FaultHook | None = None,
 ) -> int:
     """Fly ``core`` on ``plant`` for ``n_ticks`` control ticks (lockstep semantics of the processes:
     state at t, one tick, the motor commands held for one control period of physics); returns the
-    number of ticks flown (fewer if ``stop()`` said so)."""
+    number of ticks flown (fewer if ``stop()`` said so). The plant's fault starts and stops go to
+    ``on_fault_event`` as they happen: those of the state at t before the tick at t, those of the
+    physics after the period's steps."""
     substeps = int(round(physics_hz / rate_hz))
     dt_phys = 1.0 / physics_hz
     step_us = int(round(dt_phys * 1e6))
@@ -90,8 +102,13 @@ def simulate(
     pack, unpack = _f32x4.pack, _f32x4.unpack
     observe = plant.observe
     pstep = plant.step
+    faults = getattr(plant, "faults", None)
     for k in range(n_ticks):
         wire = wire_values(observe())
+        if faults is not None and faults.events:
+            for ev in faults.take_events():
+                if on_fault_event is not None:
+                    on_fault_event(ev)
         st = state_of_wire(wire)
         out = tick(t_us, st)
         motors = unpack(pack(*out.motors))  # float32, as HIL_ACTUATOR_CONTROLS carries them
@@ -101,6 +118,10 @@ def simulate(
         for _ in range(substeps):
             pstep(t_us * 1e-6, dt_phys, motors, armed)
             t_us += step_us
+        if faults is not None and faults.events:
+            for ev in faults.take_events():
+                if on_fault_event is not None:
+                    on_fault_event(ev)
         if stop is not None and stop():
             return k + 1
     return n_ticks
@@ -108,7 +129,8 @@ def simulate(
 
 @dataclass
 class InProcessRun:
-    """Samples of an in-process flight (every ``record_every`` ticks)."""
+    """Samples of an in-process flight (every ``record_every`` ticks); ``events`` holds the FC's
+    events and the simulator's fault starts/stops, (t_s, text), in the order they happened."""
 
     t_s: list[float] = field(default_factory=list)
     states: list[VehicleState] = field(default_factory=list)
@@ -145,5 +167,6 @@ def fly(
             run.targets.append(flight.target)
 
     n_ticks = int(round(duration_s * config.rate_hz))
-    run.ticks = simulate(core, plant, n_ticks, rate_hz=config.rate_hz, physics_hz=physics_hz, on_tick=record)
+    run.ticks = simulate(core, plant, n_ticks, rate_hz=config.rate_hz, physics_hz=physics_hz, on_tick=record,
+                         on_fault_event=lambda ev: run.events.append((ev.t_s, ev.text)))  # fmt: skip
     return run

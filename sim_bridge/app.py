@@ -13,6 +13,18 @@ they stop; ``flags`` bit 0 marks a lockstep FC.
   ends the bridge with an error (exit 3).
 - **real time**: physics at ``physics_hz`` on the wall clock (times ``speed``), state out at
   ``rate_hz``, the latest motor commands held between messages.
+
+Faults (:mod:`sim_bridge.faults`, the plant's ``faults``): the state sent is the faulty sensors'
+(a dropped-out sensor's fields are NaN: gyro -> rollspeed/pitchspeed/yawspeed, attitude ->
+roll/pitch/yaw, position -> x/y/z, velocity -> vx/vy/vz); every fault start and stop goes to the FC
+as ``STATUSTEXT`` (WARNING for a start, INFO for a stop, ``SIM: motor 1 at 70%``). Live ``SIM_*``
+parameters (:data:`smcpilot.faults.SIM_PARAMS`): a ``PARAM_SET`` addressed to this component is
+applied at the simulated time of the state last sent (lockstep: before integrating the next
+period; messages are handled in arrival order, also those that come while the bridge waits for
+the actuator message) and answered with ``PARAM_VALUE`` (the value in force; param_count =
+len(SIM_PARAMS), param_index = its position); a refused value is answered with the old value and a
+``STATUSTEXT`` (ERROR) giving the reason. ``PARAM_REQUEST_READ`` and ``PARAM_REQUEST_LIST`` for
+this component are answered with ``PARAM_VALUE`` too.
 """
 
 from __future__ import annotations
@@ -28,9 +40,11 @@ from typing import TextIO
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from sim_bridge.faults import SEVERITY_REJECTED, SimFaults
 from sim_bridge.plants.base import Plant
 from smcpilot.errors import DivergenceError, WatchdogError
 from smcpilot.fastcodec import encode_attitude, encode_local_position_ned
+from smcpilot.faults import SIM_PARAM_INDEX, SIM_PARAMS, FaultError
 from smcpilot.frames import euler_flu_to_frd, nwu_to_ned, rates_flu_to_frd
 from smcpilot.link import MavlinkUdp
 from smcpilot.protocol import SIM_COMPONENT_ID
@@ -41,6 +55,11 @@ EXIT_OK = 0
 EXIT_WATCHDOG = 3
 EXIT_DIVERGED = 4
 _ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+_ACTUATORS = mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS
+_PARAM_SET = mavlink.MAVLINK_MSG_ID_PARAM_SET
+_PARAM_READ = mavlink.MAVLINK_MSG_ID_PARAM_REQUEST_READ
+_PARAM_LIST = mavlink.MAVLINK_MSG_ID_PARAM_REQUEST_LIST
+_REAL32 = mavlink.MAV_PARAM_TYPE_REAL32
 _yield = getattr(os, "sched_yield", lambda: None)
 
 
@@ -92,9 +111,13 @@ class SimBridgeApp:
             fc_url, source_system=system_id, source_component=SIM_COMPONENT, accept_system=system_id,
             clock_us=lambda: self._t_us,
         )  # fmt: skip
+        self.system_id = system_id
+        self.faults: SimFaults | None = getattr(plant, "faults", None)
         self.commands = (0.0, 0.0, 0.0, 0.0)
         self.armed = False
         self.resends = 0
+        self.params_set = 0
+        self.params_rejected = 0
         self.actuator_msgs = 0
         self.stale_actuator_msgs = 0
         self._stop = False
@@ -124,6 +147,62 @@ class SimBridgeApp:
                 encode_local_position_ned(link.take_seq(), sysid, comp, t_ms, x, y, z, vx, vy, vz),
             )
         )
+        faults = self.faults
+        if faults is not None and faults.events:
+            self._announce()
+
+    def _announce(self) -> None:
+        """Every fault start/stop (and refusal) since the last call, as STATUSTEXT to the FC."""
+        assert self.faults is not None
+        mav = self.link.mav
+        for ev in self.faults.take_events():
+            self.link.send(mav.statustext_encode(ev.severity, ev.text[:50].encode("ascii", "replace")))
+
+    # -- live simulator parameters ------------------------------------------------------------------
+    def _for_me(self, msg: mavlink.MAVLink_message) -> bool:
+        return msg.target_system in (0, self.system_id) and msg.target_component in (0, SIM_COMPONENT)
+
+    def _param_value(self, name: str) -> mavlink.MAVLink_message:
+        assert self.faults is not None
+        return self.link.mav.param_value_encode(
+            name.encode("ascii"), self.faults.param_value(name), _REAL32, len(SIM_PARAMS), SIM_PARAM_INDEX[name]
+        )
+
+    def _on_param(self, msg: mavlink.MAVLink_message) -> None:
+        """PARAM_SET / PARAM_REQUEST_READ / PARAM_REQUEST_LIST addressed to the simulator."""
+        if not self._for_me(msg):
+            return
+        faults = self.faults
+        t_s = self._t_us * 1e-6
+        mid = msg.id
+        if faults is None:
+            if mid == _PARAM_SET:
+                self.params_rejected += 1
+                self.link.send(self.link.mav.statustext_encode(SEVERITY_REJECTED, b"SIM: this plant takes no live parameters"))
+            return
+        if mid == _PARAM_LIST:
+            self.link.send_many(self._param_value(p.name) for p in SIM_PARAMS)
+            return
+        if mid == _PARAM_READ:
+            idx = msg.param_index
+            name = SIM_PARAMS[idx].name if 0 <= idx < len(SIM_PARAMS) else msg.param_id
+            if name in SIM_PARAM_INDEX:
+                self.link.send(self._param_value(name))
+            else:
+                faults.reject(t_s, f"unknown parameter {name}")
+                self._announce()
+            return
+        name = msg.param_id
+        try:
+            faults.set_param(name, msg.param_value, t_s)
+        except FaultError as exc:
+            self.params_rejected += 1
+            faults.reject(t_s, str(exc).split(" (known:")[0].replace("unknown simulator parameter", "unknown parameter"))
+        else:
+            self.params_set += 1
+        if name in SIM_PARAM_INDEX:
+            self.link.send(self._param_value(name))
+        self._announce()
 
     def _apply(self, msg: mavlink.MAVLink_hil_actuator_controls_message) -> None:
         c = msg.controls
@@ -168,6 +247,10 @@ class SimBridgeApp:
                 "actuator_msgs": self.actuator_msgs,
                 "stale_actuator_msgs": self.stale_actuator_msgs,
                 "resends": self.resends,
+                "params_set": self.params_set,
+                "params_rejected": self.params_rejected,
+                "faults_started": self.faults.started if self.faults is not None else 0,
+                "faults_stopped": self.faults.stopped if self.faults is not None else 0,
                 "link": self.link.counters.as_dict(),
             }
             self.link.close()
@@ -193,9 +276,14 @@ class SimBridgeApp:
             now = mono()
             msgs = recv(0.0 if now - sent_at < spin_s else 0.05)
             advanced = False
-            for msg, _addr in msgs:
-                if msg.id != mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS:
+            for msg, _addr in msgs:  # in arrival order: a PARAM_SET before the answer acts on this period
+                mid = msg.id
+                if mid != _ACTUATORS:
+                    if mid == _PARAM_SET or mid == _PARAM_READ or mid == _PARAM_LIST:
+                        self._on_param(msg)
                     continue
+                if advanced:
+                    continue  # a duplicate answer in the same batch
                 if msg.time_usec != self._t_us:
                     self.stale_actuator_msgs += 1
                     continue
@@ -212,7 +300,7 @@ class SimBridgeApp:
                 self._send_state()
                 sent_at = last_answer = mono()
                 advanced = True
-                break
+                # the rest of the batch came after this answer: it acts from the state just sent
             if advanced:
                 continue
             if now - sent_at < spin_s:
@@ -245,10 +333,13 @@ class SimBridgeApp:
             wait = deadline - now
             if wait > 0.0:
                 for msg, _addr in recv(wait):
-                    if msg.id == mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS:
+                    mid = msg.id
+                    if mid == _ACTUATORS:
                         self._apply(msg)
                         answered = True
                         last_answer = mono()
+                    elif mid == _PARAM_SET or mid == _PARAM_READ or mid == _PARAM_LIST:
+                        self._on_param(msg)
                 continue
             if k % substeps == 0:
                 self._send_state()

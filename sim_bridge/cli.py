@@ -52,7 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--watchdog-s", type=float, default=t.watchdog_s, metavar="S", help=f"exit if the FC is silent this long (default {t.watchdog_s:g})")
     p.add_argument("--startup-timeout-s", type=float, default=t.startup_timeout_s, metavar="S", help="exit if the FC never answers within this many seconds (default 30)")
     p.add_argument("--scenario", type=Path, metavar="FILE",
-                   help="scenario TOML (smcpilot.scenario): plant, vehicle, environment, seed and rates come from it"
+                   help="scenario TOML (smcpilot.scenario): plant, vehicle, environment, faults, seed and rates come from it"
                    " (their flags are then ignored)")
     p.add_argument("--sysid", type=int, default=1, metavar="N", help="MAVLink system id of the vehicle (default 1)")
     return p

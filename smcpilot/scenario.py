@@ -39,7 +39,26 @@ north, east, altitude up)::
     action = "takeoff"
     alt_m = 3.0
 
-Errors name the file and the key (:class:`ScenarioError`).
+    [[fault]]                  # timed faults in the simulator (see smcpilot.faults); any number
+    kind = "motor"             # motor, sensor, force, torque, gust, paper_disturbance
+    start_s = 10.0             # simulated s; stop_s omitted: until the end
+    motor = 1                  # 1 right, 2 front, 3 left, 4 rear
+    efficiency = 0.7           # thrust factor 0..1 (0 = off)
+
+    [[fault]]
+    kind = "sensor"
+    start_s = 12.0
+    stop_s = 12.5
+    sensor = "position"        # gyro, accel, attitude, position, velocity
+    mode = "dropout"           # stuck, bias, noise, dropout, delay (value: bias/std per axis, or delay s)
+
+    [[fault]]
+    kind = "torque"            # also "force" (force_ned_n, N) and "gust" (force_std_n, torque_std_n_m, tau_s)
+    start_s = 15.0
+    torque_frd_n_m = [0.0, 0.0, 0.05]
+
+Errors name the file and the key (:class:`ScenarioError`; a fault's errors name it as
+``fault[N] (kind)``, counting from 1).
 """
 
 from __future__ import annotations
@@ -51,7 +70,8 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
-from smcpilot.errors import ConfigError
+from smcpilot.errors import ConfigError, ScenarioError
+from smcpilot.faults import FaultSpec
 from smcpilot.plan import PlanError, PlanStep, load_plan, parse_plan
 from smcpilot.protocol import FC_CONTROLLERS
 from smcpilot.tomlfile import read_toml
@@ -62,9 +82,7 @@ PLANTS = ("rigid-body", "paper")
 #: body rate rad/s, position m, velocity m/s.
 DEFAULT_NOISE_STD = (0.002, 0.01, 0.01, 0.02)
 
-
-class ScenarioError(ConfigError):
-    """A scenario is invalid or its file is unreadable (the message names the file and key)."""
+__all__ = ["PLANTS", "DEFAULT_NOISE_STD", "ScenarioError", "EnvironmentSpec", "Scenario", "dumps_toml", "toml_string"]
 
 
 @dataclass(frozen=True)
@@ -127,6 +145,8 @@ class Scenario:
     params: tuple[tuple[str, float], ...] = ()
     #: the timed plan, executed by the FC in simulated time.
     plan: tuple[PlanStep, ...] = ()
+    #: timed faults, acted out by the simulator in simulated time (``[[fault]]`` tables).
+    faults: tuple[FaultSpec, ...] = ()
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
@@ -156,6 +176,11 @@ class Scenario:
                 raise ScenarioError(f"fc.params: parameter names must be strings, got {name!r}")
             if not math.isfinite(value):
                 raise ScenarioError(f"fc.params.{name} must be a finite number, got {value!r}")
+        if not isinstance(self.faults, tuple):
+            raise ScenarioError(f"faults must be a tuple of FaultSpec, got {type(self.faults).__name__}")
+        for i, f in enumerate(self.faults):
+            if not isinstance(f, FaultSpec):
+                raise ScenarioError(f"fault[{i + 1}] must be a FaultSpec, got {f!r}")
 
     # -- derived ----------------------------------------------------------------------------------
     @property
@@ -216,6 +241,8 @@ class Scenario:
                                    ("alt_m", s.alt_m), ("yaw_deg", s.yaw_deg)) if v is not None}  # fmt: skip
                 for s in self.plan
             ]
+        if self.faults:
+            doc["fault"] = [f.to_mapping() for f in self.faults]
         return doc
 
     def to_toml(self) -> str:
@@ -230,7 +257,7 @@ class Scenario:
 
 
 # -- parsing ---------------------------------------------------------------------------------------
-_TOP = {"name", "description", "duration_s", "seed", "vehicle", "environment", "fc", "sim", "step", "plan"}
+_TOP = {"name", "description", "duration_s", "seed", "vehicle", "environment", "fc", "sim", "step", "plan", "fault"}
 _ENV_KEYS = {f.name for f in fields(EnvironmentSpec)}
 _FC_KEYS = {"controller", "rate_hz", "home", "params"}
 _SIM_KEYS = {"physics_hz"}
@@ -348,6 +375,11 @@ def _parse(doc: Mapping[str, Any], source: str, base_dir: Path | None) -> Scenar
             kw["plan"] = load_plan(base_dir / pp if base_dir is not None and not pp.is_absolute() else pp)
     except PlanError as exc:
         raise ScenarioError(str(exc)) from None
+    if "fault" in doc:
+        tables = doc["fault"]
+        if not isinstance(tables, list):
+            raise ScenarioError(f"fault must be [[fault]] tables, got {tables!r}")
+        kw["faults"] = tuple(FaultSpec.from_mapping(t, f"fault[{i + 1}]") for i, t in enumerate(tables))
     return Scenario(**kw)
 
 

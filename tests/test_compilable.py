@@ -47,7 +47,7 @@ from fc.pipeline import (
 from lab.runner import wire_state
 from sim_bridge.environment import Environment, EnvironmentParams
 from sim_bridge.plants import rigid_body
-from sim_bridge.plants.rigid_body import RigidBodyPlant, rigid_body_params, rigid_body_step
+from sim_bridge.plants.rigid_body import NOMINAL_INPUT, RigidBodyPlant, StepInput, rigid_body_params, rigid_body_step
 from smcpilot.model import ModelConsts, PaperModel
 from smcpilot.typos import TYPOS
 from smcpilot.vehicle import DEFAULT_VEHICLE
@@ -138,7 +138,9 @@ def _configs() -> list[FcConfig]:
 def test_plant_parameters_and_state_are_flat_tuples_of_floats() -> None:
     for env in (Environment(), Environment(EnvironmentParams(paper_disturbance=True))):
         plant = RigidBodyPlant(DEFAULT_VEHICLE, env)
-        assert [path for path, t in leaf_types(plant.params) if t is not float] == [".ground_contact", ".deriv.12"]
+        assert [path for path, t in leaf_types(plant.params) if t is not float] == [".ground_contact"]
+        for u in (NOMINAL_INPUT, plant._input, StepInput((0.7, 1.0, 0.0, 1.0), True, -1.0)):
+            assert [t for _, t in leaf_types(u)] == [float] * 4 + [bool, float]
         plant.step(0.0, 0.001, (0.5, 0.5, 0.5, 0.5), True)
         assert {t for _, t in leaf_types(plant.state)} == {float} and len(plant.state) == 17
 
@@ -308,10 +310,13 @@ def test_compiled_law_steps_give_the_same_bits() -> None:
 
 
 def _plant_steps() -> list[tuple]:
-    """(state, motors, armed, force, torque, t, h, params) and the result of every interpreted
-    plant step of a take-off with gusts and the paper's disturbances, a spin-down and a touchdown."""
+    """(state, motors, armed, force, torque, t, h, params, input) and the result of every interpreted
+    plant step of a take-off with gusts and the paper's disturbances, a motor at 70 % for a while
+    (with a heading turn counted), a spin-down and a touchdown."""
     env = Environment(EnvironmentParams(paper_disturbance=True, gust_force_std_xy_n=0.3, wind_force_n=(0.2, -0.1, 0.0)), random.Random(3))
-    p = rigid_body_params(DEFAULT_VEHICLE, paper_disturbance=True)
+    p = rigid_body_params(DEFAULT_VEHICLE)
+    nominal = StepInput((1.0, 1.0, 1.0, 1.0), True, 0.0)
+    faulty = StepInput((0.7, 1.0, 1.0, 1.0), True, 1.0)
     s = RigidBodyPlant(DEFAULT_VEHICLE).state
     rows = []
     t = 0.0
@@ -319,7 +324,7 @@ def _plant_steps() -> list[tuple]:
         motors = (0.52, 0.521, 0.519, 0.52) if k < 900 else (0.3, 0.3, 0.3, 0.3)
         armed = k < 1300
         env.advance(0.001)
-        args = (s, motors, armed, env.force_world_n, env.torque_body_n_m, t, 0.001, p)
+        args = (s, motors, armed, env.force_world_n, env.torque_body_n_m, t, 0.001, p, faulty if 600 <= k < 700 else nominal)
         out = rigid_body_step(*args)
         assert out[2]
         rows.append((args, out))

@@ -16,6 +16,7 @@ from pymavlink import mavutil
 
 from ground.sitl import SitlOptions
 from lab.run import fly
+from smcpilot.faults import SENSOR_MODES, SENSORS, FaultSpec
 from smcpilot.plan import PlanStep
 from smcpilot.scenario import EnvironmentSpec, Scenario, ScenarioError
 from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
@@ -26,6 +27,29 @@ EXAMPLES = sorted((ROOT / "examples" / "scenarios").glob("*.toml"))
 
 # -- the description ---------------------------------------------------------------------------------
 finite = st.floats(min_value=-50.0, max_value=50.0, allow_nan=False, allow_infinity=False)
+unit = st.floats(0.0, 1.0)
+vec3 = st.tuples(finite, finite, finite)
+
+
+@st.composite
+def faults(draw) -> FaultSpec:
+    start = draw(st.floats(0.0, 100.0))
+    stop = draw(st.one_of(st.just(float("inf")), st.floats(start + 0.001, 200.0)))
+    kind = draw(st.sampled_from(("motor", "sensor", "force", "torque", "gust", "paper_disturbance")))
+    kw: dict = {}
+    if kind == "motor":
+        kw = {"motor": draw(st.integers(1, 4)), "efficiency": draw(unit)}
+    elif kind == "sensor":
+        mode = draw(st.sampled_from(SENSOR_MODES))
+        value = (draw(unit), 0.0, 0.0) if mode == "delay" else draw(st.tuples(unit, unit, unit)) if mode == "noise" else draw(vec3)
+        kw = {"sensor": draw(st.sampled_from(SENSORS)), "mode": mode, "value": value}
+    elif kind == "force":
+        kw = {"force_ned_n": draw(vec3)}
+    elif kind == "torque":
+        kw = {"torque_frd_n_m": draw(vec3)}
+    elif kind == "gust":
+        kw = {"force_std_n": draw(unit), "torque_std_n_m": draw(unit), "tau_s": draw(st.floats(0.01, 10.0))}
+    return FaultSpec(kind, start_s=start, stop_s=stop, **kw)
 
 
 @st.composite
@@ -54,6 +78,7 @@ def scenarios(draw) -> Scenario:
         home=draw(st.one_of(st.none(), st.tuples(st.floats(-89, 89), st.floats(-179, 179), st.floats(-100, 4000)))),
         params=tuple(params.items()),
         plan=tuple(steps),
+        faults=tuple(draw(st.lists(faults(), max_size=4))),
     )
 
 
@@ -100,6 +125,16 @@ def test_a_vehicle_file_resolves_against_the_scenario(tmp_path: Path) -> None:
         ('plan = "x.toml"\n[[step]]\nt_s = 0\naction = "land"\n', "either plan"),
         ("seed = 1.5\n", "seed must be a whole number"),
         ("duration_s = [\n", "not valid TOML"),
+        ('[[fault]]\nkind = "motor"\nmotor = 1\n[[fault]]\nkind = "motor"\nmotor = 1\nefficiency = 1.5\n',
+         "fault[2] (motor): efficiency must lie in [0, 1], got 1.5"),
+        ('[[fault]]\nkind = "motor"\nmotor = 5\n', "fault[1] (motor): motor must be 1..4"),
+        ('[[fault]]\nkind = "laser"\n', "fault[1]: unknown kind 'laser'"),
+        ('[[fault]]\nkind = "force"\nstart_s = nan\n', "fault[1] (force): start_s must be a finite number >= 0"),
+        ('[[fault]]\nkind = "force"\nstart_s = -1.0\n', "fault[1] (force): start_s must be a finite number >= 0"),
+        ('[[fault]]\nkind = "force"\nstart_s = 2.0\nstop_s = 1.0\n', "fault[1] (force): stop_s (1.0) must be after start_s (2.0)"),
+        ('[[fault]]\nkind = "sensor"\nsensor = "lidar"\nmode = "bias"\n', "fault[1] (sensor): unknown sensor 'lidar'"),
+        ('[[fault]]\nkind = "sensor"\nsensor = "gyro"\nmode = "melt"\n', "fault[1] (sensor): unknown mode 'melt'"),
+        ('fault = 3\n', "fault must be [[fault]] tables"),
     ],
 )
 def test_errors_name_the_file_and_the_key(tmp_path: Path, text: str, needle: str) -> None:

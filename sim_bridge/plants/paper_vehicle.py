@@ -15,7 +15,13 @@ Frames as everywhere in the project: world NWU (z up), body FLU, ZYX Euler angle
 environment's force (world NWU, N) adds ``F/m`` to (x'', y'', z''); its torque (body FLU, N m)
 adds ``tau/I`` to (phi'', theta'', psi'') (the paper model's small-angle identification of body
 and Euler rates). The paper's disturbances are switched by the environment
-(:attr:`EnvironmentParams.paper_disturbance`), not by this class.
+(:attr:`EnvironmentParams.paper_disturbance`) or by a fault, not by this class.
+
+Faults (:mod:`sim_bridge.faults`, evaluated at the start of every integration step): their force
+and torque add to the environment's; they can switch the paper's disturbances on; a motor's
+efficiency e_i scales its w_i^2 before the mixer (thrust and drag torque are both proportional to
+w_i^2, so that is the same fault as on the rigid body; the reported rotor speed is unchanged).
+Sensor faults act on the observation (:class:`sim_bridge.plants.base.PlantBase`).
 
 Ground (``ground_contact``, default on): a step ending below z = 0 puts the vehicle on the
 ground: z = 0, all velocities and angular rates zero, phi = theta = 0, psi kept; while it rests
@@ -32,6 +38,7 @@ import math
 from collections.abc import Sequence
 
 from sim_bridge.environment import Environment
+from sim_bridge.faults import SimFaults
 from sim_bridge.plants.base import PlantBase
 from sim_bridge.plants.paper import STATE_NAMES, PaperPlant
 from sim_bridge.sensors import VehicleObservation
@@ -47,6 +54,7 @@ __all__ = ["PaperVehiclePlant", "STATE_NAMES"]
 _isfinite = math.isfinite
 _sqrt = math.sqrt
 _ceil = math.ceil
+_ONES4 = (1.0, 1.0, 1.0, 1.0)
 
 
 class PaperVehiclePlant(PlantBase):
@@ -58,6 +66,7 @@ class PaperVehiclePlant(PlantBase):
         max_step_s: largest RK4 step [s]; :meth:`step` splits longer intervals.
         ground_contact: model the ground at z = 0.
         typos: model typos to reproduce (:mod:`smcpilot.typos`); default the corrected model.
+        faults: timed faults and live SIM_* parameters (:mod:`sim_bridge.faults`); None: none.
     """
 
     def __init__(
@@ -68,8 +77,9 @@ class PaperVehiclePlant(PlantBase):
         max_step_s: float = 0.001,
         ground_contact: bool = True,
         typos: frozenset[str] | str | None = None,
+        faults: SimFaults | None = None,
     ) -> None:
-        super().__init__(vehicle, env, max_step_s=max_step_s, ground_contact=ground_contact)
+        super().__init__(vehicle, env, max_step_s=max_step_s, ground_contact=ground_contact, faults=faults)
         self.model = PaperModel.from_vehicle(vehicle, typos)
         self.plant = PaperPlant(self.model, disturbance=self.env.paper_disturbance)
         self._y: list[float] = [0.0] * 12
@@ -122,6 +132,8 @@ class PaperVehiclePlant(PlantBase):
         self._accel = (0.0, 0.0, 0.0)
         self._obs_cache = None
         self.env.reset()
+        if self.faults is not None:
+            self.faults.reset()
 
     @property
     def state(self) -> tuple[float, ...]:
@@ -138,16 +150,34 @@ class PaperVehiclePlant(PlantBase):
         n = max(1, _ceil(dt_s / self.max_step_s - 1e-9))
         h = dt_s / n
         w_sq = commands_to_omega_sq(motor_commands, self.vehicle, armed)
-        self._u = self.model.mix(*w_sq)
+        mix = self.model.mix
+        self._u = mix(*w_sq)
         self._w_sq = w_sq
         v = self.vehicle
         env = self.env
+        faults = self.faults
+        plant = self.plant
+        eff = _ONES4
         f = self._f
         inv_m = 1.0 / v.mass_kg
         for i in range(n):
             env.advance(h)
             fx, fy, fz = env.force_world_n
             tx, ty, tz = env.torque_body_n_m
+            if faults is not None:
+                faults.advance(t_s + i * h, h)
+                if faults.forces_on:
+                    ff = faults.force_world_n
+                    ft = faults.torque_body_n_m
+                    fx, fy, fz = fx + ff[0], fy + ff[1], fz + ff[2]
+                    tx, ty, tz = tx + ft[0], ty + ft[1], tz + ft[2]
+                plant.disturbance = env.paper_disturbance or faults.paper_disturbance
+                if faults.motor_eff != eff:
+                    eff = faults.motor_eff
+                    if eff == _ONES4:
+                        self._u = mix(*w_sq)
+                    else:
+                        self._u = mix(w_sq[0] * eff[0], w_sq[1] * eff[1], w_sq[2] * eff[2], w_sq[3] * eff[3])
             self._ext = (tx / v.ixx_kg_m2, ty / v.iyy_kg_m2, tz / v.izz_kg_m2, fz * inv_m, fx * inv_m, fy * inv_m)
             y0 = self._y
             y1 = rk4_step(f, t_s + i * h, y0, h)

@@ -13,13 +13,15 @@ State (17 plain floats, :data:`STATE_NAMES`)::
 
 Dynamics
 --------
-Rotor i gives thrust ``F_i = Kp w_i^2`` along body +z; with arm length d (``plus`` layout of
-:mod:`smcpilot.model`)::
+Rotor i gives thrust ``F_i = Kp e_i w_i^2`` along body +z, where e_i in [0, 1] is the rotor's
+efficiency (1 unless a motor fault acts, :mod:`sim_bridge.faults`); with arm length d (``plus``
+layout of :mod:`smcpilot.model`) and ``S_i = e_i w_i^2``::
 
-    T     = Kp (w1^2 + w2^2 + w3^2 + w4^2)
-    tau_x = d Kp (w3^2 - w1^2)      tau_y = d Kp (w4^2 - w2^2)
-    tau_z = Cd (w1^2 - w2^2 + w3^2 - w4^2)
-    W     = w1 - w2 + w3 - w4       (net rotor speed, gyroscopic term)
+    T     = Kp (S1 + S2 + S3 + S4)
+    tau_x = d Kp (S3 - S1)          tau_y = d Kp (S4 - S2)
+    tau_z = Cd (S1 - S2 + S3 - S4)
+    W     = w1 - w2 + w3 - w4       (net rotor speed, gyroscopic term; the efficiency scales
+                                     thrust and drag torque, not the rotor speed)
 
     m dv/dt   = R e_z T - m g e_z - Kfd * v + F_ext              (world NWU; drag per world axis
                                                                  on the ground velocity, as in
@@ -53,7 +55,11 @@ are held constant over a step. The paper's disturbances are accelerations on the
 and z: ``z''`` gets d_z, and the Euler-angle accelerations (d_phi, d_theta, d_psi) enter the body
 angular acceleration as ``E(phi, theta) (d_phi, d_theta, d_psi)`` (the matrix of
 :func:`smcpilot.frames.euler_rates_to_body_rates`), which is what adding them to the Euler-angle
-accelerations means. psi is taken in [-pi, pi] there (from the quaternion).
+accelerations means. Their psi is the continuous heading (as the paper plant's state has it):
+the quaternion's heading in (-pi, pi] plus the whole turns the plant has counted since the start
+(:attr:`StepInput.psi_turns`), so the yaw term ``0.1 psi cos 2t`` does not flip sign when the
+heading crosses +-180 deg. Whether they act is a per-step input (:class:`StepInput`): the
+environment's switch or a fault's.
 
 Ground: z = 0 is flat, rigid ground (when ``ground_contact``). A step that ends below z = 0 puts
 the vehicle on the ground: z = 0, velocity and body rates zero, attitude levelled keeping the
@@ -62,10 +68,10 @@ the upward force is below its weight and lifts off when it is above. The ground 
 friction and no bounce; that is all it models.
 
 Pure form: one RK4 step is :func:`rigid_body_step` (state, motor commands, armed, the
-environment's force and torque, time, step, :class:`RigidBodyParams`) -> (state, acceleration,
-ok), a function of tuples and floats only; the environment's random draws stay outside, in
-:class:`RigidBodyPlant`, which validates, splits steps, draws the environment and raises on
-divergence around it.
+environment's force and torque, time, step, :class:`RigidBodyParams`, :class:`StepInput`) ->
+(state, acceleration, ok), a function of tuples and floats only; the environment's random draws
+and the faults stay outside, in :class:`RigidBodyPlant`, which validates, splits steps, draws the
+environment, evaluates the faults, counts heading turns and raises on divergence around it.
 """
 
 from __future__ import annotations
@@ -76,6 +82,7 @@ from typing import NamedTuple
 
 from sim_bridge.disturbances import paper_disturbance
 from sim_bridge.environment import Environment
+from sim_bridge.faults import SimFaults
 from sim_bridge.plants.base import PlantBase
 from sim_bridge.sensors import VehicleObservation
 from smcpilot.actuators import sanitize_command
@@ -84,8 +91,8 @@ from smcpilot.frames import euler_from_quat, quat_from_euler, wrap_pi
 from smcpilot.vehicle import VehicleParams
 
 __all__ = [
-    "RigidBodyPlant", "RigidBodyParams", "VehicleObservation", "STATE_NAMES", "DEFAULT_MAX_STEP_S",
-    "rigid_body_params", "rigid_body_step", "rigid_body_substep", "rigid_body_targets",
+    "RigidBodyPlant", "RigidBodyParams", "StepInput", "NOMINAL_INPUT", "VehicleObservation", "STATE_NAMES",
+    "DEFAULT_MAX_STEP_S", "rigid_body_params", "rigid_body_step", "rigid_body_substep", "rigid_body_targets",
 ]  # fmt: skip
 
 STATE_NAMES: tuple[str, ...] = (
@@ -103,6 +110,9 @@ _atan2 = math.atan2
 _asin = math.asin
 _isfinite = math.isfinite
 _ceil = math.ceil
+_ONES4 = (1.0, 1.0, 1.0, 1.0)
+_PI = math.pi
+_TWO_PI = 2.0 * math.pi
 
 
 class RigidBodyParams(NamedTuple):
@@ -124,13 +134,29 @@ class RigidBodyParams(NamedTuple):
     #: motor time constant, s.
     tau_m: float
     ground_contact: bool
-    #: what the derivative reads, in this order (a plain tuple: unpacked four times a step):
-    #: g, drag/m (x, y, z), (Iy-Iz)/Ix, (Iz-Ix)/Iy, (Ix-Iy)/Iz, rotational drag/I (x, y, z),
-    #: Jr/Ix, Jr/Iy, and whether the paper's disturbances act.
-    deriv: tuple[float | bool, ...]
+    #: what the derivative reads, in this order (a plain tuple of floats: unpacked four times a
+    #: step): g, drag/m (x, y, z), (Iy-Iz)/Ix, (Iz-Ix)/Iy, (Ix-Iy)/Iz, rotational drag/I (x, y, z),
+    #: Jr/Ix, Jr/Iy.
+    deriv: tuple[float, ...]
 
 
-def rigid_body_params(vehicle: VehicleParams, *, ground_contact: bool = True, paper_disturbance: bool = False) -> RigidBodyParams:
+class StepInput(NamedTuple):
+    """What a step holds besides the motors, force and torque (changes rarely; built outside)."""
+
+    #: thrust (and drag-torque) factor of rotors 1..4, each in [0, 1]; 1.0 = a healthy rotor.
+    motor_eff: tuple[float, float, float, float]
+    #: whether the paper's disturbances act during the step.
+    paper_disturbance: bool
+    #: whole turns of the continuous heading at the step's start (a float holding an integer):
+    #: continuous psi = the quaternion's heading + 2 pi psi_turns.
+    psi_turns: float
+
+
+#: healthy rotors, no paper disturbance, no turns.
+NOMINAL_INPUT = StepInput(_ONES4, False, 0.0)
+
+
+def rigid_body_params(vehicle: VehicleParams, *, ground_contact: bool = True) -> RigidBodyParams:
     """Flatten a vehicle (once)."""
     v = vehicle
     inv_m = 1.0 / v.mass_kg
@@ -151,7 +177,6 @@ def rigid_body_params(vehicle: VehicleParams, *, ground_contact: bool = True, pa
         v.rot_drag_z_n_m_s2 * inv_iz,
         v.rotor_inertia_kg_m2 * inv_ix,
         v.rotor_inertia_kg_m2 * inv_iy,
-        bool(paper_disturbance),
     )
     return RigidBodyParams(
         kp * inv_m,
@@ -167,7 +192,7 @@ def rigid_body_params(vehicle: VehicleParams, *, ground_contact: bool = True, pa
         float(v.rotor_speed_max_radps),
         float(v.motor_time_constant_s),
         bool(ground_contact),
-        tuple(float(x) for x in deriv[:-1]) + (deriv[-1],),
+        tuple(float(x) for x in deriv),
     )
 
 
@@ -186,16 +211,20 @@ def rigid_body_targets(motor_commands: Sequence[float], armed: bool, p: RigidBod
 
 
 def _deriv(
-    k: tuple[float | bool, ...],
+    k: tuple[float, ...],
     vx: float, vy: float, vz: float, qw: float, qx: float, qy: float, qz: float, p: float, q: float, r: float,
     z: float, t: float, acc_t: float, ax_e: float, ay_e: float, az_e: float, alx: float, aly: float, alz: float, wbar: float,
+    paper_dist: bool, psi0: float, turns: float,
 ) -> tuple[float, ...]:  # fmt: skip
     """d/dt of (vx, vy, vz, qw, qx, qy, qz, p, q, r).
 
     acc_t: thrust / m [m/s^2]; ax_e..az_e: external force / m, world [m/s^2];
-    alx..alz: rotor + external torque / I, body [rad/s^2]; wbar: net rotor speed [rad/s].
+    alx..alz: rotor + external torque / I, body [rad/s^2]; wbar: net rotor speed [rad/s];
+    paper_dist: add the paper's disturbances, with the continuous heading: the quaternion's
+    heading unwrapped against psi0 (the heading in (-pi, pi] at the step's start, whose whole
+    turns are ``turns``).
     """
-    g, kdx, kdy, kdz, cx, cy, cz, kax, kay, kaz, jr_x, jr_y, paper_dist = k
+    g, kdx, kdy, kdz, cx, cy, cz, kax, kay, kaz, jr_x, jr_y = k
     ax = acc_t * 2.0 * (qx * qz + qw * qy) - kdx * vx + ax_e
     ay = acc_t * 2.0 * (qy * qz - qw * qx) - kdy * vy + ay_e
     az = acc_t * (1.0 - 2.0 * (qx * qx + qy * qy)) - kdz * vz + az_e - g
@@ -207,6 +236,13 @@ def _deriv(
         st = 2.0 * (qw * qy - qz * qx)
         theta = _asin(1.0 if st > 1.0 else (-1.0 if st < -1.0 else st))
         psi = _atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+        n = turns
+        if psi - psi0 > _PI:  # crossed -pi -> +pi within the step
+            n = turns - 1.0
+        elif psi - psi0 < -_PI:
+            n = turns + 1.0
+        if n != 0.0:
+            psi = psi + _TWO_PI * n
         d_phi, d_theta, d_psi, d_z = paper_disturbance(t, phi, theta, psi, z)
         sp, cp = _sin(phi), _cos(phi)
         sth, cth = _sin(theta), _cos(theta)
@@ -233,14 +269,17 @@ def rigid_body_step(
     t: float,
     h: float,
     p: RigidBodyParams,
+    u: StepInput,
 ) -> tuple[tuple[float, ...], tuple[float, float, float], bool]:
     """One RK4 step of ``h`` seconds from time ``t`` (``h`` at most the plant's largest step).
 
     ``s``: the 17 states (:data:`STATE_NAMES`); the motor commands are held over the step, and so
-    are the environment's force (world NWU, N) and torque (body FLU, N m). Returns (new state,
-    acceleration (world, m/s^2), ok); ok False: the state became non-finite (``s`` is returned).
+    are the environment's force (world NWU, N) and torque (body FLU, N m) and ``u`` (rotor
+    efficiencies, paper disturbance, heading turns; :data:`NOMINAL_INPUT` for none). Returns (new
+    state, acceleration (world, m/s^2), ok); ok False: the state became non-finite (``s`` is
+    returned).
     """
-    return rigid_body_substep(s, rigid_body_targets(motor_commands, armed, p), force_world_n, torque_body_n_m, t, h, p)
+    return rigid_body_substep(s, rigid_body_targets(motor_commands, armed, p), force_world_n, torque_body_n_m, t, h, p, u)
 
 
 def rigid_body_substep(
@@ -251,6 +290,7 @@ def rigid_body_substep(
     t: float,
     h: float,
     p: RigidBodyParams,
+    u: StepInput,
 ) -> tuple[tuple[float, ...], tuple[float, float, float], bool]:
     """:func:`rigid_body_step` with the commanded rotor speeds (:func:`rigid_body_targets`) given."""
     (kp_m, dkp_x, dkp_y, cd_z, inv_m, inv_ix, inv_iy, inv_iz, _idle_sq, _span_sq, w_max, tau_m,
@@ -264,6 +304,8 @@ def rigid_body_substep(
 
     x, y, z, vx, vy, vz, qw, qx, qy, qz, p_, q, r, w1, w2, w3, w4 = s
     tg1, tg2, tg3, tg4 = targets
+    (e1, e2, e3, e4), pd, turns = u
+    psi0 = _atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz)) if pd else 0.0
     # exact rotor speeds at t + h/2 (m*) and t + h (n*)
     m1 = tg1 + (w1 - tg1) * e_half
     m2 = tg2 + (w2 - tg2) * e_half
@@ -274,19 +316,19 @@ def rigid_body_substep(
     n3 = tg3 + (w3 - tg3) * e_full
     n4 = tg4 + (w4 - tg4) * e_full
     # thrust/m, torques/I and net rotor speed at t (A), t + h/2 (B), t + h (C)
-    s1, s2, s3, s4 = w1 * w1, w2 * w2, w3 * w3, w4 * w4
+    s1, s2, s3, s4 = w1 * w1 * e1, w2 * w2 * e2, w3 * w3 * e3, w4 * w4 * e4
     tA = kp_m * (s1 + s2 + s3 + s4)
     xA = dkp_x * (s3 - s1) + tex
     yA = dkp_y * (s4 - s2) + tey
     zA = cd_z * (s1 - s2 + s3 - s4) + tez
     bA = w1 - w2 + w3 - w4
-    s1, s2, s3, s4 = m1 * m1, m2 * m2, m3 * m3, m4 * m4
+    s1, s2, s3, s4 = m1 * m1 * e1, m2 * m2 * e2, m3 * m3 * e3, m4 * m4 * e4
     tB = kp_m * (s1 + s2 + s3 + s4)
     xB = dkp_x * (s3 - s1) + tex
     yB = dkp_y * (s4 - s2) + tey
     zB = cd_z * (s1 - s2 + s3 - s4) + tez
     bB = m1 - m2 + m3 - m4
-    s1, s2, s3, s4 = n1 * n1, n2 * n2, n3 * n3, n4 * n4
+    s1, s2, s3, s4 = n1 * n1 * e1, n2 * n2 * e2, n3 * n3 * e3, n4 * n4 * e4
     tC = kp_m * (s1 + s2 + s3 + s4)
     xC = dkp_x * (s3 - s1) + tex
     yC = dkp_y * (s4 - s2) + tey
@@ -295,28 +337,28 @@ def rigid_body_substep(
 
     hh = 0.5 * h
     a1, a2, a3, a4, a5, a6, a7, a8, a9, a10 = _deriv(
-        k, vx, vy, vz, qw, qx, qy, qz, p_, q, r, z, t, tA, ax_e, ay_e, az_e, xA, yA, zA, bA
+        k, vx, vy, vz, qw, qx, qy, qz, p_, q, r, z, t, tA, ax_e, ay_e, az_e, xA, yA, zA, bA, pd, psi0, turns
     )
     b1, b2, b3, b4, b5, b6, b7, b8, b9, b10 = (
         vx + hh * a1, vy + hh * a2, vz + hh * a3, qw + hh * a4, qx + hh * a5,
         qy + hh * a6, qz + hh * a7, p_ + hh * a8, q + hh * a9, r + hh * a10,
     )  # fmt: skip
     c1, c2, c3, c4, c5, c6, c7, c8, c9, c10 = _deriv(
-        k, b1, b2, b3, b4, b5, b6, b7, b8, b9, b10, z + hh * vz, t + hh, tB, ax_e, ay_e, az_e, xB, yB, zB, bB
+        k, b1, b2, b3, b4, b5, b6, b7, b8, b9, b10, z + hh * vz, t + hh, tB, ax_e, ay_e, az_e, xB, yB, zB, bB, pd, psi0, turns
     )
     d1, d2, d3, d4, d5, d6, d7, d8, d9, d10 = (
         vx + hh * c1, vy + hh * c2, vz + hh * c3, qw + hh * c4, qx + hh * c5,
         qy + hh * c6, qz + hh * c7, p_ + hh * c8, q + hh * c9, r + hh * c10,
     )  # fmt: skip
     e1, e2, e3, e4, e5, e6, e7, e8, e9, e10 = _deriv(
-        k, d1, d2, d3, d4, d5, d6, d7, d8, d9, d10, z + hh * b3, t + hh, tB, ax_e, ay_e, az_e, xB, yB, zB, bB
+        k, d1, d2, d3, d4, d5, d6, d7, d8, d9, d10, z + hh * b3, t + hh, tB, ax_e, ay_e, az_e, xB, yB, zB, bB, pd, psi0, turns
     )
     f1, f2, f3, f4, f5, f6, f7, f8, f9, f10 = (
         vx + h * e1, vy + h * e2, vz + h * e3, qw + h * e4, qx + h * e5,
         qy + h * e6, qz + h * e7, p_ + h * e8, q + h * e9, r + h * e10,
     )  # fmt: skip
     g1, g2, g3, g4, g5, g6, g7, g8, g9, g10 = _deriv(
-        k, f1, f2, f3, f4, f5, f6, f7, f8, f9, f10, z + h * d3, t + h, tC, ax_e, ay_e, az_e, xC, yC, zC, bC
+        k, f1, f2, f3, f4, f5, f6, f7, f8, f9, f10, z + h * d3, t + h, tC, ax_e, ay_e, az_e, xC, yC, zC, bC, pd, psi0, turns
     )
     h6 = h / 6.0
     vx1 = vx + h6 * (a1 + 2.0 * (c1 + e1) + g1)
@@ -376,6 +418,7 @@ class RigidBodyPlant(PlantBase):
         env: wind, gusts, paper disturbances and sensor noise; None is a clean environment.
         max_step_s: largest RK4 step [s]; :meth:`step` splits longer intervals.
         ground_contact: model the ground at z = 0 (see the module doc).
+        faults: timed faults and live SIM_* parameters (:mod:`sim_bridge.faults`); None: none.
     """
 
     def __init__(
@@ -385,12 +428,14 @@ class RigidBodyPlant(PlantBase):
         *,
         max_step_s: float = DEFAULT_MAX_STEP_S,
         ground_contact: bool = True,
+        faults: SimFaults | None = None,
     ) -> None:
-        super().__init__(vehicle, env, max_step_s=max_step_s, ground_contact=ground_contact)
+        super().__init__(vehicle, env, max_step_s=max_step_s, ground_contact=ground_contact, faults=faults)
         #: the vehicle's constants flattened for :func:`rigid_body_step`.
-        self.params = rigid_body_params(vehicle, ground_contact=self.ground_contact, paper_disturbance=self.env.paper_disturbance)
+        self.params = rigid_body_params(vehicle, ground_contact=self.ground_contact)
         self._w_max = self.params.w_max
         self._s: tuple[float, ...] = (0.0,) * 17
+        self._input = NOMINAL_INPUT._replace(paper_disturbance=self.env.paper_disturbance)
         self.reset()
 
     # -- state ------------------------------------------------------------------------------------
@@ -428,7 +473,18 @@ class RigidBodyPlant(PlantBase):
         self._t_s = float(t_s)
         self._accel = (0.0, 0.0, 0.0)
         self._obs_cache = None
+        #: the heading in (-pi, pi] at the end of the last step, and the whole turns it has made.
+        self._psi = _atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+        self._input = self._input._replace(psi_turns=0.0)
         self.env.reset()
+        if self.faults is not None:
+            self.faults.reset()
+
+    @property
+    def heading_turns(self) -> int:
+        """Whole turns the heading has made since :meth:`reset` (+1 per crossing of +-180 deg
+        turning left, FLU: psi increasing)."""
+        return int(self._input.psi_turns)
 
     @property
     def state(self) -> tuple[float, ...]:
@@ -445,8 +501,9 @@ class RigidBodyPlant(PlantBase):
         """Advance from time ``t_s`` by ``dt_s`` seconds with the motor commands held constant.
 
         ``motor_commands`` are 4 floats in [0, 1] (rotors 1..4; NaN -> 0, out of range clamped).
-        ``armed`` False commands the rotors to stop. Raises :class:`DivergenceError` if the state
-        becomes non-finite, :class:`ConfigError` for a non-positive or non-finite ``dt_s``.
+        ``armed`` False commands the rotors to stop. The faults (if any) are evaluated at the
+        start of every integration step. Raises :class:`DivergenceError` if the state becomes
+        non-finite, :class:`ConfigError` for a non-positive or non-finite ``dt_s``.
         """
         if not (dt_s > 0.0 and _isfinite(dt_s)):
             raise ConfigError(f"step(): dt_s must be a positive finite number of seconds, got {dt_s!r}")
@@ -457,16 +514,46 @@ class RigidBodyPlant(PlantBase):
         p = self.params
         targets = rigid_body_targets(motor_commands, armed, p)
         env = self.env
+        faults = self.faults
+        env_paper = env.paper_disturbance
         s = self._s
+        u = self._input
+        psi0 = self._psi
         for i in range(n):
             t = t_s + i * h
             env.advance(h)
-            s, accel, ok = rigid_body_substep(s, targets, env.force_world_n, env.torque_body_n_m, t, h, p)
+            force = env.force_world_n
+            torque = env.torque_body_n_m
+            if faults is not None:
+                faults.advance(t, h)
+                if faults.physics_on:
+                    if faults.forces_on:
+                        ff = faults.force_world_n
+                        ft = faults.torque_body_n_m
+                        force = (force[0] + ff[0], force[1] + ff[1], force[2] + ff[2])
+                        torque = (torque[0] + ft[0], torque[1] + ft[1], torque[2] + ft[2])
+                    paper = env_paper or faults.paper_disturbance
+                    if faults.motor_eff is not u.motor_eff or paper != u.paper_disturbance:
+                        u = StepInput(faults.motor_eff, paper, u.psi_turns)
+                elif u.motor_eff is not _ONES4 or u.paper_disturbance != env_paper:
+                    u = StepInput(_ONES4, env_paper, u.psi_turns)
+            s, accel, ok = rigid_body_substep(s, targets, force, torque, t, h, p, u)
             if not ok:
                 self._s = s
+                self._input = u
                 raise DivergenceError("rigid-body plant state became non-finite", t + h)
+            # count the heading's turns (continuous psi of the paper's disturbances)
+            qw, qz = s[6], s[9]
+            psi1 = _atan2(2.0 * (qw * qz + s[7] * s[8]), 1.0 - 2.0 * (s[8] * s[8] + qz * qz))
+            if psi1 - psi0 > _PI:
+                u = u._replace(psi_turns=u.psi_turns - 1.0)
+            elif psi1 - psi0 < -_PI:
+                u = u._replace(psi_turns=u.psi_turns + 1.0)
+            psi0 = psi1
             self._s = s
             self._accel = accel
+        self._psi = psi0
+        self._input = u
         self._t_s = t_s + dt_s
         self._obs_cache = None
 
