@@ -28,6 +28,7 @@ from ground.logs.metrics import (
     integrate,
     lowpass,
 )
+from ground.logs.summary import log_metrics
 from smcpilot.errors import SmcpilotError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -505,3 +506,42 @@ def test_run_json_and_log_summary_report_the_same_plausible_metrics(tmp_path: Pa
     )  # fmt: skip
     assert r2.returncode == 0, r2.stdout + r2.stderr
     assert json.loads(r2.stdout)["metrics"] == m
+
+
+def test_in_process_recorder_gives_the_numbers_of_the_log_summary(tmp_path: Path) -> None:
+    """lab.metrics.MetricsRecorder (no tlog) and the summary of the same flight's tlog: equal to
+    the float32 rounding of the log."""
+    from fc.core import FlightCore
+    from fc.params import config_for
+    from lab.metrics import MetricsRecorder
+    from lab.run import _TlogRecorder
+    from lab.runner import simulate
+    from sim_bridge.build import plant_for
+    from smcpilot.scenario import Scenario
+
+    sc = Scenario.from_toml(ROOT / "examples" / "scenarios" / "step-yaw.toml").with_changes(duration_s=12.0)
+    holder: list[_TlogRecorder] = []
+    core = FlightCore(config_for(sc), sc.vehicle, plan=sc.plan, event=lambda sev, text: holder[0].event(sev, text))
+    tlog = _TlogRecorder(tmp_path / "f.tlog", core)
+    holder.append(tlog)
+    rec = MetricsRecorder(core)
+
+    def both(*a: object) -> None:
+        tlog.on_tick(*a)  # type: ignore[arg-type]
+        rec.on_tick(*a)  # type: ignore[arg-type]
+
+    simulate(core, plant_for(sc), sc.n_ticks, rate_hz=sc.rate_hz, physics_hz=sc.physics_hz, on_tick=both)
+    tlog.close()
+    mine = rec.metrics(fault_starts_s=[6.0])
+    ref = log_metrics(load_log(tmp_path / "f.tlog"), recover_radius_m=0.3)
+    assert ref is not None and len(rec) == sc.n_ticks == ref["samples"]
+    # Step at 5 s to (4, -3) m and a heading change: the ITAE clock restarts, the max error is the step.
+    assert mine["max_pos_err_m"] == pytest.approx(5.0, abs=1e-3)
+    for key in ("flight_time_s", "iae_pos_m_s", "ise_pos_m2_s", "itae_pos_m_s2", "iae_att_rad_s", "itae_att_rad_s2",
+                "effort_u2_s", "motor_tv", "max_tilt_deg", "max_pos_err_m"):  # fmt: skip
+        assert mine[key] == pytest.approx(ref[key], rel=1e-4, abs=1e-9), key
+    assert mine["crashed"] is ref["crashed"] is False
+    np.testing.assert_allclose(mine["sigma_dither_rms"], ref["sigma_dither_rms"], rtol=1e-3)
+    # A "fault" at the step (6 s): recover_s is then the time to come within 0.3 m of the new set-point for good.
+    assert mine["fault_start_s"] == 6.0 and mine["recovered"] is True and 2.0 < mine["recover_s"] < 6.0  # 3.36 s
+    assert ref["fault_start_s"] is None  # the log has no "SIM:" event
