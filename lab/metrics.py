@@ -11,6 +11,9 @@ Use::
     simulate(core, plant_for(scenario), scenario.n_ticks, rate_hz=scenario.rate_hz, on_tick=rec.on_tick)
     m = rec.metrics(fault_starts_s=[f.start_s for f in faults])
 
+or, instead of the explicit starts, pass the simulator's fault announcements to
+:meth:`MetricsRecorder.note_event` (the same ``SIM:`` WARNING events a log holds).
+
 Samples are in the paper frame (x north, y west, z up; FLU Euler angles), times in simulated
 seconds since the first tick. The state is what the FC received (sensor noise and faults
 included), as in a log.
@@ -25,7 +28,7 @@ import numpy as np
 
 from fc.core import FlightCore, TickOutput
 from fc.flight import VehicleState
-from ground.logs.metrics import RECOVER_RADIUS_M, SIGMA_WINDOW_S, flight_metrics
+from ground.logs.metrics import RECOVER_RADIUS_M, SIGMA_WINDOW_S, divergence_from_events, fault_starts_from_events, flight_metrics
 from smcpilot.errors import ConfigError
 from smcpilot.protocol import FLAG_ARMED, FLAG_FAILSAFE, FLAG_LANDING
 
@@ -45,6 +48,13 @@ class MetricsRecorder:
         self.core = core
         self.every = every
         self._rows: list[tuple[float, ...]] = []
+        #: events noted with :meth:`note_event`: (t_s, MAV_SEVERITY, text).
+        self.events: list[tuple[float, int, str]] = []
+
+    def note_event(self, t_s: float, severity: int, text: str) -> None:
+        """Keep an event (e.g. the simulator's fault announcements, ``SIM: motor 1 at 70%`` with
+        severity WARNING): :meth:`metrics` finds the fault starts and a divergence among them."""
+        self.events.append((float(t_s), int(severity), str(text)))
 
     def on_tick(self, k: int, t_us: int, wire: tuple[float, ...], st: VehicleState, out: TickOutput, motors: tuple[float, ...]) -> None:
         """Keep tick ``k``: time, state, set-point, references, motors, flags, σ."""
@@ -84,13 +94,19 @@ class MetricsRecorder:
     def metrics(
         self,
         *,
-        fault_starts_s: Sequence[float] = (),
+        fault_starts_s: Sequence[float] | None = None,
         recover_radius_m: float = RECOVER_RADIUS_M,
         diverged_t_s: float | None = None,
         sigma_window_s: float = SIGMA_WINDOW_S,
     ) -> dict[str, Any]:
         """:func:`~ground.logs.metrics.flight_metrics` of the samples so far (the LAND speed from
-        the core's configuration)."""
+        the core's configuration). Without ``fault_starts_s`` / ``diverged_t_s``, they come from
+        the noted events as from a log's (:func:`~ground.logs.metrics.fault_starts_from_events`,
+        :func:`~ground.logs.metrics.divergence_from_events`)."""
+        if fault_starts_s is None:
+            fault_starts_s = fault_starts_from_events(self.events)
+        if diverged_t_s is None:
+            diverged_t_s = divergence_from_events(self.events)
         d = self.arrays()
         return flight_metrics(
             d["t_s"], d["position_m"], d["target_m"], d["euler_rad"], d["euler_ref_rad"], d["motors"], d["armed"], d["landing"],

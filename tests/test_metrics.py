@@ -321,6 +321,8 @@ def test_fault_starts_and_divergence_from_events() -> None:
         (6.0, 4, "SIM: motor 2 off"),  # a start, by its severity, although it says "off"
         (7.0, "INFO", "SIM: motor 1 ok"),
         (8.0, "WARNING", "SIM: SIM_ENGINE_MUL rejected: 1.5"),
+        (8.5, "ERROR", "SIM: SIM_ENGINE_MUL must lie in [0, 1]"),  # a refused parameter
+        (8.7, 2, "SIM: this plant takes no live parameters"),
         (9.0, "WARNING", "Motor 1 at 70%"),  # not the simulator's
         (10.0, "CRITICAL", "Simulation diverged at t = 10.000 s"),
     ]
@@ -545,3 +547,7 @@ def test_in_process_recorder_gives_the_numbers_of_the_log_summary(tmp_path: Path
     # A "fault" at the step (6 s): recover_s is then the time to come within 0.3 m of the new set-point for good.
     assert mine["fault_start_s"] == 6.0 and mine["recovered"] is True and 2.0 < mine["recover_s"] < 6.0  # 3.36 s
     assert ref["fault_start_s"] is None  # the log has no "SIM:" event
+    # Fault starts from noted events, as from a log's.
+    rec.note_event(6.0, 4, "SIM: motor 1 at 70%")
+    rec.note_event(7.0, 6, "SIM: motor 1 ok")
+    assert rec.metrics()["fault_start_s"] == 6.0 and rec.metrics()["recover_s"] == mine["recover_s"]

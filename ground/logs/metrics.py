@@ -113,8 +113,9 @@ IMPACT_ALT_M = 0.05
 IMPACT_SPEED_MPS = 1.0
 #: Target changes smaller than this (m or rad) are float noise, not a new set-point.
 SETPOINT_TOLERANCE = 1e-4
-# Severity names and numbers (MAV_SEVERITY) of a fault start: WARNING or worse.
-_START_SEVERITIES = frozenset({"EMERGENCY", "ALERT", "CRITICAL", "ERROR", "WARNING", 0, 1, 2, 3, 4})
+# Severity name and number (MAV_SEVERITY_WARNING) of a fault start; a stop is INFO, a refused
+# SIM_* parameter ERROR.
+_START_SEVERITIES = frozenset({"WARNING", 4})
 _NOT_A_FAULT = ("reject", "refuse", "diverg")
 
 
@@ -230,9 +231,10 @@ def sigma_window(t_s: np.ndarray, sigma: np.ndarray, holding: np.ndarray | None,
 
 
 def fault_starts_from_events(events: Iterable[tuple[float, int | str, str]]) -> list[float]:
-    """Times [s] of the fault starts among ``(t_s, severity, text)`` events: a text starting with
-    ``"SIM:"`` sent with severity WARNING or worse (the simulator announces a start as WARNING,
-    a stop as INFO), excluding refusals ("rejected", "refused") and divergence reports."""
+    """Times [s] of the fault starts among ``(t_s, severity, text)`` events (severity a
+    MAV_SEVERITY number or its name): a text starting with ``"SIM:"`` sent with severity WARNING
+    (the simulator announces a start as WARNING, a stop as INFO, a refused parameter as ERROR),
+    and not saying "rejected", "refused" or "diverged"."""
     out = []
     for t, severity, text in events:
         sev: int | str = severity.upper() if isinstance(severity, str) else int(severity)
