@@ -184,7 +184,7 @@ def test_tilt_beyond_60_deg_while_armed_is_a_crash_not_while_disarmed() -> None:
     m = metrics(t, euler_rad=eul)
     assert m["crashed"] is True and m["crash_reason"] == "tilt"
     assert m["crash_t_s"] == pytest.approx(1.5)
-    assert "61 deg" in m["crash_detail"]
+    assert "tilt 61.0 deg > 60 deg" in m["crash_detail"]
     calm = metrics(t, euler_rad=eul, armed=t < 1.5)
     assert calm["crashed"] is False and calm["crash_t_s"] is None
 

@@ -294,7 +294,7 @@ def _crash(
         over = armed & (tilt > math.radians(TILT_CRASH_DEG))
     if over.any():
         k = int(np.flatnonzero(over)[0])
-        found.append((float(t[k]), "tilt", f"tilt {math.degrees(tilt[k]):.0f} deg > {TILT_CRASH_DEG:g} deg while armed"))
+        found.append((float(t[k]), "tilt", f"tilt {math.degrees(tilt[k]):.1f} deg > {TILT_CRASH_DEG:g} deg while armed"))
     descent = -climb
     before = np.concatenate(([math.nan], descent[:-1])) if descent.size else descent
     rate = np.fmax(descent, before)  # a rigid ground zeroes the velocity of the sample that touches it
