@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import struct
 import sys
 import time
 from dataclasses import dataclass, field
@@ -98,6 +99,8 @@ class FlightResult:
             "position_error_max_m": s.get("position_error_max_m"),
             "yaw_error_final_deg": s.get("yaw_error_final_deg"),
             "max_tilt_deg": s.get("max_tilt_deg"),
+            # IAE/ISE/ITAE, effort, crash, recovery, sigma: ground.logs.metrics (None without a log)
+            "metrics": s.get("metrics"),
             "events": [{"t_s": t, "text": text} for t, text in self.events],
             "tlog": str(self.tlog),
             "summary": s,
@@ -183,11 +186,35 @@ def fly_in_process(scenario: Scenario, tlog_path: Path, *, echo=None) -> FlightR
     except DivergenceError as exc:
         status, message = "diverged", f"the simulation diverged at t = {exc.time_s:.3f} s: {exc}"
         ticks = core.ticks
+        # The log says so, for its summary and metrics (a crash) as for this result.
+        recorder.event(mavlink.MAV_SEVERITY_CRITICAL, _diverged_text(exc.time_s))
     finally:
         wall = time.perf_counter() - t0
         recorder.close()
     sim_s = (ticks - 1) / scenario.rate_hz if ticks else 0.0
     return FlightResult(scenario, "in-process", tlog_path, ticks, sim_s, wall, status, message, events)
+
+
+def _diverged_text(t_s: float) -> str:
+    """The STATUSTEXT that marks a divergence in a log (<= 50 characters; see
+    :func:`ground.logs.metrics.divergence_from_events`)."""
+    return f"Simulation diverged at t = {t_s:.3f} s"
+
+
+def _note_divergence_in_tlog(path: Path, sysid: int = 1) -> None:
+    """Append the divergence STATUSTEXT to a SITL flight's ``.tlog``, stamped with its last record:
+    the simulator process stops without a word on the sim link, so the FC's log cannot say so."""
+    from ground.logs import load_log
+
+    log = load_log(path)
+    if log.t0_us is None:
+        return
+    t_us = log.t0_us + round(log.log_span_s * 1e6)
+    t_s = float(log.att_t_s[-1]) if log.att_t_s.size else log.log_span_s
+    mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=SIM_COMPONENT_ID)
+    packet = telemetry.statustext(mav, mavlink.MAV_SEVERITY_CRITICAL, _diverged_text(t_s)).pack(mav)
+    with path.open("ab") as f:
+        f.write(struct.pack(">Q", t_us) + packet)
 
 
 # -- SITL ----------------------------------------------------------------------------------------
@@ -227,6 +254,8 @@ def fly(scenario: Scenario, out_dir: Path, *, sitl: bool = False, echo=None) -> 
     scenario.save(out_dir / f"{scenario.name}.scenario.toml")
     result = (fly_sitl if sitl else fly_in_process)(scenario, tlog, echo=echo)
     if tlog.exists() and tlog.stat().st_size > 0:
+        if sitl and result.status == "diverged":
+            _note_divergence_in_tlog(tlog)
         log = load_log(tlog)
         result.summary = summarize(log)
         if not result.events:

@@ -247,10 +247,14 @@ def test_summary_of_a_flight_with_known_errors(flight_log: Path) -> None:
     # Yaw -175 vs set-point 170: +15 deg across ±180, not -345.
     assert s["yaw_error_final_deg"] == pytest.approx(15.0, abs=1e-3)
     assert s["yaw_error_rms_deg"] == pytest.approx(math.sqrt(350 * 15.0**2 / 450), rel=1e-4)  # 0 in window 1
-    # chi_hat: last finite value (the tick before disarm); sigma RMS over the 5 s before landing.
+    # chi_hat: last finite value (the tick before disarm); sigma over the 5 s before landing: a
+    # constant sigma (from 18 s, the low-pass long settled) is all "LPF", no dither.
     last = DISARM_K - 1
     assert s["chi_hat_final"] == pytest.approx([0.5 + last * 1e-4 * (j + 1) for j in range(4)], rel=1e-6)
-    assert s["sigma_rms_last_s"] == pytest.approx([0.01, 0.02, 0.03, 0.04], rel=1e-5)
+    assert s["sigma_lpf_rms"] == pytest.approx([0.01, 0.02, 0.03, 0.04], rel=1e-5)
+    assert s["sigma_dither_rms"] == pytest.approx([0.0] * 4, abs=1e-8)
+    # The metrics see the same window and the same numbers.
+    assert s["metrics"]["sigma_lpf_rms"] == s["sigma_lpf_rms"] and s["metrics"]["sigma_dither_rms"] == s["sigma_dither_rms"]
     assert [e["text"] for e in s["events"]] == ["Armed", "Takeoff to 3.0 m", "Landing", "Landed: disarmed"]
     assert s["events"][2]["t_s"] == pytest.approx(25.0)
     assert s["events"][2]["severity"] == "INFO"
@@ -357,7 +361,9 @@ def test_log_without_smc_arrays_uses_named_value_floats(tmp_path: Path) -> None:
     s = summarize(log)
     json.dumps(s, allow_nan=False)
     assert s["chi_hat_final"] == pytest.approx([0.69, 1.69, 2.69, 3.69], rel=1e-6)
-    assert s["sigma_rms_last_s"] == pytest.approx([0.1, 0.2, 0.3, 0.4], rel=1e-6)
+    assert s["sigma_lpf_rms"] == pytest.approx([0.1, 0.2, 0.3, 0.4], rel=1e-6)
+    assert s["sigma_dither_rms"] == pytest.approx([0.0] * 4, abs=1e-9)
+    assert s["metrics"] is None  # no set-points without SMC arrays
     assert s["position_error_final_m"] is None  # no set-points without SMC arrays
     assert s["controller_data"] == "NAMED_VALUE_FLOAT"
     assert set(log.named_floats) == {f"{p}_{t}" for p in ("CHI", "SIG") for t in ("PHI", "THETA", "PSI", "Z")}
@@ -370,7 +376,8 @@ def test_cascade_pid_log_has_no_sigma_and_plots_without_it(tmp_path: Path) -> No
     assert np.isnan(log.sigma).all() and np.isnan(log.chi_hat).all()
     s = summarize(log)
     json.dumps(s, allow_nan=False)
-    assert s["chi_hat_final"] is None and s["sigma_rms_last_s"] is None
+    assert s["chi_hat_final"] is None and s["sigma_lpf_rms"] is None and s["sigma_dither_rms"] is None
+    assert s["metrics"]["sigma_lpf_rms"] is None and s["metrics"]["iae_pos_m_s"] > 0.0
     assert s["position_error_final_m"] == pytest.approx(0.2, rel=1e-5)  # tracking still assessed
     names = [p.name for p in plot_log(log, tmp_path / "plots")]
     assert names == ["position.png", "attitude.png", "motors.png", "track.png"]

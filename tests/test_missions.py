@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import subprocess
 import sys
 import textwrap
@@ -525,6 +526,11 @@ def test_short_mission_passes_and_writes_json_and_plots(tmp_path: Path) -> None:
     assert [e["kind"] for e in data["expectations"]] == ["reach", "landed", "final_position"]
     assert all(e["passed"] for e in data["expectations"])
     assert data["expectations"][0]["measured"] <= 0.3
+    # The flight's metrics from the FC's log (ground.logs.metrics), in the JSON and the text.
+    m = data["metrics"]
+    assert m["crashed"] is False and m["recovered"] is None and m["flight_time_s"] > 5.0
+    assert m["iae_pos_m_s"] > 0.0 and m["effort_u2_s"] > 0.0 and m["max_tilt_deg"] < 30.0
+    assert re.search(r"position error +IAE [0-9.]+ m s", r.stdout) and re.search(r"crashed +no\n", r.stdout), r.stdout
     assert Path(data["tlog"]).is_file() and Path(data["tlog"]).parent == out
     pngs = sorted((out / "plots").glob("*.png"))
     assert {p.name for p in pngs} >= {"position.png", "track.png"}

@@ -190,7 +190,7 @@ def test_each_example_flies_the_same_in_process_and_as_sitl(tmp_path: Path, path
     assert ma == mb  # bit for bit, tick for tick
     assert max(max(v) for v in ma.values()) > 0.1  # it flew
     sa, sb = a.as_json(), b.as_json()
-    for key in ("ticks", "chi_hat_final", "position_error_final_m", "position_error_rms_m", "max_tilt_deg"):
+    for key in ("ticks", "chi_hat_final", "position_error_final_m", "position_error_rms_m", "max_tilt_deg", "metrics"):
         assert sa[key] == sb[key], key
     assert [t for _, t in a.events] == [t for _, t in b.events]
     # Both ways flew the scenario's FC parameters: the FC logs its configuration at start.

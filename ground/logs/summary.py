@@ -11,23 +11,39 @@ from typing import Any, TextIO
 import numpy as np
 
 from ground.logs.load import CHANNELS, FlightLog, _wrap_deg
+from ground.logs.metrics import (
+    RECOVER_RADIUS_M,
+    SETPOINT_TOLERANCE,
+    SIGMA_WINDOW_S,
+    divergence_from_events,
+    fault_starts_from_events,
+    flight_metrics,
+    sigma_metrics,
+)
 from smcpilot.protocol import FLAG_ARMED, FLAG_FAILSAFE, FLAG_LANDING
 
-__all__ = ["DEFAULT_SETTLE_S", "DEFAULT_SIGMA_WINDOW_S", "print_summary", "summarize"]
+__all__ = ["DEFAULT_SETTLE_S", "DEFAULT_SIGMA_WINDOW_S", "format_metrics", "log_metrics", "print_summary", "summarize"]
 
 #: Seconds a set-point change is given before the tracking error counts (see :func:`summarize`).
 DEFAULT_SETTLE_S = 8.0
 #: Length of the window over which sigma's RMS is taken: the last seconds of flight before landing.
-DEFAULT_SIGMA_WINDOW_S = 5.0
+DEFAULT_SIGMA_WINDOW_S = SIGMA_WINDOW_S
 # Target changes smaller than this (m or rad) are float noise, not a new set-point.
-_SETPOINT_TOLERANCE = 1e-4
+_SETPOINT_TOLERANCE = SETPOINT_TOLERANCE
 # STATUSTEXT prefixes after which the FC descends on purpose (tracking is not assessed).
 _LANDING_EVENT_PREFIXES = ("Landing", "FAILSAFE", "State back", "Mode LAND", "Mode RTL", "Failsafe")
 
 
+# Samples stamped within this of a query time count as at it: a state's time comes from its
+# time_boot_ms (ms) and a tick's from the record stamp (µs), and the two differ by float rounding
+# (1.8e-15 s), which must not make a tick see the previous state.
+_SAME_TIME_S = 1e-6
+
+
 def _hold(t_src: np.ndarray, values: np.ndarray, t_query: np.ndarray) -> np.ndarray:
-    """Zero-order hold: the latest sample of ``values`` at or before each ``t_query`` (NaN before the first)."""
-    idx = np.searchsorted(t_src, t_query, side="right") - 1
+    """Zero-order hold: the latest sample of ``values`` at or before each ``t_query`` (within
+    1 µs; NaN before the first)."""
+    idx = np.searchsorted(t_src, t_query + _SAME_TIME_S, side="right") - 1
     out = np.full(t_query.shape + values.shape[1:], np.nan)
     ok = idx >= 0
     if t_src.size:
@@ -50,6 +66,12 @@ def _setpoint_changes(log: FlightLog) -> np.ndarray:
 
 def _tracking_masks(log: FlightLog, settle_s: float) -> tuple[np.ndarray, np.ndarray]:
     """(holding, settled) masks over ``smc_t_s``; see :func:`summarize`."""
+    _, _, holding, settled = _flight_masks(log, settle_s)
+    return holding, settled
+
+
+def _flight_masks(log: FlightLog, settle_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(armed, landing, holding, settled) masks over ``smc_t_s``; see :func:`summarize`."""
     t = log.smc_t_s
     n = t.size
     if log.act_t_s.size:
@@ -71,7 +93,7 @@ def _tracking_masks(log: FlightLog, settle_s: float) -> tuple[np.ndarray, np.nda
         landing = (bits & (FLAG_LANDING | FLAG_FAILSAFE)) != 0
         holding = armed & ~landing
         settled = holding & (t - last_change_t >= settle_s)
-        return holding, settled
+        return armed, landing, holding, settled
     # Older logs: landing (or failsafe descent) from its event until the next set-point change.
     landing = np.zeros(n, dtype=bool)
     for ev in log.events:
@@ -81,7 +103,7 @@ def _tracking_masks(log: FlightLog, settle_s: float) -> tuple[np.ndarray, np.nda
             landing |= (t >= ev.t_s) & (t < end)
     holding = armed & ~landing
     settled = holding & (t - last_change_t >= settle_s)
-    return holding, settled
+    return armed, landing, holding, settled
 
 
 def _num(x: Any) -> Any:
@@ -116,6 +138,54 @@ def _sigma_window(log: FlightLog, window_s: float) -> np.ndarray:
     return (t >= t_end - window_s) & (t <= t_end)
 
 
+def log_metrics(log: FlightLog, *, sigma_window_s: float = DEFAULT_SIGMA_WINDOW_S, recover_radius_m: float = RECOVER_RADIUS_M) -> dict[str, Any] | None:
+    """The :func:`ground.logs.metrics.flight_metrics` of a flight log, or None when the log lacks
+    what they need (the per-tick "SMC" records, which carry the set-point, and the state).
+
+    The samples are the controller ticks (``smc_t_s``): position (north, east, altitude up),
+    velocity (north, east, up) and attitude (roll, pitch, yaw of FRD in NED) held from the latest
+    state sample, the motor commands from the latest ``HIL_ACTUATOR_CONTROLS``, the law's
+    references and the set-point from the record itself; armed and landing as in
+    :func:`summarize` (the FC's logged flags, else the events); the fault starts from the
+    simulator's ``SIM:`` events, a divergence from an event saying so, the LAND speed from the
+    logged ``LAND_SPD`` parameter. Times in the result (``fault_start_s``, ``crash_t_s``) are
+    seconds since the log's first record.
+    """
+    if not (log.has_smc and log.pos_t_s.size and log.att_t_s.size):
+        return None
+    t = log.smc_t_s
+    armed, landing, _, _ = _flight_masks(log, 0.0)
+    pos = _hold(log.pos_t_s, np.column_stack([log.north_m, log.east_m, log.alt_m]), t)
+    vel = _hold(log.pos_t_s, np.column_stack([log.v_north_mps, log.v_east_mps, -log.v_down_mps]), t)
+    euler = _hold(log.att_t_s, np.radians(np.column_stack([log.roll_deg, log.pitch_deg, log.yaw_deg])), t)
+    ref = np.radians(np.column_stack([log.ref_roll_deg, log.ref_pitch_deg, log.ref_yaw_deg]))
+    target = np.column_stack([log.target_north_m, log.target_east_m, log.target_alt_m])
+    if log.act_t_s.size:
+        motors = _hold(log.act_t_s, log.motors, t)
+    else:
+        motors = np.column_stack([log.smc[f"motor{i}"] for i in range(1, 5)])
+    events = [(e.t_s, e.severity, e.text) for e in log.events]
+    land_speed = log.params.get("LAND_SPD")
+    return flight_metrics(
+        t,
+        pos,
+        target,
+        euler,
+        ref,
+        motors,
+        armed,
+        landing,
+        fault_starts_s=fault_starts_from_events(events),
+        velocity_m_s=vel,
+        target_yaw_rad=np.radians(log.target_yaw_deg),
+        sigma=log.sigma if log.ctrl_t_s is log.smc_t_s else None,
+        sigma_window_s=sigma_window_s,
+        land_speed_mps=land_speed if land_speed is not None and math.isfinite(land_speed) and land_speed > 0 else None,
+        diverged_t_s=divergence_from_events(events),
+        recover_radius_m=recover_radius_m,
+    )
+
+
 def summarize(
     log: FlightLog, *, settle_s: float = DEFAULT_SETTLE_S, sigma_window_s: float = DEFAULT_SIGMA_WINDOW_S
 ) -> dict[str, Any]:
@@ -138,9 +208,13 @@ def summarize(
 
     Other entries: ``duration_s`` (simulated, see :attr:`FlightLog.duration_s`), ``armed_time_s``
     (sum of the actuator-message intervals that start armed), ``max_tilt_deg`` (largest
-    acos(cos roll · cos pitch)), ``chi_hat_final`` (last finite value per channel phi, theta, psi,
-    z), ``sigma_rms_last_s`` (RMS of sigma per channel over the last ``sigma_window_s`` seconds of
-    flight while holding, i.e. before a final landing; NaN samples ignored), ``overruns`` (last OVERRUN count), ``message_counts`` and ``events``.
+    acos(cos roll · cos pitch), over the whole log), ``chi_hat_final`` (last finite value per
+    channel phi, theta, psi, z), ``sigma_lpf_rms`` and ``sigma_dither_rms`` (per channel, over the
+    last ``sigma_window_s`` seconds of flight while holding, i.e. before a final landing: the RMS
+    of sigma low-passed with tau = 0.1 s, how far sigma stays from the sliding surface, and the
+    RMS of what the low-pass removes, the chattering; see :mod:`ground.logs.metrics`),
+    ``overruns`` (last OVERRUN count), ``message_counts``, ``events`` and ``metrics``
+    (:func:`log_metrics`: IAE/ISE/ITAE, effort, crash, recovery; None without "SMC" records).
     """
     out: dict[str, Any] = {
         "log": log.name,
@@ -215,19 +289,54 @@ def summarize(
             finite = log.chi_hat[:, j][np.isfinite(log.chi_hat[:, j])]
             chi_final.append(_num(finite[-1]) if finite.size else None)
         window = _sigma_window(log, sigma_window_s)
-        sig_rms = [_num(_rms(log.sigma[window, j])) for j in range(4)]
+        lpf, dither = sigma_metrics(log.ctrl_t_s, log.sigma, window)
         out["chi_hat_final"] = chi_final if any(v is not None for v in chi_final) else None
-        out["sigma_rms_last_s"] = sig_rms if any(v is not None for v in sig_rms) else None
+        out["sigma_lpf_rms"] = lpf
+        out["sigma_dither_rms"] = dither
     else:
         out["chi_hat_final"] = None
-        out["sigma_rms_last_s"] = None
+        out["sigma_lpf_rms"] = None
+        out["sigma_dither_rms"] = None
     out["sigma_window_s"] = sigma_window_s
+    out["metrics"] = log_metrics(log, sigma_window_s=sigma_window_s)
     out["events"] = [{"t_s": round(e.t_s, 6), "severity": e.severity, "text": e.text} for e in log.events]
     return out
 
 
 def _fmt(v: Any, spec: str = ".3f", unit: str = "") -> str:
     return "n/a" if v is None else f"{v:{spec}}{unit}"
+
+
+def format_metrics(m: dict[str, Any], time_note: str = "") -> list[tuple[str, str]]:
+    """(label, text) lines of a :func:`ground.logs.metrics.flight_metrics` dict, for the summary
+    and the mission report (``time_note`` follows the first line, e.g. which clock the times use)."""
+    if m.get("crashed"):
+        crash = f"YES at {_fmt(m.get('crash_t_s'), '.2f', ' s')}: {m.get('crash_detail') or m.get('crash_reason')}"
+    else:
+        crash = "no"
+    if m.get("fault_start_s") is None:
+        recovery = "n/a (no fault)"
+    else:
+        where = f"fault at {m['fault_start_s']:.2f} s, radius {m.get('recover_radius_m', RECOVER_RADIUS_M):g} m"
+        if m.get("recovered") is None:
+            recovery = f"n/a: not in flight after the fault ({where})"
+        elif m.get("recovered"):
+            recovery = f"back for good {m['recover_s']:.2f} s after the fault ({where})"
+        else:
+            recovery = f"NOT recovered ({where})"
+    return [
+        ("Metrics", f"over {_fmt(m.get('flight_time_s'), '.2f', ' s')} in flight (armed, not landing),"
+                    f" {_fmt(m.get('armed_time_s'), '.2f', ' s')} armed{time_note}"),
+        ("  position error", f"IAE {_fmt(m.get('iae_pos_m_s'), '.4g', ' m s')}, ISE {_fmt(m.get('ise_pos_m2_s'), '.4g', ' m^2 s')},"
+                             f" ITAE {_fmt(m.get('itae_pos_m_s2'), '.4g', ' m s^2')}, max {_fmt(m.get('max_pos_err_m'), '.3g', ' m')}"),
+        ("  attitude error", f"IAE {_fmt(m.get('iae_att_rad_s'), '.4g', ' rad s')}, ISE {_fmt(m.get('ise_att_rad2_s'), '.4g', ' rad^2 s')},"
+                             f" ITAE {_fmt(m.get('itae_att_rad_s2'), '.4g', ' rad s^2')}"),
+        ("  motor effort", f"int sum c^2 {_fmt(m.get('effort_u2_s'), '.4g', ' s')}, total variation {_fmt(m.get('motor_tv'), '.4g')}"
+                           f" ({_fmt(m.get('motor_tv_per_s'), '.3g', ' /s')})"),
+        ("  max tilt armed", _fmt(m.get("max_tilt_deg"), ".1f", " deg")),
+        ("  recovery", recovery),
+        ("  crashed", crash),
+    ]  # fmt: skip
 
 
 def print_summary(summary: dict[str, Any], file: TextIO | None = None) -> None:
@@ -271,11 +380,16 @@ def print_summary(summary: dict[str, Any], file: TextIO | None = None) -> None:
     chans = s.get("channels", list(CHANNELS))
     chi = s.get("chi_hat_final")
     line("chi_hat final", "n/a" if chi is None else "  ".join(f"{c} {_fmt(v, '.3f')}" for c, v in zip(chans, chi)))
-    sig = s.get("sigma_rms_last_s")
-    line(
-        f"sigma RMS last {s.get('sigma_window_s', DEFAULT_SIGMA_WINDOW_S):g} s",
-        "n/a" if sig is None else "  ".join(f"{c} {_fmt(v, '.2e')}" for c, v in zip(chans, sig)),
-    )
+    window = s.get("sigma_window_s", DEFAULT_SIGMA_WINDOW_S)
+    for key, label in (("sigma_lpf_rms", "sigma LPF RMS"), ("sigma_dither_rms", "sigma dither RMS")):
+        sig = s.get(key)
+        line(f"{label} ({window:g} s)", "n/a" if sig is None else "  ".join(f"{c} {_fmt(v, '.2e')}" for c, v in zip(chans, sig)))
+    m = s.get("metrics")
+    if m is None:
+        line("Metrics", "n/a (they need the FC's per-tick SMC records and the state)")
+    else:
+        for label, text in format_metrics(m):
+            line(label, text)
     counts = s.get("message_counts", {})
     line("Messages", ", ".join(f"{k} {v}" for k, v in sorted(counts.items(), key=lambda kv: -kv[1])) or "none")
     events = s.get("events", [])

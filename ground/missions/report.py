@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
+from ground.logs.summary import format_metrics
 from ground.missions.expectations import ExpectationResult, _json_num
 
 if TYPE_CHECKING:
@@ -37,6 +38,10 @@ class MissionReport:
     wall_time_s: float = 0.0
     events: list[tuple[float, str]] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    #: the flight's :func:`ground.logs.metrics.flight_metrics` from the FC's log (IAE/ISE/ITAE,
+    #: effort, max tilt, recovery, crash; its times are seconds since the log's first record),
+    #: None when flown without that log (``--connect``: telemetry has no per-tick set-point).
+    metrics: dict[str, Any] | None = None
 
     @property
     def passed(self) -> bool:
@@ -68,6 +73,7 @@ class MissionReport:
             "expectations": [r.as_dict() for r in self.results],
             "events": [{"t_s": round(t, 3), "text": text} for t, text in self.events],
             "notes": list(self.notes),
+            "metrics": self.metrics,
         }
 
 
@@ -93,6 +99,11 @@ def print_report(report: MissionReport, file: TextIO | None = None) -> None:
     print(f"Result: {n_ok}/{len(report.results)} expectations held -> {'PASS' if report.passed else 'FAIL'}", file=f)
     if report.failed:
         print("  failed: " + "; ".join(f"expect {r.number} {r.kind} ({r.description})" for r in report.failed), file=f)
+    if report.metrics is not None:
+        for label, text in format_metrics(report.metrics, "; times in s of the FC log"):
+            print(f"  {label:<20}{text}", file=f)
+    else:
+        print("  Metrics: n/a (they need the FC's log with its per-tick SMC records)", file=f)
     if report.tlog is not None:
         print(f"log: {report.tlog}", file=f)
     if report.plots:

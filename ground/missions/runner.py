@@ -14,6 +14,7 @@ from typing import Any, TextIO
 
 from ground.logs.load import LogError, load_log
 from ground.logs.plots import plot_log
+from ground.logs.summary import log_metrics
 from ground.missions.errors import MissionRunError
 from ground.missions.expectations import evaluate
 from ground.missions.record import TelemetryRecorder, record_from_log
@@ -137,7 +138,9 @@ def run_mission(
     ``connect_url`` (a :mod:`smcpilot.link` URL of a running vehicle): the same flight, evaluated
     on the telemetry received (also written to ``out_dir/<name>-telemetry.tlog``).
 
-    Then prints the report (:func:`print_report`, to ``report_file``, default stdout), writes the
+    The report carries the flight's metrics (:func:`ground.logs.summary.log_metrics`) from the
+    FC's log; there are none from telemetry. Then prints the report (:func:`print_report`, to
+    ``report_file``, default stdout), writes the
     plots (:func:`ground.logs.plot_log`, into ``out_dir/plots``) and, with ``json_path``,
     the report as JSON. ``progress`` receives the progress lines (default: print them).
     Raises :class:`MissionRunError`, :class:`ground.sitl.SitlError` or
@@ -229,6 +232,7 @@ def run_mission(
         wall_time_s=time.monotonic() - wall0,
         events=[(t, text) for t, text in rec.events if t >= -5.0],
         notes=notes,
+        metrics=log_metrics(log) if log is not None else None,
     )
     if plots and log is not None:
         try:
