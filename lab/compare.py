@@ -37,8 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from fc.core import FlightCore, TickOutput
-from fc.flight import VehicleState
+from fc.core import FlightCore
 from fc.params import config_for
 from lab.runner import simulate
 from sim_bridge.build import plant_for
@@ -146,6 +145,8 @@ class Unit:
     variant: Variant
     seed: int
     record_every: int = 5
+    #: metrics from this time on (simulated s): after the take-off has settled.
+    window_from_s: float = 6.0
 
     def scenario(self) -> Scenario:
         return self.case.scenario.with_changes(controller=self.variant.controller, params=self.variant.params, seed=self.seed)
@@ -154,59 +155,36 @@ class Unit:
 def fly_unit(unit: Unit) -> tuple[dict[str, Any], Trace]:
     """Fly one unit in this process: (the result row, the sampled trace)."""
     from ground.logs.metrics import flight_metrics
+    from lab.metrics import MetricsRecorder
 
     sc = unit.scenario()
     config = config_for(sc)
     core = FlightCore(config, sc.vehicle, plan=sc.plan)
     plant = plant_for(sc if unit.case.plant_vehicle is None else sc.with_changes(vehicle=unit.case.plant_vehicle))
-    n = sc.n_ticks
-    every = unit.record_every
-    m = n // every + 2
-    t = np.full(m, np.nan)
-    pos = np.full((m, 3), np.nan)
-    tgt = np.full((m, 3), np.nan)
-    eul = np.full((m, 3), np.nan)
-    ref = np.full((m, 3), np.nan)
-    mot = np.zeros((m, 4))
-    armed = np.zeros(m, dtype=bool)
-    landing = np.zeros(m, dtype=bool)
-    k_rec = [0]
-    flight = core.flight
-
-    def on_tick(k: int, t_us: int, wire: tuple[float, ...], st: VehicleState, out: TickOutput, motors: tuple[float, ...]) -> None:
-        if k % every:
-            return
-        i = k_rec[0]
-        k_rec[0] = i + 1
-        t[i] = t_us * 1e-6
-        pos[i] = (st.x_m, st.y_m, st.z_m)
-        tgt[i] = flight.target
-        eul[i] = (st.phi_rad, st.theta_rad, st.psi_rad)
-        r = out.pipeline.ref
-        ref[i] = (r[0], r[1], r[2])
-        mot[i] = motors
-        armed[i] = out.armed
-        landing[i] = flight.landing
-
+    rec = MetricsRecorder(core, every=unit.record_every)
     status, message = "ok", ""
+    diverged_t_s: float | None = None
     wall0 = time.perf_counter()
     try:
-        simulate(core, plant, n, rate_hz=sc.rate_hz, physics_hz=sc.physics_hz, on_tick=on_tick)
+        simulate(core, plant, sc.n_ticks, rate_hz=sc.rate_hz, physics_hz=sc.physics_hz, on_tick=rec.on_tick)
     except DivergenceError as exc:
         status, message = "diverged", str(exc)
+        diverged_t_s = core.t_us * 1e-6
     wall = time.perf_counter() - wall0
-    k = k_rec[0]
+    a = rec.arrays()
+    keep = a["t_s"] >= unit.window_from_s  # score the event, not the take-off before it
     metrics = flight_metrics(
-        t[:k], pos[:k], tgt[:k], eul[:k], ref[:k], mot[:k], armed[:k], landing[:k], fault_starts_s=unit.case.fault_starts_s,
-    )
-    if status == "diverged":
-        metrics["crashed"] = True
-        metrics.setdefault("crash_reason", "diverged")
+        a["t_s"][keep], a["position_m"][keep], a["target_m"][keep], a["euler_rad"][keep], a["euler_ref_rad"][keep],
+        a["motors"][keep], a["armed"][keep], a["landing"][keep], fault_starts_s=unit.case.fault_starts_s,
+        velocity_m_s=a["velocity_m_s"][keep], target_yaw_rad=a["target_yaw_rad"][keep], sigma=a["sigma"][keep],
+        land_speed_mps=float(config.land_speed_mps), diverged_t_s=diverged_t_s,
+    )  # fmt: skip
     row: dict[str, Any] = {"case": unit.case.name, "controller": unit.variant.label, "seed": unit.seed, "status": status,
                            "message": message, "wall_s": round(wall, 3), **metrics}  # fmt: skip
-    err = np.linalg.norm(pos[:k] - tgt[:k], axis=1)
-    tilt = np.degrees(np.arccos(np.clip(np.cos(eul[:k, 0]) * np.cos(eul[:k, 1]), -1.0, 1.0)))
-    return row, Trace(list(t[:k]), list(err), list(tilt))
+    err = np.linalg.norm(a["position_m"] - a["target_m"], axis=1)
+    eul = a["euler_rad"]
+    tilt = np.degrees(np.arccos(np.clip(np.cos(eul[:, 0]) * np.cos(eul[:, 1]), -1.0, 1.0)))
+    return row, Trace(a["t_s"].tolist(), err.tolist(), tilt.tolist())
 
 
 # -- the study ----------------------------------------------------------------------------------------
