@@ -19,6 +19,13 @@ class InvalidGainError(ConfigError):
     """A controller gain is outside its valid range (e.g. kd = 0, c2 = 0, delta outside (0, 1))."""
 
 
+class ScenarioError(ConfigError):
+    """A scenario is invalid or its file is unreadable (the message names the file and key).
+
+    Defined here so :mod:`smcpilot.faults` (whose :class:`~smcpilot.faults.FaultError` is one) and
+    :mod:`smcpilot.scenario` (which re-exports it) do not import each other in a circle."""
+
+
 class VehicleFileError(ConfigError):
     """A vehicle TOML file is unreadable or has a missing, unknown or out-of-range key."""
 

@@ -51,7 +51,7 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
-from smcpilot.errors import ConfigError
+from smcpilot.errors import ConfigError, ScenarioError
 from smcpilot.plan import PlanError, PlanStep, load_plan, parse_plan
 from smcpilot.protocol import FC_CONTROLLERS
 from smcpilot.tomlfile import read_toml
@@ -62,9 +62,7 @@ PLANTS = ("rigid-body", "paper")
 #: body rate rad/s, position m, velocity m/s.
 DEFAULT_NOISE_STD = (0.002, 0.01, 0.01, 0.02)
 
-
-class ScenarioError(ConfigError):
-    """A scenario is invalid or its file is unreadable (the message names the file and key)."""
+__all__ = ["PLANTS", "DEFAULT_NOISE_STD", "ScenarioError", "EnvironmentSpec", "Scenario", "dumps_toml", "toml_string"]
 
 
 @dataclass(frozen=True)
