@@ -74,6 +74,7 @@ EXIT_WATCHDOG = 3
 _isfinite = math.isfinite
 _NAN = math.nan
 _F32 = struct.Struct("<f")
+_STATUSTEXT = mavlink.MAVLink_statustext_message
 
 
 def _f32(v: float) -> float:
@@ -430,7 +431,7 @@ class FlightControllerApp:
                     self._tick(t_ms * 1000, stale=False)
                     if self.duration_s is not None and t_ms * 1e-3 >= self.duration_s:
                         self._stop = True
-            elif mid == mavlink.MAVLINK_MSG_ID_STATUSTEXT:
+            elif type(msg) is _STATUSTEXT:  # its field "id" (the chunk id) hides the message id
                 self._relay_sim_text(msg)
             elif mid == mavlink.MAVLINK_MSG_ID_PARAM_VALUE:
                 self._sim_param_value(msg)

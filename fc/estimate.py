@@ -170,11 +170,10 @@ def estimate_step(
     :data:`EST_ATTITUDE_LOST` it must not be flown (it may hold non-finite values). ``missing``
     has the ``MISSING_*`` bits; ``hold`` is the hold point (see the module's docstring).
     """
-    isfinite = math.isfinite
-    pos_ok = isfinite(m.x_m) and isfinite(m.y_m) and isfinite(m.z_m)
-    vel_ok = isfinite(m.vx_mps) and isfinite(m.vy_mps) and isfinite(m.vz_mps)
-    att_ok = isfinite(m.phi_rad) and isfinite(m.theta_rad) and isfinite(m.psi_rad)
-    rates_ok = isfinite(m.phi_dot_radps) and isfinite(m.theta_dot_radps) and isfinite(m.psi_dot_radps)
+    pos_ok = math.isfinite(m.x_m) and math.isfinite(m.y_m) and math.isfinite(m.z_m)
+    vel_ok = math.isfinite(m.vx_mps) and math.isfinite(m.vy_mps) and math.isfinite(m.vz_mps)
+    att_ok = math.isfinite(m.phi_rad) and math.isfinite(m.theta_rad) and math.isfinite(m.psi_rad)
+    rates_ok = math.isfinite(m.phi_dot_radps) and math.isfinite(m.theta_dot_radps) and math.isfinite(m.psi_dot_radps)
     missing = 0
     if not pos_ok:
         missing |= MISSING_POSITION

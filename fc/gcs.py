@@ -407,13 +407,13 @@ class GcsHandler:
             self.rejected["inject_refused"] += 1
             return result
         if self._forward_sim is None:
-            return Refusal("Inject failure: no simulator link", M.MAV_RESULT_UNSUPPORTED)
+            return Refusal("Inject: no simulator link", M.MAV_RESULT_UNSUPPORTED)
         try:
             for name, value in result.changes:  # valid one by one: fc.inject orders them so
                 self.params.check_sim(name, value)
                 self._set_sim(name, value)
         except ParamError as exc:  # pragma: no cover - fc.inject gives valid changes only
-            return Refusal(f"Inject failure: {exc}")
+            return Refusal(f"Inject: {exc}")
         self._event(M.MAV_SEVERITY_WARNING if result.failure else M.MAV_SEVERITY_INFO, result.text)
         return None
 

@@ -21,6 +21,7 @@ unit                         what it changes
 Sensors have one instance (0 or 1). Anything else the simulator cannot do — other units, the
 types ``SLOW`` and ``INTERMITTENT``, a second sensor — is refused with ``UNSUPPORTED`` and a
 reason; numbers that are not whole, not finite or not in MAVLink's enums are ``DENIED``.
+Every reason fits one ``STATUSTEXT`` (50 characters).
 Refusals are :class:`fc.modes.Refusal` values; :mod:`fc.gcs` turns them into ``COMMAND_ACK``.
 """
 
@@ -82,19 +83,19 @@ def injection(unit: float, ftype: float, instance: float, sim: Mapping[str, floa
     """The ``SIM_*`` changes of ``MAV_CMD_INJECT_FAILURE(unit, ftype, instance)`` given the
     simulator's values in force ``sim`` (name -> value), or why not."""
     if not (_whole(unit) and _whole(ftype) and _whole(instance)):
-        return Refusal(f"Inject failure: unit, type and instance must be whole numbers >= 0, got {unit:g}, {ftype:g}, {instance:g}")
+        return Refusal(f"Inject: not whole numbers: {unit:g}, {ftype:g}, {instance:g}")
     u, t, inst = int(unit), int(ftype), int(instance)
     if u not in _UNITS:
-        return Refusal(f"Inject failure: unknown failure unit {u}")
+        return Refusal(f"Inject: unknown failure unit {u}")
     if t not in _TYPES:
-        return Refusal(f"Inject failure: unknown failure type {t}")
+        return Refusal(f"Inject: unknown failure type {t}")
     uname, tname = _UNITS[u], _TYPES[t]
     unsupported = M.MAV_RESULT_UNSUPPORTED
     if u == M.FAILURE_UNIT_SYSTEM_MOTOR:
         if not 0 <= inst <= 4:
-            return Refusal(f"Inject failure: motor instance must be 0 (all) or 1..4, got {inst}")
+            return Refusal(f"Inject: no motor {inst} (0 = all, 1..4)")
         if t not in (M.FAILURE_TYPE_OK, M.FAILURE_TYPE_OFF):
-            return Refusal(f"Inject failure: motor {tname} not simulated (OK, OFF)", unsupported)
+            return Refusal(f"Inject: motor {tname} not simulated", unsupported)
         bits = _ALL_MOTORS if inst == 0 else 1 << (inst - 1)
         old = int(sim["SIM_MOT_OFF"])
         new = old | bits if t == M.FAILURE_TYPE_OFF else old & ~bits
@@ -105,12 +106,12 @@ def injection(unit: float, ftype: float, instance: float, sim: Mapping[str, floa
         return Injection(motor_changes, f"Failure cleared: {which}", False)
     sensors = _SENSOR_UNITS.get(u)
     if sensors is None:
-        return Refusal(f"Inject failure: unit {uname} not simulated (GYRO, ACCEL, GPS, MOTOR)", unsupported)
+        return Refusal(f"Inject: {uname} not simulated", unsupported)
     if inst > 1:
-        return Refusal(f"Inject failure: {_UNIT_NAMES[u]} {inst} not simulated (one sensor: instance 0 or 1)", unsupported)
+        return Refusal(f"Inject: {_UNIT_NAMES[u]} {inst} not simulated (one sensor)", unsupported)
     mode = _SENSOR_MODE.get(t)
     if mode is None:
-        return Refusal(f"Inject failure: {_UNIT_NAMES[u]} {tname} not simulated", unsupported)
+        return Refusal(f"Inject: {_UNIT_NAMES[u]} {tname} not simulated", unsupported)
     changes: list[tuple[str, float]] = []
     values: list[str] = []
     for sensor, bias, noise, unit_text in sensors:

@@ -27,7 +27,15 @@ from typing import Any
 from fc.config import FcConfig
 from fc.estimate import EstimatorConfig
 from smcpilot.errors import ConfigError, InvalidGainError, ParamError
-from smcpilot.faults import SENSOR_FAULT_PARAM, SIM_PARAM_INDEX, SIM_PARAMS, FaultError, check_sim_param, sensor_fault_from_params
+from smcpilot.faults import (
+    MAX_DELAY_S,
+    SENSOR_FAULT_PARAM,
+    SIM_PARAM_INDEX,
+    SIM_PARAMS,
+    FaultError,
+    check_sim_param,
+    sensor_fault_from_params,
+)
 from smcpilot.protocol import FC_CONTROLLERS
 from smcpilot.scenario import Scenario, ScenarioError
 
@@ -240,13 +248,24 @@ class ParamStore:
         sensor fault's mode and value must make a valid fault together. ParamError with the reason."""
         try:
             v = check_sim_param(name, value)
-            for sensor, mode_name in SENSOR_FAULT_PARAM.items():
-                if name in (mode_name, mode_name + "_V"):
-                    mode = v if name == mode_name else self.sim[mode_name]
-                    val = v if name != mode_name else self.sim[mode_name + "_V"]
-                    sensor_fault_from_params(sensor, int(mode), val)
         except FaultError as exc:
             raise ParamError(str(exc)) from None
+        for sensor, mode_name in SENSOR_FAULT_PARAM.items():
+            if name in (mode_name, mode_name + "_V"):
+                mode = int(v if name == mode_name else self.sim[mode_name])
+                val = v if name != mode_name else self.sim[mode_name + "_V"]
+                try:
+                    sensor_fault_from_params(sensor, mode, val)
+                except FaultError:  # short reasons: one STATUSTEXT holds 50 characters
+                    value_name = mode_name + "_V"
+                    if mode == 3:
+                        why = "noise std must be >= 0" if name == value_name else f"noise needs {value_name} >= 0"
+                    elif mode == 5:
+                        lim = f"[0, {MAX_DELAY_S:g}] s"
+                        why = f"delay must lie in {lim}" if name == value_name else f"needs {value_name} in {lim}"
+                    else:
+                        why = f"not a valid {sensor} fault"
+                    raise ParamError(f"{name} {v:g}: {why}") from None
         return v
 
     def set_sim(self, name: str, value: float) -> float:
