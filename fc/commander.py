@@ -22,7 +22,7 @@ from collections.abc import Callable
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from fc import inbound
-from fc.estimate import HoldPoint
+from fc.estimate import EstimatorParams, EstimatorState, HoldPoint, hold_point
 from fc.flight import FlightControl, VehicleState
 from fc.mission import MissionProtocol
 from fc.modes import AutoMode, FlightMode, Refusal, build_modes
@@ -58,8 +58,10 @@ class Commander:
         )
         self.state: VehicleState | None = None
         self.state_fresh = False
-        #: the filtered hold point of the latest tick (:mod:`fc.estimate`); None: the state's own.
-        self.hold: HoldPoint | None = None
+        #: the flight core's estimate after the latest tick and its settings (:mod:`fc.estimate`),
+        #: the source of the hold point; None: the hold point is the state's own.
+        self.estimate: EstimatorState | None = None
+        self.estimate_params: EstimatorParams | None = None
         #: every field of the latest state was measured (False: dead reckoning, or unusable).
         self.estimate_ok = True
         self.failsafe_active = False
@@ -94,9 +96,9 @@ class Commander:
         """Where the vehicle is, for a set-point "here" (arming, take-off, holding or landing
         where it is): the estimate's filtered hold point when the flight core gave one, else the
         position and yaw of ``st`` (paper frame)."""
-        h = self.hold
-        if h is not None:
-            return h
+        est, p = self.estimate, self.estimate_params
+        if est is not None and p is not None:
+            return hold_point(est, p)
         return HoldPoint(st.x_m, st.y_m, st.z_m, st.psi_rad)
 
     def _at_hold_point(self, st: VehicleState) -> VehicleState:

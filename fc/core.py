@@ -118,6 +118,7 @@ class FlightCore:
         self.last: TickOutput | None = None
         self.estimator = estimator if estimator is not None else EstimatorConfig()
         self._est_params = estimator_params(self.estimator, config.period_s)
+        self.commander.estimate_params = self._est_params
         self._est: EstimatorState = ESTIMATOR_START
         #: the estimate's status after the latest tick (``fc.estimate.EST_*``).
         self.estimate_status = EST_OK
@@ -139,12 +140,12 @@ class FlightCore:
         which also retimes the telemetry streams)."""
         self.config = config
         self.flight.reconfigure(config)
-        self._est_params = estimator_params(self.estimator, config.period_s)
+        self._est_params = self.commander.estimate_params = estimator_params(self.estimator, config.period_s)
 
     def reconfigure_estimator(self, estimator: EstimatorConfig) -> None:
         """New estimator settings (``FS_POS_TMO``), from the next tick; its state is kept."""
         self.estimator = estimator
-        self._est_params = estimator_params(estimator, self.config.period_s)
+        self._est_params = self.commander.estimate_params = estimator_params(estimator, self.config.period_s)
 
     @property
     def mode(self) -> int:
@@ -165,14 +166,14 @@ class FlightCore:
         """Tell the commander the latest state (before a command is judged, e.g. arming).
 
         ``state`` must be finite (what :meth:`tick` gives after the estimate); called from
-        outside a tick, the hold point is the state itself."""
+        outside a tick, the hold point is the state's own position and yaw."""
         if state is not None:
             self.state = state
         c = self.commander
         c.state = self.state
         c.state_fresh = fresh and self.state is not None
         c.failsafe_active = self.failsafe
-        c.hold = None
+        c.estimate = None
 
     def on_gcs_heartbeat(self, wall_s: float) -> None:
         """A ground station's heartbeat at wall time ``wall_s``: keeps the GCS-loss failsafe away."""
@@ -211,7 +212,7 @@ class FlightCore:
     def _estimate(self, state: VehicleState, fresh: bool) -> tuple[VehicleState | None, int]:
         """The estimate of a received state: (the state to fly on, or None if it is unusable;
         the status); the commander gets it and the hold point. Events when it changes."""
-        self._est, est, status, missing, hold = estimate_step(self._est, state, self.config.period_s, self._est_params)
+        self._est, est, status, missing = estimate_step(self._est, state, self.config.period_s, self._est_params)
         if missing:
             self.states_missing += 1
         if status != self.estimate_status:
@@ -226,7 +227,7 @@ class FlightCore:
         if status == EST_DEAD_RECKONING:
             self.dead_reckoning_ticks += 1
         self.set_state(est, fresh)
-        c.hold = hold
+        c.estimate = self._est
         c.estimate_ok = status == EST_OK
         return est, status
 

@@ -67,6 +67,7 @@ EST_ATTITUDE_LOST = 3
 
 #: a timeout comparison tolerance, s (the missing time is a sum of tick periods).
 _TIME_EPS_S = 1e-9
+_PI = math.pi
 
 
 @dataclass(frozen=True)
@@ -121,6 +122,8 @@ class EstimatorState(NamedTuple):
     vx_mps: float
     vy_mps: float
     vz_mps: float
+    #: the latest yaw, rad (measured; the hold point's yaw without noise).
+    psi_rad: float
     #: how long the position / velocity has been missing, s (0: measured this tick).
     pos_missing_s: float
     vel_missing_s: float
@@ -146,7 +149,7 @@ class HoldPoint(NamedTuple):
     psi_rad: float
 
 
-ESTIMATOR_START = EstimatorState(False, False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+ESTIMATOR_START = EstimatorState(False, False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 def estimator_params(config: EstimatorConfig, dt_s: float) -> EstimatorParams:
@@ -161,105 +164,120 @@ def estimator_params(config: EstimatorConfig, dt_s: float) -> EstimatorParams:
 
 def estimate_step(
     est: EstimatorState, m: VehicleState, dt_s: float, p: EstimatorParams
-) -> tuple[EstimatorState, VehicleState, int, int, HoldPoint]:
-    """One tick: ``(state, estimate, status, missing, hold)`` of the measured state ``m`` (NaN or
+) -> tuple[EstimatorState, VehicleState, int, int]:
+    """One tick: ``(state, estimate, status, missing)`` of the measured state ``m`` (NaN or
     infinite fields: not measured).
 
     ``estimate`` is ``m`` itself when everything was measured, the dead-reckoned state otherwise
     (attitude and rates as measured); when ``status`` is :data:`EST_POSITION_LOST` or
     :data:`EST_ATTITUDE_LOST` it must not be flown (it may hold non-finite values). ``missing``
-    has the ``MISSING_*`` bits; ``hold`` is the hold point (see the module's docstring).
+    has the ``MISSING_*`` bits. The hold point is :func:`hold_point` of the new state (computed
+    only when a set-point needs it).
     """
-    pos_ok = math.isfinite(m.x_m) and math.isfinite(m.y_m) and math.isfinite(m.z_m)
-    vel_ok = math.isfinite(m.vx_mps) and math.isfinite(m.vy_mps) and math.isfinite(m.vz_mps)
-    att_ok = math.isfinite(m.phi_rad) and math.isfinite(m.theta_rad) and math.isfinite(m.psi_rad)
-    rates_ok = math.isfinite(m.phi_dot_radps) and math.isfinite(m.theta_dot_radps) and math.isfinite(m.psi_dot_radps)
-    missing = 0
-    if not pos_ok:
-        missing |= MISSING_POSITION
-    if not vel_ok:
-        missing |= MISSING_VELOCITY
-    if not att_ok:
-        missing |= MISSING_ATTITUDE
-    if not rates_ok:
-        missing |= MISSING_RATES
+    x, y, z, vx, vy, vz, phi, theta, psi, phi_d, theta_d, psi_d = m
+    (have_pos, have_vel, ex_, ey_, ez_, evx, evy, evz, epsi, pos_missing_s, vel_missing_s, hold_ok, hx, hy, hz, hpsi,
+     epsi_d, e2p, e2y) = est  # fmt: skip
     half_dt = 0.5 * dt_s
-    # Velocity: measured, or held.
-    if vel_ok:
-        vx, vy, vz = m.vx_mps, m.vy_mps, m.vz_mps
-        vel_missing_s = 0.0
-        have_vel = True
-    else:
-        vx, vy, vz = est.vx_mps, est.vy_mps, est.vz_mps
-        vel_missing_s = est.vel_missing_s + dt_s
-        have_vel = est.have_vel
-    # Position: measured, or integrated from the velocity (trapezoid).
-    if pos_ok:
-        x, y, z = m.x_m, m.y_m, m.z_m
-        pos_missing_s = 0.0
-        have_pos = True
-    else:
-        x = est.x_m + half_dt * (est.vx_mps + vx)
-        y = est.y_m + half_dt * (est.vy_mps + vy)
-        z = est.z_m + half_dt * (est.vz_mps + vz)
-        pos_missing_s = est.pos_missing_s + dt_s
-        have_pos = est.have_pos
-    if not (att_ok and rates_ok):
-        status = EST_ATTITUDE_LOST
-    elif not (have_pos and have_vel):
-        status = EST_POSITION_LOST
-    elif max(pos_missing_s, vel_missing_s) > p.pos_timeout_s + _TIME_EPS_S:
-        status = EST_POSITION_LOST
-    elif missing != 0:
-        status = EST_DEAD_RECKONING
-    else:
+    # Everything measured (the sum of finite values is finite; one non-finite value makes it not).
+    if math.isfinite(x + y + z + vx + vy + vz + phi + theta + psi + phi_d + theta_d + psi_d):
+        missing = 0
         status = EST_OK
+        have_pos = True
+        have_vel = True
+        pos_missing_s = 0.0
+        vel_missing_s = 0.0
+    else:
+        pos_ok = math.isfinite(x) and math.isfinite(y) and math.isfinite(z)
+        vel_ok = math.isfinite(vx) and math.isfinite(vy) and math.isfinite(vz)
+        att_ok = math.isfinite(phi) and math.isfinite(theta) and math.isfinite(psi)
+        rates_ok = math.isfinite(phi_d) and math.isfinite(theta_d) and math.isfinite(psi_d)
+        missing = 0
+        if not pos_ok:
+            missing |= MISSING_POSITION
+        if not vel_ok:
+            missing |= MISSING_VELOCITY
+        if not att_ok:
+            missing |= MISSING_ATTITUDE
+        if not rates_ok:
+            missing |= MISSING_RATES
+        # Velocity: measured, or held.
+        if vel_ok:
+            vel_missing_s = 0.0
+            have_vel = True
+        else:
+            vx, vy, vz = evx, evy, evz
+            vel_missing_s = vel_missing_s + dt_s
+        # Position: measured, or integrated from the velocity (trapezoid).
+        if pos_ok:
+            pos_missing_s = 0.0
+            have_pos = True
+        else:
+            x = ex_ + half_dt * (evx + vx)
+            y = ey_ + half_dt * (evy + vy)
+            z = ez_ + half_dt * (evz + vz)
+            pos_missing_s = pos_missing_s + dt_s
+        if not rates_ok:
+            psi_d = epsi_d
+        if not att_ok:
+            psi = epsi
+        if not (att_ok and rates_ok):
+            status = EST_ATTITUDE_LOST
+        elif not (have_pos and have_vel):
+            status = EST_POSITION_LOST
+        elif max(pos_missing_s, vel_missing_s) > p.pos_timeout_s + _TIME_EPS_S:
+            status = EST_POSITION_LOST
+        else:
+            status = EST_DEAD_RECKONING
     # The hold filter (position and yaw), velocity-aided.
-    psi_dot = m.psi_dot_radps if rates_ok else est.psi_dot_radps
-    hold_ok = est.hold_ok
-    hx, hy, hz, hpsi = est.hold_x_m, est.hold_y_m, est.hold_z_m, est.hold_psi_rad
-    e2p, e2y = est.innov_pos_m2, est.innov_yaw_rad2
     if status == EST_POSITION_LOST or status == EST_ATTITUDE_LOST:
         hold_ok = False
     elif not hold_ok:
         hold_ok = True
-        hx, hy, hz, hpsi = x, y, z, m.psi_rad
+        hx, hy, hz, hpsi = x, y, z, psi
         e2p, e2y = 0.0, 0.0
     else:
         a = p.hold_alpha
-        px = hx + half_dt * (est.vx_mps + vx)
-        py = hy + half_dt * (est.vy_mps + vy)
-        pz = hz + half_dt * (est.vz_mps + vz)
-        ex, ey, ez = x - px, y - py, z - pz
-        e2 = ex * ex + ey * ey + ez * ez
+        px = hx + half_dt * (evx + vx)
+        py = hy + half_dt * (evy + vy)
+        pz = hz + half_dt * (evz + vz)
+        ix, iy, iz = x - px, y - py, z - pz
+        e2 = ix * ix + iy * iy + iz * iz
         if e2 > p.reset_m2:
             hx, hy, hz = x, y, z
             e2p = 0.0
         else:
-            hx, hy, hz = px + a * ex, py + a * ey, pz + a * ez
+            hx, hy, hz = px + a * ix, py + a * iy, pz + a * iz
             e2p = e2p + a * (e2 - e2p)
-        ppsi = hpsi + half_dt * (est.psi_dot_radps + psi_dot)
-        epsi = wrap_pi(m.psi_rad - ppsi)
-        e2psi = epsi * epsi
-        hpsi = wrap_pi(ppsi + a * epsi)
-        e2y = e2y + a * (e2psi - e2y)
+        ppsi = hpsi + half_dt * (epsi_d + psi_d)
+        ipsi = psi - ppsi
+        if not -_PI <= ipsi < _PI:
+            ipsi = wrap_pi(ipsi)
+        hpsi = ppsi + a * ipsi
+        if not -_PI <= hpsi < _PI:
+            hpsi = wrap_pi(hpsi)
+        e2y = e2y + a * (ipsi * ipsi - e2y)
     new = EstimatorState(
-        have_pos, have_vel, x, y, z, vx, vy, vz, pos_missing_s, vel_missing_s, hold_ok, hx, hy, hz, hpsi, psi_dot, e2p, e2y
+        have_pos, have_vel, x, y, z, vx, vy, vz, psi, pos_missing_s, vel_missing_s, hold_ok, hx, hy, hz, hpsi, psi_d, e2p, e2y
     )  # fmt: skip
     if missing == 0:
-        out = m
+        return new, m, status, missing
+    return new, VehicleState(x, y, z, vx, vy, vz, m.phi_rad, m.theta_rad, m.psi_rad, m.phi_dot_radps, m.theta_dot_radps,
+                             m.psi_dot_radps), status, missing  # fmt: skip
+
+
+def hold_point(est: EstimatorState, p: EstimatorParams) -> HoldPoint:
+    """The hold point after the tick that gave ``est``: the filtered position and yaw while the
+    innovation says the samples are noisy, else the estimate's own (the sample itself)."""
+    if est.hold_ok and est.innov_pos_m2 > p.gate_pos_m2:
+        x, y, z = est.hold_x_m, est.hold_y_m, est.hold_z_m
     else:
-        out = VehicleState(x, y, z, vx, vy, vz, m.phi_rad, m.theta_rad, m.psi_rad, m.phi_dot_radps, m.theta_dot_radps, m.psi_dot_radps)
-    if hold_ok and e2p > p.gate_pos_m2:
-        hold_x, hold_y, hold_z = hx, hy, hz
-    else:
-        hold_x, hold_y, hold_z = x, y, z
-    hold_psi = hpsi if (hold_ok and e2y > p.gate_yaw_rad2) else m.psi_rad
-    return new, out, status, missing, HoldPoint(hold_x, hold_y, hold_z, hold_psi)
+        x, y, z = est.x_m, est.y_m, est.z_m
+    psi = est.hold_psi_rad if (est.hold_ok and est.innov_yaw_rad2 > p.gate_yaw_rad2) else est.psi_rad
+    return HoldPoint(x, y, z, psi)
 
 
 #: the estimator's pure functions (checked and compiled with the pipeline's by tests/test_compilable.py).
-PURE_FUNCTIONS = (estimate_step, wrap_pi)
+PURE_FUNCTIONS = (estimate_step, hold_point, wrap_pi)
 
 __all__ = [
     "EST_ATTITUDE_LOST",
@@ -277,4 +295,5 @@ __all__ = [
     "MISSING_VELOCITY",
     "estimate_step",
     "estimator_params",
+    "hold_point",
 ]

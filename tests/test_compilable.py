@@ -363,7 +363,7 @@ def _estimate_ticks() -> list[tuple]:
             psi = math.inf
         m = VehicleState(x, y, z, vx, vy, vz, 0.01, -0.02, psi, 0.0, 0.0, 1.0)
         out = estimate.estimate_step(est, m, 0.002, p)
-        rows.append((est, m, p, out))
+        rows.append((est, m, p, out + (estimate.hold_point(out[0], p),)))
         est = out[0]
     statuses = {row[3][2] for row in rows}
     assert statuses == {estimate.EST_OK, estimate.EST_DEAD_RECKONING, estimate.EST_POSITION_LOST, estimate.EST_ATTITUDE_LOST}
@@ -382,9 +382,9 @@ def test_estimator_state_keeps_its_types_from_tick_to_tick() -> None:
 def test_compiled_estimate_step_gives_the_same_bits() -> None:
     pytest.importorskip("numba")
     rows = _estimate_ticks()
-    fn = estimate.estimate_step  # the module's name is the dispatcher inside compiled()
+    fn, hold = estimate.estimate_step, estimate.hold_point  # the module's names are the dispatchers inside compiled()
     with compiled() as jit:
-        step = jit[fn]
+        step, hold_jit = jit[fn], jit[hold]
         for k, (est, m, p, want) in enumerate(rows):
             got = step(est, m, 0.002, p)
-            assert bits(got) == bits(want), f"tick {k} differs"
+            assert bits(got + (hold_jit(got[0], p),)) == bits(want), f"tick {k} differs"

@@ -26,6 +26,7 @@ from fc.estimate import (
     EstimatorState,
     estimate_step,
     estimator_params,
+    hold_point,
 )
 from fc.flight import VehicleState
 from fc.params import config_for, options_for
@@ -49,8 +50,8 @@ def _st(x=1.0, y=2.0, z=3.0, vx=0.5, vy=-0.2, vz=0.1, phi=0.01, theta=-0.02, psi
 def _run(states: list[VehicleState], est: EstimatorState = ESTIMATOR_START, p=P) -> list[tuple]:
     out = []
     for m in states:
-        est, state, status, missing, hold = estimate_step(est, m, DT, p)
-        out.append((est, state, status, missing, hold))
+        est, state, status, missing = estimate_step(est, m, DT, p)
+        out.append((est, state, status, missing, hold_point(est, p)))
     return out
 
 
@@ -121,7 +122,8 @@ def test_hold_point_is_the_sample_itself_without_noise_even_when_accelerating() 
         a = 2.0 if k < 1500 else -3.0  # m/s^2, and a yaw rate ramp through +-pi
         m = _st(x=0.5 * a * t * t, y=-t, z=3.0 + 0.1 * math.sin(t), vx=a * t, vy=-1.0, vz=0.1 * math.cos(t),
                 psi=wrap_pi(3.0 + 0.8 * t * t), yd=1.6 * t)  # fmt: skip
-        est, state, status, _, hold = estimate_step(est, m, DT, P)
+        est, state, status, _ = estimate_step(est, m, DT, P)
+        hold = hold_point(est, P)
         assert state is m and status == EST_OK
         assert tuple(hold) == (m.x_m, m.y_m, m.z_m, m.psi_rad), k
     assert est.innov_pos_m2 < 1e-9  # far below the 1 mm floor
@@ -138,7 +140,8 @@ def test_hold_point_filters_a_noisy_position_and_yaw_across_pi() -> None:
             g = r.gauss
             m = _st(x=g(0.0, 0.01), y=g(0.0, 0.01), z=g(0.0, 0.01), vx=g(0.0, 0.02), vy=g(0.0, 0.02), vz=g(0.0, 0.02),
                     psi=wrap_pi(math.pi + g(0.0, 0.002)), yd=g(0.0, 0.01))  # fmt: skip
-            est, _, _, _, hold = estimate_step(est, m, DT, P)
+            est = estimate_step(est, m, DT, P)[0]
+        hold = hold_point(est, P)
         errs_hold.append(math.hypot(hold.x_m, hold.y_m))
         errs_sample.append(math.hypot(m.x_m, m.y_m))
         yaw_hold.append(abs(wrap_pi(hold.psi_rad - math.pi)))
@@ -239,9 +242,10 @@ def test_clean_flight_hold_point_is_the_state_every_tick() -> None:
     seen = []
 
     def check(core, st, out) -> None:
-        h = core.commander.hold
+        assert core.commander.estimate is not None
+        h = core.commander.here(st)
         s = core.state
-        assert h is not None and (h.x_m, h.y_m, h.z_m, h.psi_rad) == (s.x_m, s.y_m, s.z_m, s.psi_rad)
+        assert (h.x_m, h.y_m, h.z_m, h.psi_rad) == (s.x_m, s.y_m, s.z_m, s.psi_rad)
         seen.append(s)
 
     core, events, rows = _fly(9.0, plan=plan, on_tick=check)
