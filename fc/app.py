@@ -9,6 +9,13 @@ Two links:
 - the **ground link** (``--gcs``): telemetry out (:mod:`fc.telemetry`), set-points and commands in
   (:mod:`fc.gcs`).
 
+The simulator link also carries the simulator's live parameters: a ``SIM_*`` change from a
+ground station (or ``MAV_CMD_INJECT_FAILURE``) goes out as ``PARAM_SET`` to component
+``SIM_COMPONENT_ID``; the simulator answers ``PARAM_VALUE`` (counted; a forward unanswered for
+1 wall second gets one ``STATUSTEXT`` warning) and announces fault starts and stops with
+``STATUSTEXT``, which the FC relays to its ground stations. A state with NaN fields (a sensor
+dropout) is ticked like any other: the core's estimate (:mod:`fc.estimate`) handles it.
+
 Timing:
 
 - **lockstep**: every state message is one tick of simulated time; the FC answers each with one
@@ -29,6 +36,7 @@ import math
 import os
 import select
 import signal
+import struct
 import sys
 import time
 from collections.abc import Callable
@@ -48,11 +56,12 @@ from fc.streams import StreamScheduler
 from smcpilot.clock import SimClock, WallClock
 from smcpilot.errors import RateMismatchError, WatchdogError
 from smcpilot.fastcodec import encode_debug_float_array, encode_hil_actuator_controls
+from smcpilot.faults import SIM_PARAM_INDEX
 from smcpilot.frames import body_rates_to_euler_rates, euler_frd_to_flu, ned_to_nwu, rates_frd_to_flu
 from smcpilot.geo import Home
 from smcpilot.link import MavlinkUdp
 from smcpilot.plan import PlanStep
-from smcpilot.protocol import ACTUATOR_FLAG_LOCKSTEP, FC_COMPONENT_ID, SMC_ARRAY_ID, SMC_ARRAY_NAME
+from smcpilot.protocol import ACTUATOR_FLAG_LOCKSTEP, FC_COMPONENT_ID, SIM_COMPONENT_ID, SMC_ARRAY_ID, SMC_ARRAY_NAME
 from smcpilot.tlog import TlogWriter
 from smcpilot.vehicle import VehicleParams
 
@@ -63,9 +72,19 @@ EXIT_CONFIG = 2
 EXIT_WATCHDOG = 3
 
 _isfinite = math.isfinite
+_NAN = math.nan
+_F32 = struct.Struct("<f")
+_STATUSTEXT = mavlink.MAVLink_statustext_message
+
+
+def _f32(v: float) -> float:
+    """``v`` rounded to float32, as PARAM_VALUE carries it."""
+    return _F32.unpack(_F32.pack(v))[0]
 _ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
 _ZEROS12 = [0.0] * 12
 _yield = getattr(os, "sched_yield", lambda: None)
+#: a SIM_* forward unanswered this long (wall seconds) gets one STATUSTEXT warning.
+SIM_PARAM_ANSWER_S = 1.0
 
 
 
@@ -76,9 +95,18 @@ class FcStats:
 
     overruns: int = 0
     lateness_s: list[float] = field(default_factory=list)
+    #: states with an infinite value (garbage: flown as "not measured", like NaN).
     rx_invalid_state: int = 0
+    #: states with fields not measured (NaN or infinite: a sensor dropout), ticked on the estimate.
+    states_missing_fields: int = 0
     duplicate_states: int = 0
     out_of_order_states: int = 0
+    #: SIM_* values forwarded to the simulator, PARAM_VALUE answers heard, forwards unanswered.
+    sim_param_forwards: int = 0
+    sim_param_answers: int = 0
+    sim_param_unanswered: int = 0
+    #: STATUSTEXT from the simulator (fault starts/stops), relayed to the ground.
+    sim_statustexts: int = 0
 
     def summary(self) -> dict:
         late = sorted(self.lateness_s)
@@ -94,24 +122,40 @@ class FcStats:
             "lateness_p99_s": pct(0.99),
             "lateness_max_s": late[-1] if late else None,
             "rx_invalid_state": self.rx_invalid_state,
+            "states_missing_fields": self.states_missing_fields,
             "duplicate_states": self.duplicate_states,
             "out_of_order_states": self.out_of_order_states,
+            "sim_param_forwards": self.sim_param_forwards,
+            "sim_param_answers": self.sim_param_answers,
+            "sim_param_unanswered": self.sim_param_unanswered,
+            "sim_statustexts": self.sim_statustexts,
         }
 
 
 def state_from_mavlink(att: mavlink.MAVLink_attitude_message, pos: mavlink.MAVLink_local_position_ned_message):
-    """(VehicleState in the paper frame, body rates FLU) from the two wire messages, or None if
-    any field is not finite."""
-    vals = (att.roll, att.pitch, att.yaw, att.rollspeed, att.pitchspeed, att.yawspeed, pos.x, pos.y, pos.z, pos.vx, pos.vy, pos.vz)
+    """(VehicleState in the paper frame, body rates FLU, missing) from the two wire messages.
+
+    A field the simulator did not measure is NaN on the wire (a sensor dropout: gyro -> the
+    rates, attitude -> the angles, position -> x/y/z, velocity -> vx/vy/vz) and stays NaN here,
+    for the flight core's estimate (:mod:`fc.estimate`) to handle; an infinite value (garbage)
+    becomes NaN too. ``missing`` is 0 when every field is finite, 1 if some are NaN, 2 if some
+    were infinite."""
+    vals: tuple[float, ...] = (
+        att.roll, att.pitch, att.yaw, att.rollspeed, att.pitchspeed, att.yawspeed, pos.x, pos.y, pos.z, pos.vx, pos.vy, pos.vz
+    )  # fmt: skip
+    missing = 0
     for v in vals:
         if not _isfinite(v):
-            return None
-    phi, theta, psi = euler_frd_to_flu(att.roll, att.pitch, att.yaw)
-    p, q, r = rates_frd_to_flu(att.rollspeed, att.pitchspeed, att.yawspeed)
+            missing = max(missing, 1 if v != v else 2)
+    if missing:
+        vals = tuple(v if _isfinite(v) else _NAN for v in vals)
+    roll, pitch, yaw, ps, qs, rs, xn, yn, zn, vxn, vyn, vzn = vals
+    phi, theta, psi = euler_frd_to_flu(roll, pitch, yaw)
+    p, q, r = rates_frd_to_flu(ps, qs, rs)
     phi_d, theta_d, psi_d = body_rates_to_euler_rates(phi, theta, p, q, r)
-    x, y, z = ned_to_nwu((pos.x, pos.y, pos.z))
-    vx, vy, vz = ned_to_nwu((pos.vx, pos.vy, pos.vz))
-    return VehicleState(x, y, z, vx, vy, vz, phi, theta, psi, phi_d, theta_d, psi_d), (p, q, r)
+    x, y, z = ned_to_nwu((xn, yn, zn))
+    vx, vy, vz = ned_to_nwu((vxn, vyn, vzn))
+    return VehicleState(x, y, z, vx, vy, vz, phi, theta, psi, phi_d, theta_d, psi_d), (p, q, r), missing
 
 
 class FlightControllerApp:
@@ -156,6 +200,9 @@ class FlightControllerApp:
         # The simulator link keeps the system id the two processes were launched with; a
         # SYSID_THISMAV change (restart) renames the vehicle to ground stations only.
         sim_sysid = sysid if sim_system_id is None else sim_system_id
+        self._sim_sysid = sim_sysid
+        #: SIM_* forwards awaiting the simulator's PARAM_VALUE: name -> wall time sent.
+        self._sim_pending: dict[str, float] = {}
         try:
             self.sim = MavlinkUdp(
                 sim_url, source_system=sim_sysid, source_component=FC_COMPONENT, accept_system=sim_sysid,
@@ -181,13 +228,14 @@ class FlightControllerApp:
             mav=gcs.mav if gcs is not None else None,
             send_to=gcs.send_to if gcs is not None else None,
             broadcast=gcs.send if gcs is not None else None,
+            estimator=self.params.options.estimator,
         )  # fmt: skip
         self.streams = StreamScheduler(config.telemetry_rate_hz)
         #: the ground protocol, with its collaborators (no back-reference to this app).
         self.gcs_handler = GcsHandler(
             core=self.core, mission=self.core.commander.mission, params=self.params, streams=self.streams,
             link=gcs, event=self.event, log=self.say, snapshot=self.telemetry_snapshot,
-            apply_config=self.apply_config, wall_s=monotonic,
+            apply_config=self.apply_config, wall_s=monotonic, forward_sim=self.forward_sim_param,
         )  # fmt: skip
         self._att: mavlink.MAVLink_attitude_message | None = None
         self.state: VehicleState | None = None
@@ -202,8 +250,8 @@ class FlightControllerApp:
 
     def telemetry_snapshot(self) -> telemetry.TelemetrySnapshot:
         """What ground-station telemetry reads, now (the GCS handler's snapshot provider)."""
-        return telemetry.snapshot(
-            self.core, time_us=self.clock.now_us(), state=self.state, body_rates=self.body_rates, overruns=self.stats.overruns
+        return telemetry.snapshot(  # the core's estimate: never a NaN of a sensor dropout
+            self.core, time_us=self.clock.now_us(), state=self.core.state, body_rates=self.body_rates, overruns=self.stats.overruns
         )
 
     # -- lifecycle -----------------------------------------------------------------------------
@@ -226,7 +274,7 @@ class FlightControllerApp:
         self.say(f"FC_LISTENING sim={sim_addr} gcs={gcs_addr} pid={os.getpid()}")
         if self.tlog is not None:  # the configuration this flight flies, for the log's readers
             lm = self._logmav
-            self.tlog.write_many(self.clock.now_us(), [m.pack(lm) for m in param_messages(lm, self.cfg)])
+            self.tlog.write_many(self.clock.now_us(), [m.pack(lm) for m in param_messages(lm, self.cfg, self.params.options)])
         try:
             if self.lockstep:
                 self._run_lockstep()
@@ -286,6 +334,8 @@ class FlightControllerApp:
                 poll_gcs()
             if not readable:
                 now = mono()
+                if self._sim_pending:
+                    self._check_sim_answers(now)
                 limit = self.cfg.watchdog_s if self.core.ticks else self.startup_timeout_s
                 if now - last_rx > limit:
                     what = "sent nothing" if not self.core.ticks else f"has been silent for {now - last_rx:.1f} s"
@@ -346,10 +396,11 @@ class FlightControllerApp:
                 if att is None or att.time_boot_ms != msg.time_boot_ms:
                     continue
                 got = True
-                conv = state_from_mavlink(att, msg)
-                if conv is None:
-                    self.stats.rx_invalid_state += 1
-                    continue
+                state, rates, missing = state_from_mavlink(att, msg)
+                if missing:
+                    self.stats.states_missing_fields += 1
+                    if missing == 2:
+                        self.stats.rx_invalid_state += 1
                 t_ms = msg.time_boot_ms
                 if self.lockstep:
                     if t_ms == self._last_tick_ms and self._last_actuator is not None:
@@ -370,7 +421,9 @@ class FlightControllerApp:
                             )
                     else:
                         self._odd_steps = 0
-                self.state, self.body_rates = conv
+                self.state = state
+                if not missing or (_isfinite(rates[0]) and _isfinite(rates[1]) and _isfinite(rates[2])):
+                    self.body_rates = rates
                 self._state_ms = t_ms
                 self._state_wall_s = self._mono()
                 if self.lockstep:
@@ -378,7 +431,61 @@ class FlightControllerApp:
                     self._tick(t_ms * 1000, stale=False)
                     if self.duration_s is not None and t_ms * 1e-3 >= self.duration_s:
                         self._stop = True
+            elif type(msg) is _STATUSTEXT:  # its field "id" (the chunk id) hides the message id
+                self._relay_sim_text(msg)
+            elif mid == mavlink.MAVLINK_MSG_ID_PARAM_VALUE:
+                self._sim_param_value(msg)
         return got
+
+    # -- the simulator's parameters and announcements --------------------------------------------
+    def forward_sim_param(self, name: str, value: float) -> None:
+        """``PARAM_SET`` of a (checked) SIM_* value to the simulator over the sim link (logged in
+        the tlog with the rest of the link); its answer is awaited for 1 wall second."""
+        msg = self.sim.mav.param_set_encode(
+            self._sim_sysid, SIM_COMPONENT_ID, name.encode(), float(value), mavlink.MAV_PARAM_TYPE_REAL32
+        )
+        self.sim.send(msg)
+        self.stats.sim_param_forwards += 1
+        self._sim_pending[name] = self._mono()
+
+    def _sim_param_value(self, msg: mavlink.MAVLink_message) -> None:
+        """The simulator's PARAM_VALUE: the answer to a forward; a value other than the one we
+        set (it refused it) is taken over and told to the ground stations."""
+        if msg.get_srcComponent() != SIM_COMPONENT_ID:
+            return
+        name = msg.param_id if isinstance(msg.param_id, str) else msg.param_id.decode("ascii", "replace")
+        name = name.split("\x00", 1)[0]
+        if name not in SIM_PARAM_INDEX:
+            return
+        self.stats.sim_param_answers += 1
+        self._sim_pending.pop(name, None)
+        value = float(msg.param_value)
+        if not _isfinite(value):
+            return
+        sim = self.params.sim
+        if _f32(sim[name]) != value:
+            sim[name] = value
+            self.gcs_handler.announce_param(name)
+
+    def _check_sim_answers(self, now: float) -> None:
+        """One STATUSTEXT warning per forward the simulator has not answered within 1 s."""
+        late = [n for n, t in self._sim_pending.items() if now - t > SIM_PARAM_ANSWER_S]
+        for name in late:
+            del self._sim_pending[name]
+            self.stats.sim_param_unanswered += 1
+            self.event(mavlink.MAV_SEVERITY_WARNING, f"{name}: no answer from the simulator")
+
+    def _relay_sim_text(self, msg: mavlink.MAVLink_message) -> None:
+        """A STATUSTEXT of the simulator (a fault's start or stop): to the ground stations as the
+        FC's own (the sim link has logged it already), and a line on stdout."""
+        if msg.get_srcComponent() != SIM_COMPONENT_ID:
+            return
+        text = msg.text if isinstance(msg.text, str) else msg.text.decode("ascii", "replace")
+        text = text.split("\x00", 1)[0]
+        self.stats.sim_statustexts += 1
+        self.say(f"fc: {text}")
+        if self.gcs is not None:
+            self.gcs.send(telemetry.statustext(self.gcs.mav, int(msg.severity), text))
 
     def _poll_gcs(self) -> None:
         if self.gcs is None:
@@ -393,6 +500,9 @@ class FlightControllerApp:
         self.cfg = cfg
         self.core.reconfigure(cfg)
         self.streams.set_telemetry_rate(cfg.telemetry_rate_hz)
+        estimator = self.params.options.estimator
+        if estimator != self.core.estimator:
+            self.core.reconfigure_estimator(estimator)
 
     def _tick(self, t_us: int, *, stale: bool) -> None:
         """One tick of the flight core, its answer to the simulator, its log record, telemetry."""
@@ -409,6 +519,8 @@ class FlightControllerApp:
         sim.send_packets((act,))
         self._last_actuator = act
         self._last_tick_ms = self._state_ms
+        if self._sim_pending:
+            self._check_sim_answers(self._mono())
         if self.tlog is not None:
             data = telemetry.smc_record(core, out)
             lm = self._logmav

@@ -22,6 +22,7 @@ from collections.abc import Callable
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from fc import inbound
+from fc.estimate import EstimatorParams, EstimatorState, HoldPoint, hold_point
 from fc.flight import FlightControl, VehicleState
 from fc.mission import MissionProtocol
 from fc.modes import AutoMode, FlightMode, Refusal, build_modes
@@ -57,6 +58,12 @@ class Commander:
         )
         self.state: VehicleState | None = None
         self.state_fresh = False
+        #: the flight core's estimate after the latest tick and its settings (:mod:`fc.estimate`),
+        #: the source of the hold point; None: the hold point is the state's own.
+        self.estimate: EstimatorState | None = None
+        self.estimate_params: EstimatorParams | None = None
+        #: every field of the latest state was measured (False: dead reckoning, or unusable).
+        self.estimate_ok = True
         self.failsafe_active = False
         self.t_s = 0.0
         self._ground_armed_s = 0.0
@@ -84,6 +91,22 @@ class Commander:
 
     def say(self, text: str, severity: int = mavlink.MAV_SEVERITY_INFO) -> None:
         self._event(severity, text)
+
+    def here(self, st: VehicleState) -> HoldPoint:
+        """Where the vehicle is, for a set-point "here" (arming, take-off, holding or landing
+        where it is): the estimate's filtered hold point when the flight core gave one, else the
+        position and yaw of ``st`` (paper frame)."""
+        est, p = self.estimate, self.estimate_params
+        if est is not None and p is not None:
+            return hold_point(est, p)
+        return HoldPoint(st.x_m, st.y_m, st.z_m, st.psi_rad)
+
+    def _at_hold_point(self, st: VehicleState) -> VehicleState:
+        """``st`` with the hold point's position and yaw (``st`` itself when they agree)."""
+        h = self.here(st)
+        if (h.x_m, h.y_m, h.z_m, h.psi_rad) == (st.x_m, st.y_m, st.z_m, st.psi_rad):
+            return st
+        return st._replace(x_m=h.x_m, y_m=h.y_m, z_m=h.z_m, psi_rad=h.psi_rad)
 
     def item_reached(self, seq: int) -> None:
         """``MISSION_ITEM_REACHED`` to every ground station."""
@@ -144,6 +167,8 @@ class Commander:
             return "PreArm: no vehicle state yet"
         if not self.state_fresh:
             return "PreArm: vehicle state is stale"
+        if not self.estimate_ok:
+            return "PreArm: position or velocity not measured"
         if self.config.arming_check:
             if self.failsafe_active:
                 return "PreArm: in failsafe"
@@ -163,7 +188,7 @@ class Commander:
             why = self.prearm_failure()
             if why is not None:
                 return Refusal(why)
-        f.arm(st)
+        f.arm(self._at_hold_point(st))
         self._ground_armed_s = 0.0
         self.current.on_armed()
         self.say("Armed")
@@ -190,7 +215,11 @@ class Commander:
             return Refusal("Takeoff: arm first")
         st = self.state
         assert st is not None
-        x, y = (st.x_m, st.y_m) if not self.flying() else (f.target[0], f.target[1])
+        if self.flying():
+            x, y = f.target[0], f.target[1]
+        else:
+            here = self.here(st)
+            x, y = here.x_m, here.y_m
         f.set_target(x, y, alt_m)
         self.say(f"Takeoff to {alt_m:.1f} m")
         return None

@@ -6,8 +6,14 @@ and the tests. One tick, in order:
 
 1. the timed plan's due steps (simulated time since the first tick), carried out as a ground
    station would command them;
-2. **state-loss failsafe**: no state, or a stale one (real time), while armed -> open loop, level,
-   a fraction of hover thrust, ``STATUSTEXT``; when the state comes back: land where we are;
+2. **the estimate** (:func:`fc.estimate.estimate_step`): fields the simulator did not measure
+   (NaN: a sensor dropout) are dead-reckoned (position, velocity: for at most ``FS_POS_TMO``
+   seconds, with a ``STATUSTEXT`` when that starts and ends) or make the state unusable
+   (attitude, rates, or a position missing longer); the hold point (a filtered position and
+   yaw) for the set-points "here" goes to the commander;
+   **state-loss failsafe**: no state, a stale one (real time) or an unusable one, while armed ->
+   open loop, level, a fraction of hover thrust, ``STATUSTEXT``; when the state comes back: land
+   where we are;
 3. otherwise the mode logic (:class:`fc.commander.Commander`: the disarm delay, then the current
    mode object of :mod:`fc.modes`, e.g. AUTO's items or RTL's phases) and the flight pipeline
    (:class:`fc.flight.FlightControl`: prefilters, position loop, law, mixer, anti-windup);
@@ -30,6 +36,19 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from fc.commander import Commander
 from fc.config import FcConfig
+from fc.estimate import (
+    EST_ATTITUDE_LOST,
+    EST_DEAD_RECKONING,
+    EST_OK,
+    ESTIMATOR_START,
+    MISSING_ATTITUDE,
+    MISSING_POSITION,
+    MISSING_RATES,
+    EstimatorConfig,
+    EstimatorState,
+    estimate_step,
+    estimator_params,
+)
 from fc.flight import FlightControl, PipelineOutput, VehicleState
 from smcpilot.geo import Home
 from smcpilot.plan import PlanRunner, PlanStep
@@ -71,9 +90,11 @@ class FlightCore:
         mav: mavlink.MAVLink | None = None,
         send_to: Callable[[mavlink.MAVLink_message, tuple[str, int]], None] | None = None,
         broadcast: Callable[[mavlink.MAVLink_message], None] | None = None,
+        estimator: EstimatorConfig | None = None,
     ) -> None:
         """``event`` receives every event as it happens; ``mav``/``send_to``/``broadcast`` reach
-        ground stations for the mission protocol (None: no ground link)."""
+        ground stations for the mission protocol (None: no ground link); ``estimator`` sets the
+        dead reckoning and the hold filter (None: the defaults; ``FS_POS_TMO`` in the FC)."""
         self.config = config
         self.vehicle = vehicle
         self.home = home
@@ -95,6 +116,16 @@ class FlightCore:
         #: simulated time of the latest tick, µs (events raised between ticks carry it too).
         self.t_us = 0
         self.last: TickOutput | None = None
+        self.estimator = estimator if estimator is not None else EstimatorConfig()
+        self._est_params = estimator_params(self.estimator, config.period_s)
+        self.commander.estimate_params = self._est_params
+        self._est: EstimatorState = ESTIMATOR_START
+        #: the estimate's status after the latest tick (``fc.estimate.EST_*``).
+        self.estimate_status = EST_OK
+        self._est_missing = 0
+        #: states with fields not measured (non-finite), and ticks flown on a dead-reckoned state.
+        self.states_missing = 0
+        self.dead_reckoning_ticks = 0
 
     # -- events and configuration ---------------------------------------------------------------
     def event(self, severity: int, text: str) -> None:
@@ -109,6 +140,12 @@ class FlightCore:
         which also retimes the telemetry streams)."""
         self.config = config
         self.flight.reconfigure(config)
+        self._est_params = self.commander.estimate_params = estimator_params(self.estimator, config.period_s)
+
+    def reconfigure_estimator(self, estimator: EstimatorConfig) -> None:
+        """New estimator settings (``FS_POS_TMO``), from the next tick; its state is kept."""
+        self.estimator = estimator
+        self._est_params = self.commander.estimate_params = estimator_params(estimator, self.config.period_s)
 
     @property
     def mode(self) -> int:
@@ -126,13 +163,17 @@ class FlightCore:
 
     # -- inputs between ticks -------------------------------------------------------------------
     def set_state(self, state: VehicleState | None, fresh: bool = True) -> None:
-        """Tell the commander the latest state (before a command is judged, e.g. arming)."""
+        """Tell the commander the latest state (before a command is judged, e.g. arming).
+
+        ``state`` must be finite (what :meth:`tick` gives after the estimate); called from
+        outside a tick, the hold point is the state's own position and yaw."""
         if state is not None:
             self.state = state
         c = self.commander
         c.state = self.state
         c.state_fresh = fresh and self.state is not None
         c.failsafe_active = self.failsafe
+        c.estimate = None
 
     def on_gcs_heartbeat(self, wall_s: float) -> None:
         """A ground station's heartbeat at wall time ``wall_s``: keeps the GCS-loss failsafe away."""
@@ -168,8 +209,42 @@ class FlightCore:
         self.last = result
         return result
 
+    def _estimate(self, state: VehicleState, fresh: bool) -> tuple[VehicleState | None, int]:
+        """The estimate of a received state: (the state to fly on, or None if it is unusable;
+        the status); the commander gets it and the hold point. Events when it changes."""
+        self._est, est, status, missing = estimate_step(self._est, state, self.config.period_s, self._est_params)
+        if missing:
+            self.states_missing += 1
+        if status != self.estimate_status:
+            self._estimate_event(status, missing)
+        self.estimate_status = status
+        self._est_missing = missing
+        c = self.commander
+        if status > EST_DEAD_RECKONING:
+            self.set_state(None, False)
+            c.estimate_ok = False
+            return None, status
+        if status == EST_DEAD_RECKONING:
+            self.dead_reckoning_ticks += 1
+        self.set_state(est, fresh)
+        c.estimate = self._est
+        c.estimate_ok = status == EST_OK
+        return est, status
+
+    def _estimate_event(self, status: int, missing: int) -> None:
+        """``STATUSTEXT`` for a change of the estimate's status (never on an ordinary tick).
+        Losing the state while armed is announced by the failsafe."""
+        if status == EST_DEAD_RECKONING:
+            self.event(mavlink.MAV_SEVERITY_WARNING, f"{_missing_name(missing)} lost: dead reckoning")
+        elif status == EST_OK:
+            self.event(mavlink.MAV_SEVERITY_INFO, f"{_missing_name(self._est_missing)} back")
+
     def _step(self, t_us: int, state: VehicleState | None, fresh: bool) -> PipelineOutput:
-        self.set_state(state, fresh)
+        status = EST_OK
+        if state is not None:
+            status = self._estimate(state, fresh)[1]
+        else:
+            self.set_state(None, fresh)
         st = self.state
         c = self.commander
         t_s = (t_us - self.t0_us) * 1e-6
@@ -177,11 +252,17 @@ class FlightCore:
             c.apply_plan_step(step)
         flight = self.flight
         dt = self.config.period_s
-        if not fresh or st is None:
+        if not fresh or st is None or status > EST_DEAD_RECKONING:
             if not self.failsafe and flight.armed:
                 self.failsafe = True
                 self.failsafe_events += 1
-                self.event(mavlink.MAV_SEVERITY_CRITICAL, "FAILSAFE: state lost, level and descend")
+                if status == EST_ATTITUDE_LOST:
+                    text = "FAILSAFE: attitude lost, level and descend"
+                elif status > EST_DEAD_RECKONING:
+                    text = "FAILSAFE: position lost, level and descend"
+                else:
+                    text = "FAILSAFE: state lost, level and descend"
+                self.event(mavlink.MAV_SEVERITY_CRITICAL, text)
             return flight.failsafe_step()
         if self.failsafe:
             # The state is back: stay in failsafe, now closed loop: land where we are.
@@ -196,3 +277,10 @@ class FlightCore:
             c.on_touchdown()
             self.event(mavlink.MAV_SEVERITY_INFO, "Landed: disarmed")
         return out
+
+
+def _missing_name(missing: int) -> str:
+    """The sensor a ``MISSING_*`` mask names in a message: attitude, position or velocity."""
+    if missing & (MISSING_ATTITUDE | MISSING_RATES):
+        return "attitude"
+    return "position" if missing & MISSING_POSITION else "velocity"

@@ -20,14 +20,15 @@ from typing import Protocol
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from fc import inbound, telemetry
+from fc import inbound, inject, telemetry
 from fc.config import FcConfig
 from fc.core import EventSink, FlightCore
 from fc.mission import RELATIVE_FRAMES, MissionProtocol
 from fc.modes import Refusal
-from fc.params import PARAM_INDEX, PARAMS, ParamError, ParamStore
+from fc.params import PARAM_COUNT, PARAM_INDEX, PARAMS, SIM_PARAM_OFFSET, ParamError, ParamStore, is_sim_param
 from fc.streams import StreamScheduler
 from fc.telemetry import CAPABILITIES, IGNORE_POS, IGNORE_YAW, TelemetrySnapshot
+from smcpilot.faults import SIM_PARAM_INDEX, SIM_PARAMS
 from smcpilot.protocol import FORCE_ARM_MAGIC, Mode
 
 M = mavlink
@@ -67,7 +68,9 @@ class GcsHandler:
     - ``link``: the ground link (None: none; then only :meth:`on_tick` is called);
     - ``event``: the event sink (``STATUSTEXT`` to ground stations, a line on stdout);
       ``log``: a line on stdout only;
-    - ``wall_s``: the real-time clock for protocol timeouts and the GCS-loss failsafe.
+    - ``wall_s``: the real-time clock for protocol timeouts and the GCS-loss failsafe;
+    - ``forward_sim``: sends one ``SIM_*`` parameter value to the simulator (``PARAM_SET`` over
+      the sim link; None: no simulator link, and SIM_* changes are refused).
     """
 
     def __init__(
@@ -83,6 +86,7 @@ class GcsHandler:
         snapshot: Callable[[], TelemetrySnapshot],
         apply_config: Callable[[FcConfig], None],
         wall_s: Callable[[], float] = time.monotonic,
+        forward_sim: Callable[[str, float], None] | None = None,
     ) -> None:
         self.core = core
         self.commander = core.commander
@@ -96,6 +100,7 @@ class GcsHandler:
         self.snapshot = snapshot
         self._apply_config = apply_config
         self.wall_s = wall_s
+        self._forward_sim = forward_sim
         #: reason -> count of dropped or refused messages
         self.rejected: Counter[str] = Counter()
         self.gcs_heartbeats = 0
@@ -245,6 +250,8 @@ class GcsHandler:
         if cmd == M.MAV_CMD_GET_HOME_POSITION:
             self._send_to(self.build(M.MAVLINK_MSG_ID_HOME_POSITION)[0], addr)
             return None
+        if cmd == M.MAV_CMD_INJECT_FAILURE:
+            return self._inject_failure(p)
         if cmd == M.MAV_CMD_DO_SET_MISSION_CURRENT:
             if not math.isfinite(p[0]) or not self.mission.set_current(int(p[0])):
                 return Refusal(f"Set current: no mission item {p[0]!r}")
@@ -294,26 +301,47 @@ class GcsHandler:
             self._refuse("setpoint_refused", refusal.reason or "Set-point refused", addr)
 
     # -- parameters -----------------------------------------------------------------------------
+    # Indices 0..len(PARAMS)-1 are the FC's parameters, then the simulator's SIM_* (volatile,
+    # forwarded to the simulator on a change): PARAM_COUNT in all.
     def _param_msg(self, index: int) -> mavlink.MAVLink_message:
-        p = PARAMS[index]
-        value = self.params.value(p.name)
-        ptype = M.MAV_PARAM_TYPE_INT32 if p.is_int else M.MAV_PARAM_TYPE_REAL32
-        return self.mav.param_value_encode(p.name.encode(), float(value), ptype, len(PARAMS), index)
+        if index >= SIM_PARAM_OFFSET:
+            sp = SIM_PARAMS[index - SIM_PARAM_OFFSET]
+            name, value, is_int = sp.name, self.params.sim[sp.name], sp.is_int
+        else:
+            p = PARAMS[index]
+            name, value, is_int = p.name, self.params.value(p.name), p.is_int
+        ptype = M.MAV_PARAM_TYPE_INT32 if is_int else M.MAV_PARAM_TYPE_REAL32
+        return self.mav.param_value_encode(name.encode(), float(value), ptype, PARAM_COUNT, index)
+
+    @staticmethod
+    def _param_index(name: str) -> int | None:
+        index = PARAM_INDEX.get(name)
+        if index is None and name in SIM_PARAM_INDEX:
+            index = SIM_PARAM_OFFSET + SIM_PARAM_INDEX[name]
+        return index
+
+    def announce_param(self, name: str) -> None:
+        """``PARAM_VALUE`` of ``name`` to every ground station (a value changed without a
+        ``PARAM_SET`` from them, e.g. the simulator answered another value)."""
+        index = self._param_index(name)
+        if index is not None:
+            self._broadcast(self._param_msg(index))
 
     def _param_list(self, m: mavlink.MAVLink_message, addr: Address) -> None:
         if not self._for_us(m.target_system, m.target_component):
             return
         if self.link is not None:
-            self.link.send_many_to([self._param_msg(i) for i in range(len(PARAMS))], addr)
+            self.link.send_many_to([self._param_msg(i) for i in range(PARAM_COUNT)], addr)
 
     def _param_read(self, m: mavlink.MAVLink_message, addr: Address) -> None:
         if not self._for_us(m.target_system, m.target_component):
             return
         name = _param_name(m.param_id)
         if m.param_index >= 0:
-            index = m.param_index if m.param_index < len(PARAMS) else -1
+            index = m.param_index if m.param_index < PARAM_COUNT else -1
         else:
-            index = PARAM_INDEX.get(name, -1)
+            found = self._param_index(name)
+            index = -1 if found is None else found
         if index < 0:
             self._refuse("unknown_param", f"Param read: unknown {name or m.param_index}", addr)
             return
@@ -323,6 +351,9 @@ class GcsHandler:
         if not self._for_us(m.target_system, m.target_component):
             return
         name = _param_name(m.param_id)
+        if is_sim_param(name):
+            self._sim_param_set(name, float(m.param_value), addr)
+            return
         index = PARAM_INDEX.get(name)
         if index is None:
             self._refuse("unknown_param", f"Param set: unknown {name}", addr)
@@ -341,6 +372,50 @@ class GcsHandler:
         if PARAMS[index].restart:
             self._event(M.MAV_SEVERITY_INFO, f"{name} takes effect at the next start")
         self._broadcast(self._param_msg(index))
+
+    def _sim_param_set(self, name: str, value: float, addr: Address) -> None:
+        """A simulator parameter: validated here (the pair of a sensor fault too), recorded,
+        forwarded to the simulator and echoed at once (as ArduPilot answers); a refusal gets the
+        value in force back and a STATUSTEXT with the reason."""
+        index = SIM_PARAM_OFFSET + SIM_PARAM_INDEX[name]
+        try:
+            if self._forward_sim is None:
+                raise ParamError(f"{name}: no simulator link to forward it to")
+            v = self.params.check_sim(name, value)
+        except ParamError as exc:
+            self.rejected["param_refused"] += 1
+            self._event(M.MAV_SEVERITY_WARNING, str(exc))
+            self._send_to(self._param_msg(index), addr)
+            return
+        self._set_sim(name, v)
+
+    def _set_sim(self, name: str, value: float) -> None:
+        """Record, forward to the simulator and announce to the ground one checked SIM_* value."""
+        assert self._forward_sim is not None
+        self.params.set_sim(name, value)
+        self._forward_sim(name, value)
+        self.announce_param(name)
+
+    # -- failure injection ----------------------------------------------------------------------
+    def _inject_failure(self, p: tuple[float, ...]) -> Refusal | None:
+        """MAV_CMD_INJECT_FAILURE: the SIM_* changes of :func:`fc.inject.injection`, each
+        forwarded like a PARAM_SET; refused unless SYS_FAILURE_EN is 1."""
+        if not self.params.options.failure_enabled:
+            return Refusal("failure injection disabled (SYS_FAILURE_EN=0)")
+        result = inject.injection(p[0], p[1], p[2], self.params.sim)
+        if isinstance(result, Refusal):
+            self.rejected["inject_refused"] += 1
+            return result
+        if self._forward_sim is None:
+            return Refusal("Inject: no simulator link", M.MAV_RESULT_UNSUPPORTED)
+        try:
+            for name, value in result.changes:  # valid one by one: fc.inject orders them so
+                self.params.check_sim(name, value)
+                self._set_sim(name, value)
+        except ParamError as exc:  # pragma: no cover - fc.inject gives valid changes only
+            return Refusal(f"Inject: {exc}")
+        self._event(M.MAV_SEVERITY_WARNING if result.failure else M.MAV_SEVERITY_INFO, result.text)
+        return None
 
     # -- missions, streams, FTP -----------------------------------------------------------------
     def _mission_set_current(self, m: mavlink.MAVLink_message, addr: Address) -> None:

@@ -5,6 +5,12 @@ needs a restart, and how it reads from and writes into :class:`fc.config.FcConfi
 the values live. :class:`ParamStore` applies a change by building a new (validated) config, and
 persists accepted changes atomically to a ``.parm`` file (``NAME VALUE`` per line, the format
 Mission Planner and MAVProxy read and write).
+
+Two groups beside :class:`fc.config.FcConfig` (the block "Fault injection and the estimator"
+below): :class:`FcOptions`, FC parameters of their own (``SYS_FAILURE_EN``, ``FS_POS_TMO``)
+that persist like the others; and the simulator's ``SIM_*`` parameters
+(:data:`smcpilot.faults.SIM_PARAMS`), listed after the FC's and forwarded to the simulator,
+*volatile*: never written to the file nor loaded from it, at their defaults at every start.
 """
 
 from __future__ import annotations
@@ -14,12 +20,23 @@ import os
 import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from dataclasses import field as _field
 from pathlib import Path
 from typing import Any
 
 from fc.config import FcConfig
 from fc.control.pid_smc import DISTURBANCE_ESTIMATES
+from fc.estimate import EstimatorConfig
 from smcpilot.errors import ConfigError, InvalidGainError, ParamError
+from smcpilot.faults import (
+    MAX_DELAY_S,
+    SENSOR_FAULT_PARAM,
+    SIM_PARAM_INDEX,
+    SIM_PARAMS,
+    FaultError,
+    check_sim_param,
+    sensor_fault_from_params,
+)
 from smcpilot.protocol import FC_CONTROLLERS
 from smcpilot.scenario import Scenario, ScenarioError
 
@@ -31,10 +48,13 @@ class ParamSpec:
     lo: float
     hi: float
     doc: str
-    get: Callable[[FcConfig], float]
-    set: Callable[[FcConfig, float], FcConfig]
+    #: read from / write into :class:`fc.config.FcConfig` (or :class:`FcOptions` if ``options``).
+    get: Callable[[Any], float]
+    set: Callable[[Any, float], Any]
     is_int: bool = False
     restart: bool = False
+    #: the value lives in :class:`FcOptions`, not in FcConfig.
+    options: bool = False
 
 
 _CHANNEL_TAGS = ("R", "P", "Y", "Z")
@@ -163,14 +183,57 @@ def _build() -> tuple[ParamSpec, ...]:
     return tuple(specs)
 
 
-PARAMS: tuple[ParamSpec, ...] = _build()
+# == Fault injection and the estimator (issue 9) ====================================================
+# FC settings kept beside FcConfig (FcOptions), and the simulator's volatile SIM_* parameters.
+
+
+@dataclass(frozen=True)
+class FcOptions:
+    """FC parameters outside :class:`fc.config.FcConfig`: failure injection and the estimator."""
+
+    #: MAV_CMD_INJECT_FAILURE is carried out (True) or refused with DENIED (``SYS_FAILURE_EN``).
+    failure_enabled: bool = False
+    #: dead reckoning and the hold-point filter (``FS_POS_TMO`` is ``estimator.pos_timeout_s``).
+    estimator: EstimatorConfig = _field(default_factory=EstimatorConfig)
+
+
+def _failure_set(o: FcOptions, v: float) -> FcOptions:
+    return replace(o, failure_enabled=bool(int(v)))
+
+
+def _pos_tmo_set(o: FcOptions, v: float) -> FcOptions:
+    return replace(o, estimator=replace(o.estimator, pos_timeout_s=float(v)))
+
+
+_OPTION_PARAMS: tuple[ParamSpec, ...] = (
+    ParamSpec("SYS_FAILURE_EN", "", 0.0, 1.0, "1: MAV_CMD_INJECT_FAILURE is carried out; 0: refused (DENIED)",
+              lambda o: float(o.failure_enabled), _failure_set, is_int=True, options=True),  # fmt: skip
+    ParamSpec("FS_POS_TMO", "s", 0.0, 10.0, "position/velocity not measured: dead reckoning this long, then the state-loss failsafe",
+              lambda o: float(o.estimator.pos_timeout_s), _pos_tmo_set, options=True),  # fmt: skip
+)
+
+PARAMS: tuple[ParamSpec, ...] = _build() + _OPTION_PARAMS
 PARAM_INDEX: dict[str, int] = {p.name: i for i, p in enumerate(PARAMS)}
+assert len(PARAM_INDEX) == len(PARAMS) and not set(PARAM_INDEX) & set(SIM_PARAM_INDEX)
+#: the simulator's parameters follow the FC's in the parameter protocol: index = this + position.
+SIM_PARAM_OFFSET = len(PARAMS)
+#: every parameter a ground station sees: the FC's, then the simulator's.
+PARAM_COUNT = len(PARAMS) + len(SIM_PARAMS)
+
+
+def is_sim_param(name: str) -> bool:
+    """``name`` is one of the simulator's live ``SIM_*`` parameters."""
+    return name in SIM_PARAM_INDEX
 
 
 def spec(name: str) -> ParamSpec:
     try:
         return PARAMS[PARAM_INDEX[name]]
     except KeyError:
+        if name in SIM_PARAM_INDEX:
+            raise ParamError(
+                f"{name} is a live simulator parameter: set it with PARAM_SET while flying, or use a [[fault]] in a scenario"
+            ) from None
         raise ParamError(f"unknown parameter {name!r}") from None
 
 
@@ -181,15 +244,52 @@ class ParamStore:
     parameters marked restart).
     """
 
-    def __init__(self, config: FcConfig, path: Path | None = None) -> None:
+    def __init__(self, config: FcConfig, path: Path | None = None, options: FcOptions | None = None) -> None:
         self.config = config
         self.pending = config
         self.path = path
+        #: the FC parameters kept beside FcConfig (SYS_FAILURE_EN, FS_POS_TMO).
+        self.options = options if options is not None else FcOptions()
+        #: the simulator's SIM_* values as the FC last set or heard them (volatile: defaults at start).
+        self.sim: dict[str, float] = {p.name: p.default for p in SIM_PARAMS}
 
     def value(self, name: str) -> float:
         """Current value (for restart parameters: the value the next start will use)."""
         p = spec(name)
+        if p.options:
+            return p.get(self.options)
         return p.get(self.pending if p.restart else self.config)
+
+    def check_sim(self, name: str, value: float) -> float:
+        """A SIM_* value validated (whole-number parameters rounded) with the others in force: a
+        sensor fault's mode and value must make a valid fault together. ParamError with the reason."""
+        try:
+            v = check_sim_param(name, value)
+        except FaultError as exc:
+            raise ParamError(str(exc)) from None
+        for sensor, mode_name in SENSOR_FAULT_PARAM.items():
+            if name in (mode_name, mode_name + "_V"):
+                mode = int(v if name == mode_name else self.sim[mode_name])
+                val = v if name != mode_name else self.sim[mode_name + "_V"]
+                try:
+                    sensor_fault_from_params(sensor, mode, val)
+                except FaultError:  # short reasons: one STATUSTEXT holds 50 characters
+                    value_name = mode_name + "_V"
+                    if mode == 3:
+                        why = "noise std must be >= 0" if name == value_name else f"noise needs {value_name} >= 0"
+                    elif mode == 5:
+                        lim = f"[0, {MAX_DELAY_S:g}] s"
+                        why = f"delay must lie in {lim}" if name == value_name else f"needs {value_name} in {lim}"
+                    else:
+                        why = f"not a valid {sensor} fault"
+                    raise ParamError(f"{name} {v:g}: {why}") from None
+        return v
+
+    def set_sim(self, name: str, value: float) -> float:
+        """Validate (:meth:`check_sim`) and record a SIM_* value; returns it (never persisted)."""
+        v = self.check_sim(name, value)
+        self.sim[name] = v
+        return v
 
     def check(self, name: str, value: float) -> ParamSpec:
         p = spec(name)
@@ -205,7 +305,9 @@ class ParamStore:
         """Validate and apply; return the new live config (unchanged for restart params)."""
         p = self.check(name, value)
         try:
-            if p.restart:
+            if p.options:
+                self.options = p.set(self.options, float(value))
+            elif p.restart:
                 self.pending = p.set(self.pending, float(value))
             else:
                 self.config = p.set(self.config, float(value))
@@ -222,8 +324,8 @@ class ParamStore:
         path = self.path
         path.parent.mkdir(parents=True, exist_ok=True)
         lines = ["# smcpilot flight-controller parameters (NAME VALUE); written by the FC on every change"]
-        for p in PARAMS:
-            v = p.get(self.pending)
+        for p in PARAMS:  # the simulator's SIM_* are volatile: never written
+            v = p.get(self.options if p.options else self.pending)
             lines.append(f"{p.name} {int(v) if p.is_int else repr(float(v))}")
         fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=str(path.parent))
         try:
@@ -261,6 +363,9 @@ class ParamStore:
                 value = float(text_value)
             except ValueError:
                 raise ParamError(f"{self.path}:{lineno}: {name}: not a number: {text_value!r}") from None
+            if name in SIM_PARAM_INDEX:
+                warnings.append(f"{self.path}:{lineno}: {name} is a live simulator parameter, not loaded (volatile)")
+                continue
             if name not in PARAM_INDEX:
                 warnings.append(f"{self.path}:{lineno}: unknown parameter {name} ignored")
                 continue
@@ -274,11 +379,12 @@ class ParamStore:
 
 
 def defaults_table() -> list[dict[str, object]]:
-    """Every parameter with its default, range, unit and description (docs, ``param list``)."""
+    """Every FC parameter with its default, range, unit and description (docs, ``param list``)."""
     d = FcConfig()
+    o = FcOptions()
     return [
-        {"name": p.name, "default": p.get(d), "min": p.lo, "max": p.hi, "unit": p.unit, "restart": p.restart,
-         "type": "int" if p.is_int else "float", "description": p.doc}  # fmt: skip
+        {"name": p.name, "default": p.get(o if p.options else d), "min": p.lo, "max": p.hi, "unit": p.unit,
+         "restart": p.restart, "type": "int" if p.is_int else "float", "description": p.doc}  # fmt: skip
         for p in PARAMS
     ]
 
@@ -291,6 +397,8 @@ def apply_scenario(store: ParamStore, scenario: Scenario) -> FcConfig:
     store.config = replace(store.config, **base)
     store.pending = replace(store.pending, **base)
     for name, value in scenario.params:
+        if name in SIM_PARAM_INDEX:
+            raise ScenarioError(f"fc.params.{name}: a live simulator parameter; give a scenario's faults as [[fault]] tables")
         try:
             store.set(name, value, persist=False)
         except ParamError as exc:
@@ -304,12 +412,23 @@ def config_for(scenario: Scenario) -> FcConfig:
     return apply_scenario(ParamStore(FcConfig()), scenario)
 
 
-def param_messages(mav: Any, config: FcConfig) -> list[Any]:
-    """``PARAM_VALUE`` of every parameter as ``config`` holds it: the FC logs them once at start,
+def options_for(scenario: Scenario) -> FcOptions:
+    """The :class:`FcOptions` a scenario flies (``SYS_FAILURE_EN``, ``FS_POS_TMO`` from its parameters)."""
+    store = ParamStore(FcConfig())
+    apply_scenario(store, scenario)
+    return store.options
+
+
+def param_messages(mav: Any, config: FcConfig, options: FcOptions | None = None) -> list[Any]:
+    """``PARAM_VALUE`` of every parameter as ``config`` and ``options`` hold them, then the
+    simulator's at their defaults (as every start has them): the FC logs them once at start,
     so a log says what configuration flew it (as ArduPilot's logs carry PARM records)."""
+    opts = options if options is not None else FcOptions()
     out = []
-    n = len(PARAMS)
+    n = PARAM_COUNT
     for i, p in enumerate(PARAMS):
         ptype = 6 if p.is_int else 9  # MAV_PARAM_TYPE_INT32 / REAL32
-        out.append(mav.param_value_encode(p.name.encode(), float(p.get(config)), ptype, n, i))
+        out.append(mav.param_value_encode(p.name.encode(), float(p.get(opts if p.options else config)), ptype, n, i))
+    for j, sp in enumerate(SIM_PARAMS):
+        out.append(mav.param_value_encode(sp.name.encode(), float(sp.default), 6 if sp.is_int else 9, n, SIM_PARAM_OFFSET + j))
     return out

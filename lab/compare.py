@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from fc.core import FlightCore
-from fc.params import config_for
+from fc.params import config_for, options_for
 from lab.runner import simulate
 from sim_bridge.build import plant_for
 from smcpilot.errors import ConfigError, DivergenceError
@@ -159,7 +159,7 @@ def fly_unit(unit: Unit) -> tuple[dict[str, Any], Trace]:
 
     sc = unit.scenario()
     config = config_for(sc)
-    core = FlightCore(config, sc.vehicle, plan=sc.plan)
+    core = FlightCore(config, sc.vehicle, plan=sc.plan, estimator=options_for(sc).estimator)
     plant = plant_for(sc if unit.case.plant_vehicle is None else sc.with_changes(vehicle=unit.case.plant_vehicle))
     rec = MetricsRecorder(core, every=unit.record_every)
     status, message = "ok", ""
@@ -236,7 +236,7 @@ def run_study(
     return StudyResult([r for r in rows if r is not None], worst)
 
 
-def _ci95(values: Sequence[float]) -> tuple[float, float, float] | None:
+def _ci95(values: Sequence[Any]) -> tuple[float, float, float] | None:
     """(mean, low, high) of a Student-t 95 % interval; None without finite values."""
     x = np.asarray([v for v in values if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)], dtype=float)
     if x.size == 0:

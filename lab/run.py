@@ -34,7 +34,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from fc import telemetry
 from fc.core import FlightCore, TickOutput
 from fc.flight import VehicleState
-from fc.params import config_for, param_messages
+from fc.params import FcOptions, config_for, options_for, param_messages
 from lab.runner import simulate
 from sim_bridge.app import EXIT_DIVERGED
 from sim_bridge.build import plant_for
@@ -112,7 +112,7 @@ class _TlogRecorder:
     """Writes an in-process flight's ``.tlog`` as the FC process writes its own: the simulator's
     state messages, the actuator message and the ``SMC`` record of every tick, and the events."""
 
-    def __init__(self, path: Path, core: FlightCore, sysid: int = 1) -> None:
+    def __init__(self, path: Path, core: FlightCore, sysid: int = 1, options: FcOptions | None = None) -> None:
         self.tlog = TlogWriter(path)
         self.core = core
         self.sysid = sysid
@@ -122,7 +122,7 @@ class _TlogRecorder:
         self._mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=FC_COMPONENT_ID)
         self._sim_mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=SIM_COMPONENT_ID)
         mav = self._mav
-        self.tlog.write_many(0, [m.pack(mav) for m in param_messages(mav, core.config)])
+        self.tlog.write_many(0, [m.pack(mav) for m in param_messages(mav, core.config, options)])
 
     def event(self, severity: int, text: str) -> None:
         self.tlog.write(self.core.t_us, telemetry.statustext(self._mav, severity, text).pack(self._mav))
@@ -157,6 +157,7 @@ class _TlogRecorder:
 def fly_in_process(scenario: Scenario, tlog_path: Path, *, echo=None) -> FlightResult:
     """Fly ``scenario`` on the flight core in this process, logging to ``tlog_path``."""
     config = config_for(scenario)
+    options = options_for(scenario)
     home = Home(*scenario.home) if scenario.home is not None else Home()
     events: list[tuple[float, str]] = []
 
@@ -173,10 +174,10 @@ def fly_in_process(scenario: Scenario, tlog_path: Path, *, echo=None) -> FlightR
         if echo is not None:
             echo(f"[{ev.t_s:7.2f} s] {ev.text}")
 
-    core = FlightCore(config, scenario.vehicle, home=home, plan=scenario.plan, event=event)
+    core = FlightCore(config, scenario.vehicle, home=home, plan=scenario.plan, event=event, estimator=options.estimator)
     plant = plant_for(scenario)
     tlog_path.parent.mkdir(parents=True, exist_ok=True)
-    recorder = _TlogRecorder(tlog_path, core)
+    recorder = _TlogRecorder(tlog_path, core, options=options)
     status, message = "ok", ""
     t0 = time.perf_counter()
     ticks = 0

@@ -2,7 +2,8 @@
 
 Without numba: the rules, checked on the code and on the data — every function of
 :data:`fc.pipeline.PURE_FUNCTIONS` (and of the rigid-body plant's step,
-:data:`sim_bridge.plants.rigid_body.PURE_FUNCTIONS`) is a module-level function with no closure whose body has no
+:data:`sim_bridge.plants.rigid_body.PURE_FUNCTIONS`, and of the FC's estimate,
+:data:`fc.estimate.PURE_FUNCTIONS`) is a module-level function with no closure whose body has no
 lists, dicts, sets, comprehensions, strings, f-strings, exceptions, lambdas, nested functions,
 ``getattr``/``isinstance`` or method calls, and calls only pure functions (by plain name), ``math`` functions,
 ``abs``/``min``/``max`` and NamedTuple classes; the parameters, state and inputs it takes (built
@@ -29,6 +30,7 @@ import types
 
 import pytest
 
+from fc import estimate
 from fc.config import FcConfig
 from fc.control import LAW_FUNCTIONS, PidSmc, PidSmcParams
 from fc.control.cascade_pid import CascadePid
@@ -73,7 +75,8 @@ def _resolve(fn: types.FunctionType, name: str) -> object:
 
 
 PLANT_FUNCTIONS = rigid_body.PURE_FUNCTIONS
-ALL_PURE = PURE_FUNCTIONS + tuple(f for f in PLANT_FUNCTIONS if f not in PURE_FUNCTIONS)
+_OTHER_PURE = PLANT_FUNCTIONS + estimate.PURE_FUNCTIONS
+ALL_PURE = PURE_FUNCTIONS + tuple(f for i, f in enumerate(_OTHER_PURE) if f not in PURE_FUNCTIONS and f not in _OTHER_PURE[:i])
 
 
 # -- the rules, on the code ---------------------------------------------------------------------------
@@ -341,3 +344,52 @@ def test_compiled_plant_step_gives_the_same_bits() -> None:
         step = jit[rigid_body_step]
         for k, (args, want) in enumerate(rows):
             assert bits(step(*args)) == bits(want), f"plant step {k} differs"
+
+
+# -- the FC's estimate ------------------------------------------------------------------------------
+def _estimate_ticks() -> list[tuple]:
+    """(state, measured, result) of every interpreted estimator tick: clean, noisy, a position
+    dropout past its timeout, a velocity dropout, an attitude dropout and a yaw across +-pi."""
+    r = random.Random(2)
+    nan = math.nan
+    p = estimate.estimator_params(estimate.EstimatorConfig(pos_timeout_s=0.1), 0.002)
+    est = estimate.ESTIMATOR_START
+    rows = []
+    for k in range(400):
+        noise = r.gauss(0.0, 0.01) if k >= 100 else 0.0
+        x, y, z = 0.5 * k * 0.002 + noise, -0.2 + noise, 3.0
+        vx, vy, vz = 0.5, 0.0, 0.0
+        psi = estimate.wrap_pi(3.1 + 0.002 * k + noise)
+        if 150 <= k < 220:
+            x = y = z = nan
+        if 240 <= k < 260:
+            vx = nan
+        if 300 <= k < 305:
+            psi = math.inf
+        m = VehicleState(x, y, z, vx, vy, vz, 0.01, -0.02, psi, 0.0, 0.0, 1.0)
+        out = estimate.estimate_step(est, m, 0.002, p)
+        rows.append((est, m, p, out + (estimate.hold_point(out[0], p),)))
+        est = out[0]
+    statuses = {row[3][2] for row in rows}
+    assert statuses == {estimate.EST_OK, estimate.EST_DEAD_RECKONING, estimate.EST_POSITION_LOST, estimate.EST_ATTITUDE_LOST}
+    return rows
+
+
+def test_estimator_state_keeps_its_types_from_tick_to_tick() -> None:
+    rows = _estimate_ticks()
+    first = tuple(t for _, t in leaf_types(rows[1][0]))
+    assert [path for path, t in leaf_types(rows[0][2]) if t is not float] == []
+    for est, _, _, out in rows[1:]:
+        assert tuple(t for _, t in leaf_types(est)) == first
+        assert tuple(t for _, t in leaf_types(out[1])) == (float,) * 12 and type(out[2]) is int and type(out[3]) is int
+
+
+def test_compiled_estimate_step_gives_the_same_bits() -> None:
+    pytest.importorskip("numba")
+    rows = _estimate_ticks()
+    fn, hold = estimate.estimate_step, estimate.hold_point  # the module's names are the dispatchers inside compiled()
+    with compiled() as jit:
+        step, hold_jit = jit[fn], jit[hold]
+        for k, (est, m, p, want) in enumerate(rows):
+            got = step(est, m, 0.002, p)
+            assert bits(got + (hold_jit(got[0], p),)) == bits(want), f"tick {k} differs"

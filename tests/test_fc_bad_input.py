@@ -90,8 +90,6 @@ BAD_INPUTS = {
     "malformed": (_bad_garbage, {"rx_bad": 1}),
     "truncated": (_bad_truncated, {"rx_bad": 1}),
     "bad_crc": (_bad_crc, {"rx_bad": 1}),
-    "nan_position": (_bad_nan_position, {"rx_invalid_state": 1}),
-    "inf_attitude": (_bad_inf_attitude, {"rx_invalid_state": 1}),
     "foreign_system": (_bad_foreign_system, {"rx_foreign_system": 2}),  # ATTITUDE and LOCAL_POSITION_NED
 }
 
@@ -112,6 +110,33 @@ def test_bad_state_is_dropped_counted_and_the_next_good_state_answered(lockstep_
     want = {"rx_bad": 0, "rx_foreign_system": 0, "rx_unknown": 0, "rx_invalid_state": 0, "duplicate_states": 0} | expected
     assert _sim_counters(summary) == want
     assert summary["ticks"] == 4
+
+
+def test_state_with_fields_not_measured_is_ticked_on_the_estimate(lockstep_fc) -> None:
+    """A NaN field is a sensor dropout (the simulator keeps the lockstep going): the FC answers
+    that very state, from its estimate — a missing position is dead-reckoned, an attitude that is
+    missing (or garbage: infinite) puts it in the state-loss failsafe — never with a NaN motor."""
+    fc, sim = lockstep_fc
+    _assert_normal_answer(sim.exchange(0), 0)
+    _assert_normal_answer(sim.exchange(2), 2)
+    sim.send_raw(_bad_nan_position(sim, 4))
+    (answer,) = sim.recv_actuators()
+    _assert_normal_answer(answer, 4)  # dead reckoning: still flying, closed loop
+    sim.send_raw(_bad_inf_attitude(sim, 6))
+    (answer,) = sim.recv_actuators()
+    _assert_normal_answer(answer, 6)  # attitude lost: open-loop failsafe, still armed
+    failsafe = Mixer(DEFAULT_VEHICLE).mix(0.0, 0.0, 0.0, FcConfig().failsafe_thrust_fraction * DEFAULT_VEHICLE.weight_n)[0]
+    assert list(answer.controls[:4]) == pytest.approx(list(failsafe), abs=1e-6)
+    _assert_normal_answer(sim.exchange(8), 8)
+    assert fc.stop() == 0
+    summary = fc.summary()
+    assert summary["ticks"] == 5
+    assert summary["states_missing_fields"] == 2 and summary["rx_invalid_state"] == 1  # the infinite one
+    assert summary["failsafe_events"] == 1
+    texts = [line for line in fc.all_lines if line.startswith("fc: ")]
+    assert "fc: position lost: dead reckoning" in texts
+    assert "fc: FAILSAFE: attitude lost, level and descend" in texts
+    assert "fc: State back: failsafe landing" in texts
 
 
 def test_duplicate_state_gets_the_same_answer_again(lockstep_fc) -> None:

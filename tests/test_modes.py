@@ -14,6 +14,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from fc import inbound, telemetry
 from fc.config import FcConfig
 from fc.core import FlightCore
+from fc.estimate import HoldPoint
 from fc.flight import FlightControl, VehicleState
 from fc.gcs import GcsHandler
 from fc.mission import MissionItem, MissionProtocol
@@ -154,6 +155,9 @@ class Host:
 
     def item_reached(self, seq: int) -> None:
         self.reached.append(seq)
+
+    def here(self, st: VehicleState) -> HoldPoint:
+        return HoldPoint(st.x_m, st.y_m, st.z_m, st.psi_rad)
 
 
 def test_one_object_per_flown_mode_and_the_contracts_agree() -> None:

@@ -134,16 +134,17 @@ class AutoMode(FlightMode):
         self._t0_s = t_s
         cmd = it.command
         yaw = inbound.mission_item_yaw(it)
+        here = self.host.here(st)
         if cmd == CMD_TAKEOFF:
-            f.set_target(st.x_m, st.y_m, inbound.mission_item_altitude(home, it), yaw)
+            f.set_target(here.x_m, here.y_m, inbound.mission_item_altitude(home, it), yaw)
         elif cmd in _POSITION_ITEMS:
             if cmd != CMD_WAYPOINT and it.x == 0 and it.y == 0:  # 0, 0: here
-                x, y = st.x_m, st.y_m
-                z = inbound.mission_item_altitude(home, it) if it.z > 0 else st.z_m
+                x, y = here.x_m, here.y_m
+                z = inbound.mission_item_altitude(home, it) if it.z > 0 else here.z_m
             else:
                 x, y, z = inbound.mission_item_position(home, it)
             if cmd == CMD_LAND:
-                z = max(st.z_m, 0.0)
+                z = max(here.z_m, 0.0)
             f.set_target(x, y, z, yaw)
         elif cmd == CMD_RTL:
             self.phase = AutoPhase.RTL

@@ -14,7 +14,9 @@ flight (a mode's progress, e.g. how far RTL has got, lives in its object). The c
   disarmed by itself on touchdown (the pipeline, :class:`fc.flight.FlightControl`, owns that).
 
 Modes see the vehicle through :class:`ModeHost` (the commander): the flight pipeline, the
-configuration, home, the mission, whether the vehicle is flying, and an event sink. Positions are
+configuration, home, the mission, whether the vehicle is flying, an event sink, and ``here(st)``:
+where the vehicle is for a set-point "here" (the filtered hold point of :mod:`fc.estimate`, so
+one noisy sample does not decide it; the state's own values in a clean flight). Positions are
 in the paper frame (x north, y west, z up above home; FLU yaw): every conversion from a wire frame
 happens in :mod:`fc.inbound`.
 
@@ -32,6 +34,7 @@ from smcpilot.protocol import Mode
 
 if TYPE_CHECKING:  # pragma: no cover
     from fc.config import FcConfig
+    from fc.estimate import HoldPoint
     from fc.flight import FlightControl, VehicleState
     from fc.mission import MissionProtocol
     from smcpilot.geo import Home
@@ -59,6 +62,11 @@ class ModeHost(Protocol):
     def config(self) -> FcConfig: ...
 
     def flying(self) -> bool: ...
+
+    def here(self, st: VehicleState) -> HoldPoint:
+        """Where the vehicle is at state ``st``, for a set-point "here": the flight core's
+        filtered hold point (:mod:`fc.estimate`), or ``st``'s own position and yaw."""
+        ...
 
     def say(self, text: str, severity: int = mavlink.MAV_SEVERITY_INFO) -> None: ...
 
@@ -123,4 +131,5 @@ class HoldHereMode(FlightMode):
     def enter(self, prev: Mode, st: VehicleState | None) -> None:
         f = self.flight
         if st is not None and f.armed and prev != self.number:
-            f.set_target(st.x_m, st.y_m, st.z_m if self.host.flying() else f.target[2])
+            h = self.host.here(st)
+            f.set_target(h.x_m, h.y_m, h.z_m if self.host.flying() else f.target[2])

@@ -21,5 +21,6 @@ class LandMode(FlightMode):
     def enter(self, prev: Mode, st: VehicleState | None) -> None:
         f = self.flight
         if st is not None and f.armed:
-            f.set_target(st.x_m, st.y_m, st.z_m)
+            h = self.host.here(st)
+            f.set_target(h.x_m, h.y_m, h.z_m)
             f.land()

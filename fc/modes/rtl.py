@@ -67,8 +67,9 @@ class RtlMode(FlightMode):
         phase = self.phase
         f = self.flight
         if phase is RtlPhase.START:
-            self.return_z_m = max(st.z_m, self.host.config.rtl_alt_m)
-            f.set_target(st.x_m, st.y_m, self.return_z_m)
+            h = self.host.here(st)
+            self.return_z_m = max(h.z_m, self.host.config.rtl_alt_m)
+            f.set_target(h.x_m, h.y_m, self.return_z_m)
             self.phase = RtlPhase.CLIMB
         elif phase is RtlPhase.CLIMB:
             if abs(st.z_m - self.return_z_m) < TAKEOFF_DONE_M:
