@@ -266,6 +266,7 @@ def load_log(path: str | os.PathLike[str]) -> FlightLog:
     events: list[tuple[int, int, str]] = []
     first_us: int | None = None
     last_us = 0
+    sim_state_us = 0
 
     records = 0
     try:
@@ -284,6 +285,8 @@ def load_log(path: str | os.PathLike[str]) -> FlightLog:
             elif mtype == "LOCAL_POSITION_NED":
                 key = (msg.get_srcSystem(), msg.get_srcComponent())
                 pos.setdefault(key, []).append((time_us, msg.time_boot_ms, msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz))
+                if key[1] == SIM_COMPONENT_ID:
+                    sim_state_us = msg.time_boot_ms * 1000
             elif mtype == "PARAM_VALUE":
                 pid = msg.param_id
                 name = (pid.decode("ascii", "replace") if isinstance(pid, bytes) else str(pid)).split("\x00", 1)[0]
@@ -301,7 +304,10 @@ def load_log(path: str | os.PathLike[str]) -> FlightLog:
             elif mtype == "NAMED_VALUE_INT":
                 named_i.setdefault(msg.name, []).append((time_us, msg.value))
             elif mtype == "STATUSTEXT":
-                events.append((time_us, msg.severity, msg.text))
+                # The simulator announces a fault right after the first state it acts on; a lockstep
+                # FC logs the whole datagram batch before its clock reaches that state's time.
+                t_ev = max(time_us, sim_state_us) if msg.get_srcComponent() == SIM_COMPONENT_ID else time_us
+                events.append((t_ev, msg.severity, msg.text))
     except TlogFormatError as exc:
         reason = str(exc)
         prefix = f"{p}: "
