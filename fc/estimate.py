@@ -29,9 +29,9 @@ the filter at the sample.
 The filter is used only while noise is plausible: an exponential average (same ``tau``) of the
 squared innovation must exceed ``hold_noise_floor_m``² (yaw: ``hold_noise_floor_rad``²);
 otherwise the hold point is the sample itself. Without sensor noise the innovation is the
-integration error of the prediction (< 1e-5 m even when accelerating; ~1.4 mm for one tick at a
-touchdown), far below the 1 mm floor, so a clean flight takes exactly the same set-points as
-before; with the simulator's ``--noise`` (0.01 m, 0.002 rad per axis) the average settles
+integration error of the prediction (< 1e-5 m even when accelerating; v·dt, ~1.4 mm, for the one
+tick of a touchdown), so its average stays far below the 1 mm floor (a touchdown lifts it to
+~2e-8 m² against 1e-6 m²) and a clean flight takes exactly the same set-points as before; with the simulator's ``--noise`` (0.01 m, 0.002 rad per axis) the average settles
 near 3e-4 m² (3 axes), far above it. Set-point errors below a millimetre do not matter, so
 filtering below the floor would buy nothing.
 
