@@ -12,11 +12,11 @@ along ``A = (a_x, a_y, g + z_ref'')``::
 
 both limited to ``tilt_max_rad``. Altitude is flown by the law's z channel directly.
 
-Anti-windup: the demand is limited in norm to the vehicle's authority
-``a_lim = min(accel_max, g tan(tilt_max))``; the integral term is clamped to the same authority
-(or to ``int_limit_mps2`` if smaller), ``|ki int| <= min(int_limit, a_lim)``, and integrates by
-condition: while the demand is saturated an axis integrates only when its error would reduce the
-demand (``e a <= 0``). So a steady force the vehicle can hold (|F|/m < a_lim) leaves no offset: the
+Anti-windup: the vehicle's authority is ``a_lim = min(accel_max, g tan(tilt_max))`` (the demand
+is limited in norm to ``accel_max``, the attitude to ``tilt_max``); the integral term is clamped
+to it (or to ``int_limit_mps2`` if smaller), ``|ki int| <= min(int_limit, a_lim)``, and integrates
+by condition: while the demand exceeds a_lim an axis integrates only when its error would reduce
+the demand (``e a <= 0``). So a steady force the vehicle can hold (|F|/m < a_lim) leaves no offset: the
 integral term alone can take up to a_lim. The default gains are ArduCopter's position controller
 (``PSC_POSXY_P`` 1 -> ``PSC_VELXY_P`` 2, ``PSC_VELXY_I`` 1, ``PSC_VELXY_D`` 0.5) in this loop's
 form, without the velocity D term's acceleration-error part (derivation in docs/baselines.md):
@@ -115,16 +115,16 @@ def position_step(
     norm = _sqrt(ax * ax + ay * ay)
     tmax = g.tilt_max_rad
     amax = g.accel_max_mps2
-    a_tilt = gravity_mps2 * _tan(tmax)
-    if a_tilt < amax:
-        amax = a_tilt
-    saturated = norm > amax
+    a_lim = gravity_mps2 * _tan(tmax)  # the vehicle's authority: the smaller of the two limits
+    if amax < a_lim:
+        a_lim = amax
+    saturated = norm > a_lim
     # Conditional integration: while saturated, an axis integrates only if that unwinds the demand.
     if not saturated or ex * ax <= 0.0:
         int_x += ex * dt_s
     if not saturated or ey * ay <= 0.0:
         int_y += ey * dt_s
-    ilim = g.int_limit_mps2 if g.int_limit_mps2 < amax else amax
+    ilim = g.int_limit_mps2 if g.int_limit_mps2 < a_lim else a_lim
     lim = ilim / g.ki_1ps3 if g.ki_1ps3 > 0.0 else 0.0
     if int_x > lim:
         int_x = lim
@@ -134,7 +134,7 @@ def position_step(
         int_y = lim
     elif int_y < -lim:
         int_y = -lim
-    if saturated:
+    if norm > amax:
         k = amax / norm
         ax *= k
         ay *= k

@@ -115,7 +115,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"{args.controller}, params {dict(params) or 'defaults'}")
     print(f"gusts {args.gust_n:g} N: RMS horizontal error {sum(rms) / len(rms):.3f} m (seeds: " + ", ".join(f"{v:.3f}" for v in rms) + ")")
     for w, off in offsets.items():
-        print(f"constant wind {w:g} N: steady offset {off * 1000:.2f} mm")
+        print(f"constant wind {w:g} N: steady offset {off * 1000:.3f} mm")
     if args.json:
         with open(args.json, "w", encoding="utf-8") as f:
             json.dump({"controller": args.controller, "params": dict(params), "gust_rms_m": rms,
