@@ -370,7 +370,7 @@ def test_prearm_health_bit_says_whether_arming_would_pass(fc):
 
 
 # == 3. Parameters ===================================================================================
-INT_PARAMS = {"ARMING_CHECK", "FS_GCS_ENABLE", "FC_CONTROLLER", "SYSID_THISMAV"}
+INT_PARAMS = {"ARMING_CHECK", "FS_GCS_ENABLE", "FC_CONTROLLER", "SYSID_THISMAV", "SMC_DOB", "SMC_DOB_LAG"}
 
 
 def test_param_request_list_is_complete(fc):
