@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, fields
 
+from fc.control.cascade_pid import CascadePidParams
 from fc.control.gains import PAPER_GAINS, Gains4, gains_with_overrides
 from fc.control.pid_smc import DISTURBANCE_ESTIMATES, AdaptationBounds
 from fc.position import PositionGains
@@ -19,6 +20,19 @@ from smcpilot.protocol import FC_CONTROLLERS
 
 #: the flight controller's default gains: the paper's (spec §5) with Theta = 1.
 FC_GAINS: Gains4 = gains_with_overrides(PAPER_GAINS, {"adapt_rate": 1.0})
+
+#: the cascaded PID the flight controller flies (``cascade_pid``): ArduCopter's rate-controller
+#: structure (rate PID with D on the measured rate and its own low-pass, a gyro low-pass, clamped
+#: integrators), tuned to the PID-SMC's attitude bandwidth (docs/baselines.md).
+FC_CASCADE = CascadePidParams(
+    k_outer=(3.0, 3.0, 4.0, 2.0),
+    k_inner=(20.0, 20.0, 12.0, 5.0),
+    ki_inner=(20.0, 20.0, 8.0, 2.0),
+    kd_rate=(0.2, 0.2, 0.0),
+    i_max=(50.0, 50.0, 5.0, 5.0),
+    gyro_filter_hz=20.0,
+    d_filter_hz=20.0,
+)
 
 
 @dataclass(frozen=True)
@@ -51,6 +65,8 @@ class FcConfig:
     #: the observer models the rotors' first-order lag (the vehicle's motor time constant).
     dob_motor_lag: bool = True
     position: PositionGains = field(default_factory=PositionGains)
+    #: gains and filters of the cascaded PID (``controller = "cascade_pid"``).
+    cascade: CascadePidParams = FC_CASCADE
     #: bandwidth of the position and altitude reference prefilters, rad/s.
     pos_filter_omega_radps: float = 1.8
     #: largest horizontal reference speed, m/s.

@@ -20,6 +20,7 @@ keeps its state between ticks and the commander's set-points, and is what the re
 
 from __future__ import annotations
 
+from dataclasses import fields
 from typing import NamedTuple
 
 from fc.config import FcConfig
@@ -113,7 +114,8 @@ class FlightControl:
         """Apply new settings between control steps; the law keeps its state (same layout)."""
         old = self.config
         self.config = config
-        law_keys = ("gains", "adaptation", "controller", "disturbance_estimate", "dob_bandwidth_att_radps", "dob_bandwidth_z_radps", "dob_motor_lag")
+        law_keys = ("gains", "adaptation", "controller", "disturbance_estimate", "dob_bandwidth_att_radps", "dob_bandwidth_z_radps", "dob_motor_lag",
+                    "cascade")
         if any(getattr(config, k) != getattr(old, k) for k in law_keys):
             n = self.pipeline_state.law_n
             self.law = self._make_law(config)
@@ -133,6 +135,8 @@ class FlightControl:
                 "observer_motor_tau_s": self.vehicle.motor_time_constant_s if cfg.dob_motor_lag else 0.0,
                 "observer_d_max": observer_authority(self.vehicle),
             }  # fmt: skip
+        elif cfg.controller == "cascade_pid":
+            opts = {f.name: getattr(cfg.cascade, f.name) for f in fields(cfg.cascade)}
         return make_controller(cfg.controller, self.model, **opts)
 
     # -- commands ------------------------------------------------------------------------------

@@ -107,6 +107,19 @@ def _attr(path: str, scale: float = 1.0, cast: Callable[[float], object] = float
     return get, set_
 
 
+def _cascade_get(field: str, i: int) -> Callable[[FcConfig], float]:
+    return lambda c: float(getattr(c.cascade, field)[i])
+
+
+def _cascade_set(field: str, i: int) -> Callable[[FcConfig, float], FcConfig]:
+    def setter(c: FcConfig, v: float) -> FcConfig:
+        vals = list(getattr(c.cascade, field))
+        vals[i] = v
+        return replace(c, cascade=replace(c.cascade, **{field: tuple(vals)}))  # type: ignore[arg-type]
+
+    return setter
+
+
 def _dob_get(c: FcConfig) -> float:
     return float(DISTURBANCE_ESTIMATES.index(c.disturbance_estimate))
 
@@ -147,10 +160,30 @@ def _build() -> tuple[ParamSpec, ...]:
     add("SMC_DOB_W", "dob_bandwidth_att_radps", 1.0, 200.0, "rad/s", "disturbance observer bandwidth, roll/pitch/yaw")
     add("SMC_DOB_WZ", "dob_bandwidth_z_radps", 1.0, 100.0, "rad/s", "disturbance observer bandwidth, altitude")
     add("SMC_DOB_LAG", "dob_motor_lag", 0.0, 1.0, "", "1: the observer models the motors' lag (vehicle time constant)", is_int=True, cast=bool)
+    # -- the cascaded PID (controller cascade_pid): ArduCopter's names, this project's units -------------
+    for i, (tag, cname) in enumerate(zip(("RLL", "PIT", "YAW"), _CHANNEL_NAMES)):
+        for pname, fname, hi, unit, doc in (
+            (f"ATC_ANG_{tag}_P", "k_outer", 50.0, "1/s", "angle error -> rate command"),
+            (f"ATC_RAT_{tag}_P", "k_inner", 500.0, "1/s", "rate error -> angular acceleration"),
+            (f"ATC_RAT_{tag}_I", "ki_inner", 500.0, "1/s^2", "integral of the rate error -> angular acceleration"),
+            (f"ATC_RAT_{tag}_D", "kd_rate", 10.0, "", "D on the low-passed measured rate (angular acceleration per angular acceleration)"),
+            (f"ATC_RAT_{tag}_IMAX", "i_max", 1000.0, "rad/s^2", "largest |I term| (integrator clamp)"),
+        ):
+            specs.append(ParamSpec(pname, unit, 0.0, hi, f"cascade_pid {cname}: {doc}", _cascade_get(fname, i), _cascade_set(fname, i)))
+    for pname, fname, hi, unit, doc in (
+        ("PSC_POSZ_P", "k_outer", 50.0, "1/s", "altitude error -> climb-rate command"),
+        ("PSC_VELZ_P", "k_inner", 200.0, "1/s", "climb-rate error -> vertical acceleration"),
+        ("PSC_VELZ_I", "ki_inner", 200.0, "1/s^2", "integral of the climb-rate error -> vertical acceleration"),
+        ("PSC_VELZ_IMAX", "i_max", 20.0, "m/s^2", "largest |I term| of the climb-rate loop (integrator clamp)"),
+    ):
+        specs.append(ParamSpec(pname, unit, 0.0, hi, f"cascade_pid altitude z: {doc}", _cascade_get(fname, 3), _cascade_set(fname, 3)))
+    add("ATC_RAT_FLTD", "cascade.d_filter_hz", 0.0, 500.0, "Hz", "cascade_pid: low-pass of the rate D terms (0 off)")
+    add("INS_GYRO_FILTER", "cascade.gyro_filter_hz", 0.0, 500.0, "Hz", "cascade_pid: low-pass of the rates its rate loops use (0 off)")
+    # -------------------------------------------------------------------------------------------------------
     add("PSC_POS_KP", "position.kp_1ps2", 0.0, 20.0, "1/s^2", "position loop: gain on position error")
     add("PSC_VEL_KD", "position.kd_1ps", 0.0, 20.0, "1/s", "position loop: gain on velocity error")
     add("PSC_POS_KI", "position.ki_1ps3", 0.0, 5.0, "1/s^3", "position loop: integral gain")
-    add("PSC_INT_MAX", "position.int_limit_mps2", 0.0, 10.0, "m/s^2", "position loop: largest integral contribution")
+    add("PSC_INT_MAX", "position.int_limit_mps2", 0.0, 10.0, "m/s^2", "position loop: largest integral contribution (the authority min(PSC_ACC_MAX, g tan PSC_TILT_MAX) if smaller)")
     add("PSC_ACC_MAX", "position.accel_max_mps2", 0.5, 20.0, "m/s^2", "position loop: largest horizontal acceleration demand")
     add("PSC_TILT_MAX", "position.tilt_max_rad", 5.0, 70.0, "deg", "largest commanded roll or pitch", scale=180.0 / math.pi)
     add("PSC_FILT_W", "pos_filter_omega_radps", 0.2, 10.0, "rad/s", "bandwidth of the position/altitude reference prefilters")

@@ -28,7 +28,13 @@ from typing import NamedTuple
 from fc.config import FcConfig
 from fc.control import LAW_FUNCTIONS
 from fc.control.base import integrators_anti_windup
-from fc.control.cascade_pid import CascadePid, CascadePidConsts, CascadePidParams, cascade_pid_consts, cascade_pid_output
+from fc.control.cascade_pid import (
+    CascadePid,
+    CascadePidConsts,
+    cascade_pid_anti_windup,
+    cascade_pid_consts,
+    cascade_pid_step,
+)
 from fc.control.observer import observer_estimate, observer_reset, observer_update
 from fc.control.pid_smc import (
     PidSmc,
@@ -50,6 +56,7 @@ from smcpilot.vehicle import VehicleParams
 
 _INF = math.inf
 _NAN = math.nan
+_ZERO2 = (0.0, 0.0)
 _ZERO4 = (0.0, 0.0, 0.0, 0.0)
 _ZERO8 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
@@ -95,7 +102,7 @@ class PipelineParams(NamedTuple):
     mixer: MixerParams
     #: which law runs: :data:`LAW_PID_SMC`, :data:`LAW_CASCADE_PID` or :data:`LAW_SIGN_SMC`.
     law_kind: int
-    #: length of that law's state (12 or 4).
+    #: length of that law's state (12, 10 or 4).
     law_n: int
     #: the constants of each law (only ``law_kind``'s are used; the others are defaults).
     smc: PidSmcConsts
@@ -132,7 +139,7 @@ class PipelineState(NamedTuple):
     int_y: float
     #: the law's state, padded with zeros to 12 floats.
     law: tuple[float, ...]
-    #: how many entries of ``law`` are the law's (12 or 4); 0: none yet (initialised on the next step).
+    #: how many entries of ``law`` are the law's (12, 10 or 4); 0: none yet (initialised on the next step).
     law_n: int
     #: time spent settled on the ground while landing, s.
     landed_s: float
@@ -173,7 +180,7 @@ def pipeline_params(config: FcConfig, vehicle: VehicleParams, law: PidSmc | Casc
     kind = law_kind_of(law)
     model: PaperModel = law.model
     smc = law.consts if isinstance(law, PidSmc) else pid_smc_consts(model, PidSmcParams())
-    cpid = law.consts if isinstance(law, CascadePid) else cascade_pid_consts(model, CascadePidParams())
+    cpid = law.consts if isinstance(law, CascadePid) else cascade_pid_consts(model, config.cascade)
     ssmc = law.consts if isinstance(law, SignSmc) else sign_smc_consts(model, SignSmcParams())
     c = config
     return PipelineParams(
@@ -294,8 +301,8 @@ def pipeline_step(
         new = pid_smc_integrate(law, s, ud, rate, dt_s, smc)
         u = (new[4], new[5], new[6], new[7])
     elif kind == LAW_CASCADE_PID:
-        u, e = cascade_pid_output(meas, ref, law, cpid)
-        new = (law[0] + dt_s * e[0], law[1] + dt_s * e[1], law[2] + dt_s * e[2], law[3] + dt_s * e[3]) + _ZERO8
+        u, cnew = cascade_pid_step(meas, ref, law, dt_s, cpid)
+        new = cnew + _ZERO2
         s = sg = chi = ud = _ZERO4
     else:
         u, e, sg = sign_smc_output(meas, ref, law, ssmc)
@@ -320,6 +327,8 @@ def pipeline_step(
             # the law's own share of what was realised (the compensation is not the law's state)
             law_realised = (realised[0] + c0, realised[1] + c1, realised[2] + c2, realised[3] + c3) if c0 or c1 or c2 or c3 else realised
             new = pid_smc_anti_windup(law, new, law_realised, limited)
+        elif kind == LAW_CASCADE_PID:
+            new = cascade_pid_anti_windup(law, new, limited) + _ZERO2
         else:
             new = integrators_anti_windup(law, new, limited) + _ZERO8
     if dob_on:

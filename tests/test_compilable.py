@@ -270,7 +270,8 @@ def test_compiled_pipeline_step_gives_the_same_bits() -> None:
 
 def test_compiled_law_steps_give_the_same_bits() -> None:
     pytest.importorskip("numba")
-    from fc.control.cascade_pid import cascade_pid_step
+    from fc.config import FC_CASCADE
+    from fc.control.cascade_pid import CascadePidParams, cascade_pid_anti_windup, cascade_pid_step
     from fc.control.pid_smc import pid_smc_anti_windup, pid_smc_step, pid_smc_step_measured
     from fc.control.sign_smc import sign_smc_step
 
@@ -283,7 +284,8 @@ def test_compiled_law_steps_give_the_same_bits() -> None:
         PidSmc(PaperModel.from_vehicle(typos=frozenset(TYPOS)), PidSmcParams(
             adaptation=AdaptationBounds(0.2, 0.3, 0.1, 2.0), u_min=(-0.1, -0.1, -0.005, 4.0), u_max=(0.1, 0.1, 0.005, 10.0))).consts,
     ]  # fmt: skip
-    cp = CascadePid(model).consts
+    cps = (CascadePid(model).consts, CascadePid(model, FC_CASCADE).consts,
+           CascadePid(model, CascadePidParams(kd_rate=(0.3, 0.1, 0.2), i_max=(0.5, 1.0, 0.2, 0.3), d_filter_hz=30.0)).consts)  # fmt: skip
     ss = SignSmc(model).consts
     cases = []
     for k in range(300):
@@ -293,20 +295,23 @@ def test_compiled_law_steps_give_the_same_bits() -> None:
         accel = tuple(r.uniform(-5.0, 5.0) for _ in range(4))
         limited = tuple(r.random() < 0.3 for _ in range(4))
         c = consts[k % len(consts)]
-        cases.append((meas, ref, state, accel, limited, c, (
+        cp = cps[k % len(cps)]
+        cases.append((meas, ref, state, accel, limited, c, cp, (
             pid_smc_step(meas, ref, state, 0.002, c),
             pid_smc_step_measured(meas, ref, state, 0.002, c, accel),
             pid_smc_anti_windup(state, state[::-1], accel, limited),
-            cascade_pid_step(meas, ref, state[:4], 0.002, cp),
+            cascade_pid_step(meas, ref, state[:10], 0.002, cp),
+            cascade_pid_anti_windup(state, state[::-1], limited),
             sign_smc_step(meas, ref, state[:4], 0.002, ss),
         )))  # fmt: skip
     with compiled() as jit:
-        for meas, ref, state, accel, limited, c, want in cases:
+        for meas, ref, state, accel, limited, c, cp, want in cases:
             got = (
                 jit[pid_smc_step](meas, ref, state, 0.002, c),
                 jit[pid_smc_step_measured](meas, ref, state, 0.002, c, accel),
                 jit[pid_smc_anti_windup](state, state[::-1], accel, limited),
-                jit[cascade_pid_step](meas, ref, state[:4], 0.002, cp),
+                jit[cascade_pid_step](meas, ref, state[:10], 0.002, cp),
+                jit[cascade_pid_anti_windup](state, state[::-1], limited),
                 jit[sign_smc_step](meas, ref, state[:4], 0.002, ss),
             )
             assert bits(got) == bits(want)

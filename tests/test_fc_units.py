@@ -207,11 +207,11 @@ def test_position_west_demand_rolls_negative_at_zero_yaw() -> None:
 
 
 @settings(max_examples=200, deadline=None)
-@given(st.floats(-1.5, 1.5), st.floats(-1.5, 1.5), st.floats(-math.pi, math.pi))
+@given(st.floats(-1.1, 1.1), st.floats(-1.1, 1.1), st.floats(-math.pi, math.pi))
 def test_position_thrust_points_along_the_demanded_acceleration(ex: float, ey: float, psi: float) -> None:
     """For any heading, body z of R(phi_d, theta_d, psi) is parallel to (a_x, a_y, g)."""
     phi, theta, _, _ = pos_step(x_ref=ex, y_ref=ey, psi=psi)
-    ax, ay = PG.kp_1ps2 * ex, PG.kp_1ps2 * ey  # below accel_max and tilt_max for these errors
+    ax, ay = PG.kp_1ps2 * ex, PG.kp_1ps2 * ey  # below accel_max and tilt_max for these errors (|a| <= 3 * 1.1 * sqrt 2 < 5)
     R = rotation_matrix_from_euler(phi, theta, psi)
     zb = np.array([R[0][2], R[1][2], R[2][2]])
     want = np.array([ax, ay, G]) / math.sqrt(ax * ax + ay * ay + G * G)
@@ -236,10 +236,21 @@ def test_position_integrator_anti_windup() -> None:
     # Small error: it integrates e dt.
     _, _, ix, iy = pos_step(x_ref=0.5, y_ref=-0.25)
     assert (ix, iy) == pytest.approx((0.5 * DT, -0.25 * DT))
-    # And is clamped at int_limit / ki.
-    lim = PG.int_limit_mps2 / PG.ki_1ps3
+    # And is clamped at the vehicle's authority / ki: min(int_limit, accel_max, g tan(tilt_max)) / ki.
+    auth = min(PG.int_limit_mps2, PG.accel_max_mps2, G * math.tan(PG.tilt_max_rad))
+    assert auth == PG.accel_max_mps2 == 5.0
+    lim = auth / PG.ki_1ps3
     _, _, ix, iy = pos_step(x_ref=0.5, y_ref=-0.5, int_x=lim, int_y=-lim)
     assert (ix, iy) == (lim, -lim)
+    _, _, ix, iy = pos_step(x_ref=0.5, y_ref=-0.5, int_x=2.0 * lim, int_y=-2.0 * lim)
+    assert (ix, iy) == (lim, -lim)
+    # Conditional integration: while saturated, an axis integrates only if that unwinds the demand.
+    _, _, ix, _ = position_step(PG, G, 0.0, 0.0, -20.0, 0.0, 0.5, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -1.0, 0.0, DT)
+    assert ix == -1.0  # demand saturated north (a_x > 0), error north: would wind up, frozen
+    _, _, ix, _ = position_step(PG, G, 0.0, 0.0, 20.0, 0.0, 0.5, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, DT)
+    assert ix == pytest.approx(1.0 + 0.5 * DT)  # demand saturated south (a_x < 0), error north: unwinds, integrates
+    _, _, ix, _ = position_step(PG, G, 0.0, 0.0, 20.0, 0.0, -0.5, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, DT)
+    assert ix == 1.0  # demand saturated south, error south: would wind up further, frozen
     # A long saturated transit leaves it where it was (no windup to unwind afterwards).
     ix = iy = 0.0
     for _ in range(5000):

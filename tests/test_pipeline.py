@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fc.config import FcConfig
+from fc.config import FC_CASCADE, FcConfig
 from fc.control import CascadePid, PidSmc, PidSmcParams, SignSmc
 from fc.control.base import integrators_anti_windup
 from fc.control.cascade_pid import cascade_pid_output, cascade_pid_step
@@ -133,14 +133,21 @@ def test_pure_anti_windup(prev, new, realised, limited) -> None:
 
 
 @settings(max_examples=100, deadline=None)
-@given(meas=meas_st, ref=ref_st, state=st.tuples(*[_f(-2.0, 2.0)] * 4), dt=dt_st)
+@given(meas=meas_st, ref=ref_st, state=st.tuples(*[_f(-2.0, 2.0)] * 10), dt=dt_st)
 def test_pure_baseline_steps_equal_the_wrappers(meas, ref, state, dt) -> None:
+    # the plain cascade (no filters): u is algebraic, the integrators a forward-Euler step
     cp = CascadePid(MODEL)
     u, new = cascade_pid_step(meas, ref, state, dt, cp.consts)
     assert bits((u, new)) == bits(cp.step(meas, ref, state, dt)[:2])
     assert u == cascade_pid_output(meas, ref, state, cp.consts)[0] == cp.command(meas, ref, state)
     d, _ = cp.derivatives(meas, ref, state)
-    assert bits(new) == bits(tuple(x + dt * dx for x, dx in zip(state, d)))
+    assert bits(new[:4]) == bits(tuple(x + dt * dx for x, dx in zip(state[:4], d[:4])))
+    assert new[4:7] == (meas[1], meas[3], meas[5])  # no gyro filter: the raw rates
+    # the FC's cascade (filters, D, clamp): the wrapper is the pure step; u is the output on the filtered state
+    fc = CascadePid(MODEL, FC_CASCADE)
+    u, new = cascade_pid_step(meas, ref, state, dt, fc.consts)
+    assert bits((u, new)) == bits(fc.step(meas, ref, state, dt)[:2])
+    assert bits(u) == bits(cascade_pid_output(meas, ref, state[:4] + new[4:], fc.consts)[0])
     ss = SignSmc(MODEL)
     u, new, s = sign_smc_step(meas, ref, state, dt, ss.consts)
     uw, neww, diag = ss.step(meas, ref, state, dt)
