@@ -18,8 +18,9 @@ from fc.position import PositionGains
 from smcpilot.errors import ConfigError
 from smcpilot.protocol import FC_CONTROLLERS
 
-#: the flight controller's default gains: the paper's (spec §5) with Theta = 1.
-FC_GAINS: Gains4 = gains_with_overrides(PAPER_GAINS, {"adapt_rate": 1.0})
+#: the flight controller's default gains: the paper's (spec §5) with Theta = 1 on roll, pitch and yaw
+#: (the altitude channel keeps 0.05: its sigma carries the position and velocity noise).
+FC_GAINS: Gains4 = gains_with_overrides(PAPER_GAINS, {"phi.adapt_rate": 1.0, "theta.adapt_rate": 1.0, "psi.adapt_rate": 1.0})
 
 #: the cascaded PID the flight controller flies (``cascade_pid``): ArduCopter's rate-controller
 #: structure (rate PID with D on the measured rate and its own low-pass, a gyro low-pass, clamped
@@ -43,8 +44,8 @@ class FcConfig:
     rate_hz: float = 500.0
     #: attitude/altitude law: adaptive_pid_smc (default), pid_smc or cascade_pid.
     controller: str = "adaptive_pid_smc"
-    #: the paper's gains, with an adaptation rate Theta of 1 instead of 0.05: at 0.05 chi_hat moves by
-    #: about 0.03 during a motor fault's transient and cannot matter (docs/disturbance-observer.md).
+    #: the paper's gains, with an adaptation rate Theta of 1 instead of 0.05 on the attitude channels:
+    #: at 0.05 chi_hat moves by about 0.03 during a motor fault's transient (docs/disturbance-observer.md).
     gains: Gains4 = FC_GAINS
     #: keeps chi_hat bounded under noise (spec §4): a dead zone on |sigma| above its noise floor
     #: (|sigma| averages 0.07-0.21 with the simulator's --noise), a slow leakage back to chi_hat(0)
