@@ -587,3 +587,35 @@ def test_example_flies_and_passes(tmp_path: Path, path: Path) -> None:
     assert r.returncode == 0, r.stdout + r.stderr
     data = json.loads(report.read_text(encoding="utf-8"))
     assert data["passed"] and data["finished"], data
+
+
+# == faults in a mission's [sitl] ===========================================================================
+def test_sitl_faults_reach_the_scenario_and_bad_ones_name_the_item() -> None:
+    doc = tomllib.loads(textwrap.dedent("""
+        [sitl]
+        [[sitl.fault]]
+        kind = "motor"
+        motor = 2
+        efficiency = 0.6
+        start_s = 12.5
+        [[sitl.fault]]
+        kind = "sensor"
+        sensor = "position"
+        mode = "dropout"
+        start_s = 20.0
+        stop_s = 20.5
+        [[item]]
+        type = "takeoff"
+        alt_m = 3.0
+    """))
+    m = parse_mission(doc, source="m.toml")
+    faults = m.sitl.scenario().faults
+    assert [(f.kind, f.start_s, f.stop_s) for f in faults] == [("motor", 12.5, math.inf), ("sensor", 20.0, 20.5)]
+    assert faults[0].motor == 2 and faults[0].efficiency == 0.6
+    assert "motor 2 at 60%" in m.sitl.describe()
+    doc["sitl"]["fault"][0]["motor"] = 5
+    with pytest.raises(MissionFileError, match=r"m\.toml: \[sitl\]: key 'fault': \[\[sitl\.fault\]\] 1 \(motor\): .*motor"):
+        parse_mission(doc, source="m.toml")
+    doc["sitl"]["fault"] = {"kind": "motor"}
+    with pytest.raises(MissionFileError, match="array of tables"):
+        parse_mission(doc, source="m.toml")

@@ -19,6 +19,12 @@ launches SITL itself) and what must hold afterwards (``[[expect]]``)::
     home = [-35.363261, 149.165230, 584.0]  # lat deg, lon deg, alt m AMSL (default: the FC's)
     max_duration_s = 600.0             # simulated seconds of flight before the runner gives up
 
+    [[sitl.fault]]                     # optional, any number: timed faults in the simulator, as a
+    kind = "motor"                     # scenario's [[fault]] tables (smcpilot/faults.py); times are
+    motor = 1                          # simulated seconds from SITL's start
+    efficiency = 0.7
+    start_s = 20.0
+
     [[item]]
     type = "takeoff"
     alt_m = 3.0

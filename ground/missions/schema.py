@@ -26,6 +26,7 @@ from ground.vehicle import HomePosition, MissionItem
 from smcpilot.errors import ConfigError
 from smcpilot.geo import Home, global_to_ned, ned_to_global
 from smcpilot.protocol import FC_CONTROLLERS
+from smcpilot.faults import FaultSpec
 from smcpilot.scenario import EnvironmentSpec, Scenario
 from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
 
@@ -69,7 +70,7 @@ _ITEM_RANGES: dict[str, tuple[float, float]] = {
     "lon_deg": (-180.0, 180.0),
 }
 _SITL_KEYS = frozenset(
-    {"controller", "vehicle", "seed", "plant", "noise", "noise_scale", "wind_force_ned_n", "gust_std_n", "home", "max_duration_s"}
+    {"controller", "vehicle", "seed", "plant", "noise", "noise_scale", "wind_force_ned_n", "gust_std_n", "home", "max_duration_s", "fault"}
 )
 _PLANTS = ("rigid-body", "paper")
 _TOP_KEYS = frozenset({"name", "description", "sitl", "item", "expect"})
@@ -410,6 +411,8 @@ class SitlSettings:
     home: Home | None = None
     #: simulated seconds of flight after the mission start before the runner stops waiting.
     max_duration_s: float = DEFAULT_MAX_DURATION_S
+    #: timed faults (``[[sitl.fault]]``, the scenario's ``[[fault]]`` tables; times from SITL's start).
+    faults: tuple[FaultSpec, ...] = ()
 
     def scenario(self, name: str = "mission") -> Scenario:
         """The flight these settings describe (no plan: the mission is uploaded and started)."""
@@ -426,6 +429,7 @@ class SitlSettings:
                 wind_force_ned_n=self.wind_force_ned_n if self.wind_force_ned_n is not None else (0.0, 0.0, 0.0),
                 gust_std_n=self.gust_std_n,
             ),  # fmt: skip
+            faults=self.faults,
         )
 
     def options(self, *, gcs: str, log_dir: Path, tlog: Path, param_file: Path, name: str = "mission") -> SitlOptions:
@@ -442,6 +446,7 @@ class SitlSettings:
             parts.append("wind NED [" + ", ".join(f"{v:g}" for v in self.wind_force_ned_n) + "] N")
         if self.gust_std_n:
             parts.append(f"gusts σ {self.gust_std_n:g} N")
+        parts.extend(f"fault at {f.start_s:g} s: {f.describe()}" for f in self.faults)
         return ", ".join(parts)
 
 
@@ -450,7 +455,14 @@ def _parse_sitl(where: _Where, raw: Any, base_dir: Path | None) -> SitlSettings:
     _check_keys(where, table, (), _SITL_KEYS, "[sitl]")
     kw: dict[str, Any] = {}
     for key, v in table.items():
-        if key == "controller":
+        if key == "fault":
+            if not isinstance(v, list):
+                raise where.error("must be an array of tables ([[sitl.fault]]), one per fault", key)
+            try:
+                kw["faults"] = tuple(FaultSpec.from_mapping(d, f"[[sitl.fault]] {i + 1}") for i, d in enumerate(v))
+            except ConfigError as exc:
+                raise where.error(str(exc), key) from None
+        elif key == "controller":
             if v not in FC_CONTROLLERS:
                 raise where.error(f"must be one of {', '.join(FC_CONTROLLERS)}, got {v!r}", key)
             kw[key] = v
