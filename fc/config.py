@@ -59,10 +59,13 @@ class FcConfig:
     #: nominal-model sigma), "sigma" (estimated acceleration in sigma only) or "lumped" (the estimate
     #: added to the model's drift f). See docs/disturbance-observer.md.
     disturbance_estimate: str = "input"
-    #: disturbance-observer bandwidth of the roll, pitch and yaw channels, rad/s.
+    #: disturbance-observer bandwidth of the roll and pitch channels, rad/s.
     dob_bandwidth_att_radps: float = 40.0
+    #: disturbance-observer bandwidth of the yaw channel, rad/s (low: yaw authority is small, so its
+    #: compensation turns rate noise into large motor-command noise).
+    dob_bandwidth_yaw_radps: float = 5.0
     #: disturbance-observer bandwidth of the altitude channel, rad/s.
-    dob_bandwidth_z_radps: float = 10.0
+    dob_bandwidth_z_radps: float = 5.0
     #: the observer models the rotors' first-order lag (the vehicle's motor time constant).
     dob_motor_lag: bool = True
     position: PositionGains = field(default_factory=PositionGains)
@@ -136,6 +139,7 @@ class FcConfig:
             "watchdog_s",
             "telemetry_rate_hz",
             "dob_bandwidth_att_radps",
+            "dob_bandwidth_yaw_radps",
             "dob_bandwidth_z_radps",
         ):
             if getattr(self, name) <= 0.0:

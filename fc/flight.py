@@ -127,11 +127,11 @@ class FlightControl:
     def _make_law(self, cfg: FcConfig):
         opts: dict = {}
         if cfg.controller in ("adaptive_pid_smc", "pid_smc"):
-            wa, wz = cfg.dob_bandwidth_att_radps, cfg.dob_bandwidth_z_radps
+            wa, wy, wz = cfg.dob_bandwidth_att_radps, cfg.dob_bandwidth_yaw_radps, cfg.dob_bandwidth_z_radps
             opts = {
                 "gains": cfg.gains, "adaptation": cfg.adaptation, "chi_hat0": (cfg.chi_hat0,) * 4,
                 "disturbance_estimate": cfg.disturbance_estimate,
-                "observer_bandwidth_radps": (wa, wa, wa, wz),
+                "observer_bandwidth_radps": (wa, wa, wy, wz),
                 "observer_motor_tau_s": self.vehicle.motor_time_constant_s if cfg.dob_motor_lag else 0.0,
                 "observer_d_max": observer_authority(self.vehicle),
             }  # fmt: skip

@@ -157,7 +157,8 @@ def _build() -> tuple[ParamSpec, ...]:
                   "PID-SMC disturbance estimate: " + ", ".join(f"{i} {n}" for i, n in enumerate(DISTURBANCE_ESTIMATES)),
                   _dob_get, _dob_set, is_int=True)
     )  # fmt: skip
-    add("SMC_DOB_W", "dob_bandwidth_att_radps", 1.0, 200.0, "rad/s", "disturbance observer bandwidth, roll/pitch/yaw")
+    add("SMC_DOB_W", "dob_bandwidth_att_radps", 1.0, 200.0, "rad/s", "disturbance observer bandwidth, roll and pitch")
+    add("SMC_DOB_WY", "dob_bandwidth_yaw_radps", 1.0, 200.0, "rad/s", "disturbance observer bandwidth, yaw")
     add("SMC_DOB_WZ", "dob_bandwidth_z_radps", 1.0, 100.0, "rad/s", "disturbance observer bandwidth, altitude")
     add("SMC_DOB_LAG", "dob_motor_lag", 0.0, 1.0, "", "1: the observer models the motors' lag (vehicle time constant)", is_int=True, cast=bool)
     # -- the cascaded PID (controller cascade_pid): ArduCopter's names, this project's units -------------

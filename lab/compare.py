@@ -87,9 +87,14 @@ class Case:
     scenario: Scenario
     plant_vehicle: VehicleParams | None = None
 
+    #: metrics from this time on (simulated s): after the take-off has settled.
+    window_from_s: float = 6.0
+
     @property
     def fault_starts_s(self) -> tuple[float, ...]:
-        return tuple(sorted(f.start_s for f in self.scenario.faults))
+        """Starts of the faults that begin inside the scored window (recovery is timed from them;
+        a fault on from the start, such as continuous gusts, has no recovery)."""
+        return tuple(sorted(f.start_s for f in self.scenario.faults if f.start_s >= self.window_from_s))
 
 
 def study_cases(duration_s: float = 20.0, t_event_s: float = 10.0) -> tuple[Case, ...]:
@@ -145,8 +150,6 @@ class Unit:
     variant: Variant
     seed: int
     record_every: int = 5
-    #: metrics from this time on (simulated s): after the take-off has settled.
-    window_from_s: float = 6.0
 
     def scenario(self) -> Scenario:
         return self.case.scenario.with_changes(controller=self.variant.controller, params=self.variant.params, seed=self.seed)
@@ -172,7 +175,7 @@ def fly_unit(unit: Unit) -> tuple[dict[str, Any], Trace]:
         diverged_t_s = core.t_us * 1e-6
     wall = time.perf_counter() - wall0
     a = rec.arrays()
-    keep = a["t_s"] >= unit.window_from_s  # score the event, not the take-off before it
+    keep = a["t_s"] >= unit.case.window_from_s  # score the event, not the take-off before it
     metrics = flight_metrics(
         a["t_s"][keep], a["position_m"][keep], a["target_m"][keep], a["euler_rad"][keep], a["euler_ref_rad"][keep],
         a["motors"][keep], a["armed"][keep], a["landing"][keep], fault_starts_s=unit.case.fault_starts_s,

@@ -550,9 +550,13 @@ class LossyProxy:
     (seed, direction, its messages' ids and payloads, how many times that same content went this
     way before), so the fate of, say, the second transmission of mission item 3 does not depend
     on how much telemetry happened to pass in between, nor on timing. Other datagrams (telemetry,
-    heartbeats) draw from one seeded RNG per direction."""
+    heartbeats) draw from one seeded RNG per direction.
 
-    def __init__(self, gcs_port: int, *, loss: float = 0.1, seed: int = 1) -> None:
+    ``drop_first`` names ``(direction, message id)`` pairs whose first datagram is dropped whatever
+    the draw says, so a test can be sure each recovery path is exercised (the draws depend on the
+    messages' contents, e.g. on the length of the parameter list)."""
+
+    def __init__(self, gcs_port: int, *, loss: float = 0.1, seed: int = 1, drop_first: frozenset[tuple[str, int]] = frozenset()) -> None:
         self.fc_side = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.fc_side.bind((LOOPBACK, 0))
         self.gcs_side = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -563,6 +567,7 @@ class LossyProxy:
         self.seed = seed
         self._rng_other = {way: random.Random(f"{seed}-{way}") for way in ("up", "down")}
         self._occurrences: dict[bytes, int] = {}
+        self._drop_first = set(drop_first)
         self.passed = {"up": 0, "down": 0}
         self.dropped = {"up": 0, "down": 0}
         #: protocol datagrams dropped, per direction
@@ -575,6 +580,10 @@ class LossyProxy:
         msgs = frames(data)
         if not any(mid in PROTOCOL_MSGS for mid, _ in msgs):
             return self._rng_other[way].random() < self.loss, False
+        for mid, _ in msgs:
+            if (way, mid) in self._drop_first:
+                self._drop_first.discard((way, mid))
+                return True, True
         content = hashlib.sha256(repr((way, msgs)).encode()).digest()
         n = self._occurrences.get(content, 0)
         self._occurrences[content] = n + 1

@@ -794,16 +794,20 @@ def reliable_command(g: Gcs, cmd: int, *params: float, tries: int = 20, wait_s: 
     raise AssertionError(f"command {cmd} never acknowledged over the lossy link")
 
 
-#: with this seed the drops hit a parameter-list datagram, mission items or requests, and a
-#: command or its ack (checked below, so the recovery paths are really exercised; the drops are
-#: decided by content, not timing: see LossyProxy)
+#: the seed of the 10 % random drops (decided by content, not timing: see LossyProxy); on top of
+#: them the test drops the first parameter value, mission request and command for sure, so the
+#: recovery paths are exercised whatever the parameter list's length does to the draws
 LOSS_SEED = 39
 
 
 def test_ten_percent_packet_loss(tmp_path, fc):
     g = Gcs()
     try:
-        with LossyProxy(g.port, loss=0.10, seed=LOSS_SEED) as proxy:
+        # every recovery path is exercised whatever the draws: the first parameter value, mission
+        # request and arm command are lost for sure
+        must = frozenset({("down", M.MAVLINK_MSG_ID_PARAM_VALUE), ("down", M.MAVLINK_MSG_ID_MISSION_REQUEST_INT),
+                          ("up", M.MAVLINK_MSG_ID_COMMAND_LONG)})  # fmt: skip
+        with LossyProxy(g.port, loss=0.10, seed=LOSS_SEED, drop_first=must) as proxy:
             fc(gcs_port=proxy.fc_side_port, gcs=g, speed=3.0)
             g.wait("HEARTBEAT", lambda m: m.get_srcSystem() == FC_SYSID, timeout=20)
             # the parameter list, re-requesting what was lost

@@ -381,7 +381,7 @@ def print_summary(summary: dict[str, Any], file: TextIO | None = None) -> None:
     chi = s.get("chi_hat_final")
     line("chi_hat final", "n/a" if chi is None else "  ".join(f"{c} {_fmt(v, '.3f')}" for c, v in zip(chans, chi)))
     window = s.get("sigma_window_s", DEFAULT_SIGMA_WINDOW_S)
-    for key, label in (("sigma_lpf_rms", "sigma LPF RMS"), ("sigma_dither_rms", "sigma dither RMS")):
+    for key, label in (("sigma_lpf_rms", "sigma LPF RMS"), ("sigma_dither_rms", "sigma dither")):
         sig = s.get(key)
         line(f"{label} ({window:g} s)", "n/a" if sig is None else "  ".join(f"{c} {_fmt(v, '.2e')}" for c, v in zip(chans, sig)))
     m = s.get("metrics")

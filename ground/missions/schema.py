@@ -24,9 +24,9 @@ from ground.missions.expectations import _EXPECTATIONS, CHANNELS, EXPECTATION_KI
 from ground.sitl import SitlOptions
 from ground.vehicle import HomePosition, MissionItem
 from smcpilot.errors import ConfigError
+from smcpilot.faults import FaultSpec
 from smcpilot.geo import Home, global_to_ned, ned_to_global
 from smcpilot.protocol import FC_CONTROLLERS
-from smcpilot.faults import FaultSpec
 from smcpilot.scenario import EnvironmentSpec, Scenario
 from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
 
