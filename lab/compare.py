@@ -4,7 +4,9 @@ Each flight is the flight core (:class:`fc.core.FlightCore`, the FC's own tick) 
 rigid-body plant (:func:`sim_bridge.build.plant_for`), as ``smcpilot run`` flies it: take-off to
 3 m, then the case's fault, disturbance or model error, with sensor noise on (the seed decides the
 noise and gust draws). Every flight is scored with :func:`ground.logs.metrics.flight_metrics`
-(the same code ``smcpilot log summary`` uses; definitions in ``docs/metrics.md``).
+(the same code ``smcpilot log summary`` uses; definitions in ``docs/metrics.md``) on the plant's
+*true* state from 6 s on (after the take-off), so a sensor fault is scored by what the vehicle did,
+not by what its faulty sensors said.
 
 Outputs in ``--out`` (default ``out/compare``):
 
@@ -37,9 +39,10 @@ from typing import Any
 
 import numpy as np
 
-from fc.core import FlightCore
+from fc.core import FlightCore, TickOutput
+from fc.flight import VehicleState
 from fc.params import config_for, options_for
-from lab.runner import simulate
+from lab.runner import simulate, wire_state
 from sim_bridge.build import plant_for
 from smcpilot.errors import ConfigError, DivergenceError
 from smcpilot.faults import FaultSpec
@@ -165,11 +168,18 @@ def fly_unit(unit: Unit) -> tuple[dict[str, Any], Trace]:
     core = FlightCore(config, sc.vehicle, plan=sc.plan, estimator=options_for(sc).estimator)
     plant = plant_for(sc if unit.case.plant_vehicle is None else sc.with_changes(vehicle=unit.case.plant_vehicle))
     rec = MetricsRecorder(core, every=unit.record_every)
+    truth = plant.truth
+
+    def on_tick(k: int, t_us: int, wire: tuple[float, ...], st: VehicleState, out: TickOutput, motors: tuple[float, ...]) -> None:
+        # scored on the true state (what the vehicle did), not on what the faulty sensors said
+        if k % unit.record_every == 0:
+            rec.on_tick(k, t_us, wire, wire_state(truth()), out, motors)
+
     status, message = "ok", ""
     diverged_t_s: float | None = None
     wall0 = time.perf_counter()
     try:
-        simulate(core, plant, sc.n_ticks, rate_hz=sc.rate_hz, physics_hz=sc.physics_hz, on_tick=rec.on_tick)
+        simulate(core, plant, sc.n_ticks, rate_hz=sc.rate_hz, physics_hz=sc.physics_hz, on_tick=on_tick)
     except DivergenceError as exc:
         status, message = "diverged", str(exc)
         diverged_t_s = core.t_us * 1e-6
