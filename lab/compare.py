@@ -349,17 +349,22 @@ def write_figures(result: StudyResult, cases: Sequence[Case], variants: Sequence
     fig_dir.mkdir(parents=True, exist_ok=True)
     labels = [v.label for v in variants]
     for key, label in (("max_tilt_deg", "max tilt (°)"), ("max_pos_err_m", "max position error (m)"), ("iae_pos_m_s", "IAE position (m·s)")):
-        fig, axes = plt.subplots(1, len(cases), figsize=(2.2 * len(cases), 3.6), sharey=False, squeeze=False)
-        for ax, c in zip(axes[0], cases):
+        ncol = min(5, len(cases))
+        nrow = (len(cases) + ncol - 1) // ncol
+        fig, axes = plt.subplots(nrow, ncol, figsize=(2.6 * ncol, 3.2 * nrow), squeeze=False)
+        flat = [ax for row_axes in axes for ax in row_axes]
+        for ax in flat[len(cases):]:
+            ax.set_visible(False)
+        for ax, c in zip(flat, cases):
             data = [[float(r[key]) for r in result.rows if r["case"] == c.name and r["controller"] == lab
                      and isinstance(r.get(key), (int, float)) and math.isfinite(r[key])] for lab in labels]  # fmt: skip
             ax.boxplot(data, tick_labels=labels, showfliers=True)
-            ax.set_title(c.name, fontsize=8)
+            ax.set_title(c.name, fontsize=9)
             ax.tick_params(axis="x", labelrotation=60, labelsize=7)
             ax.tick_params(axis="y", labelsize=7)
-            if key != "iae_pos_m_s":
-                ax.set_yscale("symlog", linthresh=1.0 if key == "max_tilt_deg" else 0.1)
-        axes[0][0].set_ylabel(label)
+            if max((max(d) for d in data if d), default=0.0) > 20.0 * max(min((min(d) for d in data if d), default=1.0), 1e-9):
+                ax.set_yscale("log")  # a crashed controller next to ones that held: both visible
+        fig.suptitle(f"{label} per case and controller (each box: the seeds)", fontsize=10)
         fig.tight_layout()
         fig.savefig(fig_dir / f"box_{key}.png", dpi=110)
         plt.close(fig)
