@@ -528,3 +528,34 @@ def test_mission_count_is_resent_until_the_vehicle_requests(lossy: tuple[LossyVe
     peer.drop["MISSION_COUNT"] = 100
     with pytest.raises(MissionError, match="without requesting any item"):
         v.upload_mission([MissionItem.land()])
+
+
+# ------------------------------------------------------------------------------ faults, end to end
+def test_live_sim_parameters_and_inject_failure_reach_the_real_simulator(fc: Vehicle) -> None:
+    """FC and simulator processes in lockstep: a ground station's SIM_* change and a
+    MAV_CMD_INJECT_FAILURE are forwarded to the simulator, which announces the fault (relayed to
+    the ground), and the adaptive PID-SMC holds its altitude with the weak motor."""
+    take_off(fc, 2.0)
+    n = len(fc.statustexts)
+    assert fc.set_param("SIM_ENGINE_FAIL", 1) == 1
+    assert fc.set_param("SIM_ENGINE_MUL", 0.7) == pytest.approx(0.7)
+    fc.wait_statustext("SIM: motor 1 at 70%", timeout_sim_s=5.0, since=n)
+    t0 = fc.sim_time_s
+    assert t0 is not None
+    fc.wait_sim_time(t0 + 5.0)
+    ned = fc.position_ned_m
+    assert ned is not None and abs(-ned[2] - 2.0) < 0.3 and math.hypot(ned[0], ned[1]) < 0.3, ned
+    n = len(fc.statustexts)
+    assert fc.set_param("SIM_ENGINE_MUL", 1.0) == pytest.approx(1.0)
+    fc.wait_statustext("SIM: motor 1 ok", timeout_sim_s=5.0, since=n)
+    # MAV_CMD_INJECT_FAILURE: refused until SYS_FAILURE_EN = 1, then carried out by the simulator
+    motor, off, ok = mavlink.FAILURE_UNIT_SYSTEM_MOTOR, mavlink.FAILURE_TYPE_OFF, mavlink.FAILURE_TYPE_OK
+    assert fc.command_long(mavlink.MAV_CMD_INJECT_FAILURE, motor, off, 2) == mavlink.MAV_RESULT_DENIED
+    fc.set_param("SYS_FAILURE_EN", 1)
+    n = len(fc.statustexts)
+    assert fc.command_long(mavlink.MAV_CMD_INJECT_FAILURE, motor, off, 2) == mavlink.MAV_RESULT_ACCEPTED
+    fc.wait_statustext("SIM: motor 2", timeout_sim_s=5.0, since=n)
+    assert fc.get_param("SIM_MOT_OFF") == 2
+    assert fc.command_long(mavlink.MAV_CMD_INJECT_FAILURE, motor, ok, 2) == mavlink.MAV_RESULT_ACCEPTED
+    assert fc.get_param("SIM_MOT_OFF") == 0
+    assert fc.command_long(mavlink.MAV_CMD_INJECT_FAILURE, mavlink.FAILURE_UNIT_SENSOR_MAG, off, 0) == mavlink.MAV_RESULT_UNSUPPORTED
