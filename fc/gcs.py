@@ -159,11 +159,14 @@ class GcsHandler:
             self._event(M.MAV_SEVERITY_WARNING, text)
 
     def handle(self, msg: mavlink.MAVLink_message, addr: Address) -> None:
-        handler = self._handlers.get(msg.id)
+        # get_msgId(), not .id: STATUSTEXT has a field named "id" that hides the message id
+        # (a ground station's STATUSTEXT with id 0 would reach the HEARTBEAT handler)
+        mid = msg.get_msgId()
+        handler = self._handlers.get(mid)
         if handler is None:
             return
         ts = getattr(msg, "target_system", None)
-        if ts is not None and msg.id != M.MAVLINK_MSG_ID_HEARTBEAT and not self._for_us(ts):
+        if ts is not None and mid != M.MAVLINK_MSG_ID_HEARTBEAT and not self._for_us(ts):
             return
         try:
             handler(msg, addr)

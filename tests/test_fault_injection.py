@@ -178,6 +178,9 @@ def test_sim_params_are_listed_volatile_validated_and_forwarded(rig: Rig) -> Non
     rig.sim.send_raw(bytes(mav.statustext_encode(M.MAV_SEVERITY_WARNING, b"SIM: motor 2 at 70%").pack(mav)))
     relayed = g.wait("STATUSTEXT", lambda m: m.text == "SIM: motor 2 at 70%", since=mark)
     assert relayed.severity == M.MAV_SEVERITY_WARNING and relayed.get_srcComponent() == FC_COMPID
+    # A ground station's own STATUSTEXT (its "id" field is 0, HEARTBEAT's message id) is not
+    # mistaken for a heartbeat: no handler error below.
+    g.mav.statustext_send(M.MAV_SEVERITY_INFO, b"hello from the ground", 0, 0)
 
     # SIM_* never reach the parameter file; the FC's own parameters do.
     assert g.param_set("SYS_FAILURE_EN", 1.0, M.MAV_PARAM_TYPE_INT32).param_value == 1.0
@@ -189,6 +192,7 @@ def test_sim_params_are_listed_volatile_validated_and_forwarded(rig: Rig) -> Non
     assert summary["sim_param_forwards"] == 5 and summary["sim_param_answers"] == 4
     assert summary["sim_param_unanswered"] == 1 and summary["sim_statustexts"] == 1
     assert summary["gcs_rejected"]["param_refused"] == 4
+    assert "handler_error" not in summary["gcs_rejected"], summary["gcs_rejected"]
     # The tlog holds the forwards to the simulator and its messages.
     sent, heard = [], []
     for _, m in read_tlog(rig.tlog):
