@@ -223,6 +223,12 @@ def test_watch_once_prints_one_frame(fc_url: str) -> None:
     assert lines[2].startswith("  position N E D")
 
 
+def _ctrl_c_reaches_the_child() -> None:
+    """preexec_fn: the child takes SIGINT as Ctrl-C even when this test runs with SIGINT ignored
+    (a background job of a non-interactive shell inherits SIG_IGN, and Python then keeps it)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_watch_without_a_tty_prints_one_line_per_update_and_ends_on_ctrl_c(fc_url: str) -> None:
     proc = subprocess.Popen(
         [sys.executable, "-m", "lab.cli", "gcs", "--connect", fc_url, "watch", "--rate-hz", "20"],
@@ -230,6 +236,7 @@ def test_watch_without_a_tty_prints_one_line_per_update_and_ends_on_ctrl_c(fc_ur
         stderr=subprocess.PIPE,
         text=True,
         stdin=subprocess.DEVNULL,
+        preexec_fn=_ctrl_c_reaches_the_child,
     )
     try:
         assert proc.stdout is not None
@@ -344,6 +351,7 @@ def test_watch_on_a_tty_redraws_in_place(fc_url: str) -> None:
         stdout=slave,
         stderr=subprocess.PIPE,
         stdin=subprocess.DEVNULL,
+        preexec_fn=_ctrl_c_reaches_the_child,
     )
     os.close(slave)
     data = b""
