@@ -258,6 +258,14 @@ def _guided_item_checks(g) -> None:
     mark = g.mark()
     g.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_EKF_STATUS_REPORT)
     g.wait("EKF_STATUS_REPORT", since=mark, what="requested EKF_STATUS_REPORT")
+    # a position dropout: the position flags go (dead reckoning, then lost), and come back with it
+    pos_flags = M.EKF_POS_HORIZ_ABS | M.EKF_POS_HORIZ_REL | M.EKF_POS_VERT_ABS | M.EKF_PRED_POS_HORIZ_ABS
+    g.param_set("SIM_POS_FAULT", 4)
+    ekf = g.wait("EKF_STATUS_REPORT", lambda m: not m.flags & pos_flags, sim_timeout_s=3.0, what="position flags cleared")
+    assert ekf.flags & M.EKF_ATTITUDE and ekf.pos_horiz_variance == 1.0
+    g.param_set("SIM_POS_FAULT", 0)
+    ekf = g.wait("EKF_STATUS_REPORT", lambda m: m.flags & pos_flags == pos_flags, sim_timeout_s=3.0, what="position back")
+    assert ekf.pos_horiz_variance < 0.1
 
     # refused while not flying in GUIDED: MAV_MISSION_ERROR with a reason; a bad frame: UNSUPPORTED_FRAME
     ack, mark = send_guided(2, 2.0, 0.0, 3.0)
