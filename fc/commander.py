@@ -54,7 +54,8 @@ class Commander:
         self._mav = mav if mav is not None else mavlink.MAVLink(None)
         self._broadcast = broadcast
         self.mission = MissionProtocol(
-            self._mav, send_to if send_to is not None else (lambda m, a: None), self.on_mission_changed, self.on_set_current
+            self._mav, send_to if send_to is not None else (lambda m, a: None), self.on_mission_changed, self.on_set_current,
+            home=lambda: self.home,
         )
         self.state: VehicleState | None = None
         self.state_fresh = False

@@ -148,6 +148,11 @@ class FlightCore:
         self._est_params = self.commander.estimate_params = estimator_params(estimator, self.config.period_s)
 
     @property
+    def estimate_missing(self) -> int:
+        """Which groups of the latest state were not measured (``fc.estimate.MISSING_*`` bits)."""
+        return self._est_missing
+
+    @property
     def mode(self) -> int:
         return int(self.commander.mode)
 

@@ -23,7 +23,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from fc import inbound, inject, telemetry
 from fc.config import FcConfig
 from fc.core import EventSink, FlightCore
-from fc.mission import RELATIVE_FRAMES, MissionProtocol
+from fc.mission import GLOBAL_FRAMES, RELATIVE_FRAMES, MissionItem, MissionProtocol
 from fc.modes import Refusal
 from fc.params import PARAM_COUNT, PARAM_INDEX, PARAMS, SIM_PARAM_OFFSET, ParamError, ParamStore, is_sim_param
 from fc.streams import StreamScheduler
@@ -116,8 +116,8 @@ class GcsHandler:
             M.MAVLINK_MSG_ID_PARAM_REQUEST_READ: self._param_read,
             M.MAVLINK_MSG_ID_PARAM_SET: self._param_set,
             M.MAVLINK_MSG_ID_MISSION_COUNT: lambda m, a: mission.on_count(m, a, self.wall_s()),
-            M.MAVLINK_MSG_ID_MISSION_ITEM_INT: lambda m, a: mission.on_item(m, a, self.wall_s()),
-            M.MAVLINK_MSG_ID_MISSION_ITEM: lambda m, a: mission.on_item(m, a, self.wall_s()),
+            M.MAVLINK_MSG_ID_MISSION_ITEM_INT: self._mission_item,
+            M.MAVLINK_MSG_ID_MISSION_ITEM: self._mission_item,
             M.MAVLINK_MSG_ID_MISSION_REQUEST_LIST: lambda m, a: mission.on_request_list(m, a),
             M.MAVLINK_MSG_ID_MISSION_REQUEST_INT: lambda m, a: mission.on_request(m, a, True),
             M.MAVLINK_MSG_ID_MISSION_REQUEST: lambda m, a: mission.on_request(m, a, False),
@@ -421,6 +421,50 @@ class GcsHandler:
         return None
 
     # -- missions, streams, FTP -----------------------------------------------------------------
+    def _mission_item(self, m: mavlink.MAVLink_message, addr: Address) -> None:
+        """``MISSION_ITEM(_INT)``: ``current`` 2 is ArduPilot's guided-mode waypoint (fly there
+        now), 3 an altitude change only; both answered with ``MISSION_ACK``. Anything else is an
+        upload's item (:meth:`fc.mission.MissionProtocol.on_item`)."""
+        if m.current in (2, 3) and getattr(m, "mission_type", 0) == M.MAV_MISSION_TYPE_MISSION:
+            if m.get_type() == "MISSION_ITEM":
+                self.mission.note_legacy(addr)
+            refusal = self._guided_item(m)
+            if refusal is None:
+                result = M.MAV_MISSION_ACCEPTED
+            else:
+                result = refusal.code
+                self._refuse("guided_item_refused", refusal.reason, addr)
+            ack = self.mav.mission_ack_encode(m.get_srcSystem(), m.get_srcComponent(), result, M.MAV_MISSION_TYPE_MISSION)
+            self._send_to(ack, addr)
+            return
+        self.mission.on_item(m, addr, self.wall_s())
+
+    def _guided_item(self, m: mavlink.MAVLink_message) -> Refusal | None:
+        """The target of a guided-mode mission item (``current`` 2: position, 3: altitude only),
+        validated like every other target source; a refusal carries a ``MAV_MISSION_*`` code."""
+        item = MissionItem.from_msg(m)
+        if item.frame not in GLOBAL_FRAMES:
+            return Refusal(f"Guided item: frame {m.frame} not supported", M.MAV_MISSION_UNSUPPORTED_FRAME)
+        if not math.isfinite(item.z):
+            return Refusal("Guided item: altitude is not a number", M.MAV_MISSION_INVALID_PARAM7)
+        if self.commander.mode != Mode.GUIDED:
+            return Refusal(f"Guided item: needs GUIDED, in {self.commander.mode.name}", M.MAV_MISSION_ERROR)
+        home = self.core.home
+        if m.current == 3:
+            x, y, _z = self.core.flight.target
+            z = inbound.altitude_above_home(home, item.z, item.frame in RELATIVE_FRAMES)
+            target = inbound.Target(x, y, z, None)
+        else:
+            if not (-90 * 10**7 <= item.x <= 90 * 10**7):
+                return Refusal("Guided item: latitude out of range", M.MAV_MISSION_INVALID_PARAM5_X)
+            if not (-180 * 10**7 <= item.y <= 180 * 10**7):
+                return Refusal("Guided item: longitude out of range", M.MAV_MISSION_INVALID_PARAM6_Y)
+            target = inbound.global_target(home, item.lat_deg, item.lon_deg, item.z, item.frame in RELATIVE_FRAMES, None)
+        refusal = self.commander.goto(target)
+        if refusal is not None:
+            return Refusal(refusal.reason or "Guided item refused", M.MAV_MISSION_ERROR)
+        return None
+
     def _mission_set_current(self, m: mavlink.MAVLink_message, addr: Address) -> None:
         if not self.mission.set_current(m.seq):
             self._refuse("bad_mission_seq", f"Mission: no item {m.seq}", addr)

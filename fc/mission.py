@@ -2,11 +2,15 @@
 
 Upload: ``MISSION_COUNT`` -> ``MISSION_REQUEST_INT`` (we ask for each item in turn, re-asking after
 ``REQUEST_TIMEOUT_S`` up to ``MAX_RETRIES`` times) -> ``MISSION_ITEM_INT`` -> ... -> ``MISSION_ACK``.
+A station that speaks the float protocol (it sent ``MISSION_ITEM`` or ``MISSION_REQUEST``, as
+DroneKit does) is asked with ``MISSION_REQUEST``, as ArduPilot remembers per link; a station that
+answered no request of this upload yet is re-asked with both requests.
 The new mission replaces the stored one only when the upload completes; a bad item ends the
 upload with the protocol's error code and leaves the stored mission (and the flight) unchanged.
 Download, clear and set-current are answered directly. Timeouts run on the wall clock.
 
-Item 0 is home, as in ArduPilot; AUTO flies from item 1.
+Item 0 is home, as in ArduPilot; AUTO flies from item 1. With no mission stored, a request for
+item 0 is answered with home (DroneKit always asks for it).
 """
 
 from __future__ import annotations
@@ -17,11 +21,15 @@ from dataclasses import dataclass, replace
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from smcpilot.geo import Home
+
 Address = tuple[str, int]
 
 REQUEST_TIMEOUT_S = 1.0
 MAX_RETRIES = 5
 MAX_ITEMS = 500
+#: at most this many stations remembered as speaking the float (non-INT) mission protocol.
+MAX_LEGACY_STATIONS = 64
 
 CMD_WAYPOINT = mavlink.MAV_CMD_NAV_WAYPOINT
 CMD_LOITER_TIME = mavlink.MAV_CMD_NAV_LOITER_TIME
@@ -113,9 +121,19 @@ class MissionProtocol:
     """Vehicle side of the mission protocol. ``send_to`` sends to one ground station."""
 
     def __init__(
-        self, mav: mavlink.MAVLink, send_to: SendTo, on_change: Callable[[], None], on_set_current: Callable[[int], None]
+        self,
+        mav: mavlink.MAVLink,
+        send_to: SendTo,
+        on_change: Callable[[], None],
+        on_set_current: Callable[[int], None],
+        home: Callable[[], Home] | None = None,
     ) -> None:
+        """``home``: the home position now, sent as item 0 while no mission is stored (None: no
+        item 0 then)."""
         self.mav = mav
+        self._home = home
+        #: stations (addresses) that used the float protocol (MISSION_ITEM / MISSION_REQUEST).
+        self.legacy_stations: set[Address] = set()
         self._send_to = send_to
         self._on_change = on_change
         self._on_set_current = on_set_current
@@ -140,14 +158,30 @@ class MissionProtocol:
     def _ack(self, addr: Address, sysid: int, compid: int, result: int) -> None:
         self._send_to(self.mav.mission_ack_encode(sysid, compid, result, mavlink.MAV_MISSION_TYPE_MISSION), addr)
 
-    def _request(self) -> None:
+    def note_legacy(self, addr: Address) -> None:
+        """Remember that the station at ``addr`` speaks the float mission protocol."""
+        if addr not in self.legacy_stations:
+            if len(self.legacy_stations) >= MAX_LEGACY_STATIONS:
+                self.legacy_stations.clear()
+            self.legacy_stations.add(addr)
+
+    def _request(self, retry: bool = False) -> None:
+        """Ask the partner for the next item: ``MISSION_REQUEST`` to a float-protocol station,
+        else ``MISSION_REQUEST_INT`` (and on a retry with no item of this upload received yet,
+        both: a station that ignores ``MISSION_REQUEST_INT`` is never stuck)."""
         assert self._partner is not None
-        self._send_to(
-            self.mav.mission_request_int_encode(
-                self._partner_sys, self._partner_comp, len(self._incoming), mavlink.MAV_MISSION_TYPE_MISSION
-            ),
-            self._partner,
-        )
+        seq = len(self._incoming)
+        legacy = self._partner in self.legacy_stations
+        if not legacy:
+            self._send_to(
+                self.mav.mission_request_int_encode(self._partner_sys, self._partner_comp, seq, mavlink.MAV_MISSION_TYPE_MISSION),
+                self._partner,
+            )
+        if legacy or (retry and seq == 0):
+            self._send_to(
+                self.mav.mission_request_encode(self._partner_sys, self._partner_comp, seq, mavlink.MAV_MISSION_TYPE_MISSION),
+                self._partner,
+            )
 
     def _end_upload(self) -> None:
         self._partner = None
@@ -181,6 +215,10 @@ class MissionProtocol:
         self._request()
 
     def on_item(self, m: mavlink.MAVLink_message, addr: Address, now_s: float) -> None:
+        if m.get_type() == "MISSION_ITEM":
+            self.note_legacy(addr)
+        else:
+            self.legacy_stations.discard(addr)
         if self._partner is None or addr != self._partner:
             return  # not in an upload with this station: ignore, as ArduPilot does
         if getattr(m, "mission_type", 0) != mavlink.MAV_MISSION_TYPE_MISSION:
@@ -220,13 +258,24 @@ class MissionProtocol:
             addr,
         )
 
+    def _home_item(self) -> MissionItem | None:
+        """Item 0 while no mission is stored: home (AMSL), as ArduPilot answers; None: no home."""
+        if self._home is None:
+            return None
+        h = self._home()
+        return MissionItem(0, mavlink.MAV_FRAME_GLOBAL_INT, CMD_WAYPOINT, 0, 1, 0.0, 0.0, 0.0, 0.0,
+                           int(round(h.lat_deg * 1e7)), int(round(h.lon_deg * 1e7)), float(h.alt_m))  # fmt: skip
+
     def on_request(self, m: mavlink.MAVLink_message, addr: Address, as_int: bool) -> None:
         if getattr(m, "mission_type", 0) != mavlink.MAV_MISSION_TYPE_MISSION:
             return
-        if not 0 <= m.seq < len(self.items):
+        if not as_int:
+            self.note_legacy(addr)
+        home = self._home_item() if m.seq == 0 and not self.items else None
+        if home is None and not 0 <= m.seq < len(self.items):
             self._ack(addr, m.get_srcSystem(), m.get_srcComponent(), mavlink.MAV_MISSION_INVALID_SEQUENCE)
             return
-        it = self.items[m.seq]
+        it = home if home is not None else self.items[m.seq]
         cur = 1 if m.seq == self.current else 0
         sysid, compid = m.get_srcSystem(), m.get_srcComponent()
         if as_int:
@@ -270,4 +319,4 @@ class MissionProtocol:
             return
         self._retries += 1
         self._deadline = now_s + REQUEST_TIMEOUT_S
-        self._request()
+        self._request(retry=True)

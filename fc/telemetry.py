@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, NamedTuple
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from fc.estimate import EST_ATTITUDE_LOST, EST_DEAD_RECKONING, EST_OK, MISSING_POSITION, MISSING_VELOCITY
 from fc.flight import PipelineOutput, VehicleState
 from smcpilot import __version__
 from smcpilot.frames import (
@@ -198,6 +199,12 @@ class TelemetrySnapshot(NamedTuple):
     mission_count: int
     home: Home
     system_id: int
+    #: the estimate's status (``fc.estimate.EST_*``) and which groups were not measured
+    #: (``fc.estimate.MISSING_*`` bits) after the latest tick.
+    estimate_status: int = 0
+    estimate_missing: int = 0
+    #: the latest state is fresh (False: stale in real time, or none).
+    state_fresh: bool = True
 
 
 def snapshot(core: FlightCore, *, time_us: int, state: VehicleState | None, body_rates: tuple[float, float, float],
@@ -210,7 +217,8 @@ def snapshot(core: FlightCore, *, time_us: int, state: VehicleState | None, body
     return TelemetrySnapshot(
         time_us, state, body_rates, f.armed, int(c.mode), core.failsafe, f.armed or c.prearm_failure() is None,
         c.landed_state(), f.target, f.yaw_target_rad, last.pipeline if last is not None else None, overruns,
-        mission.current, len(mission.items), core.home, core.config.system_id,
+        mission.current, len(mission.items), core.home, core.config.system_id, core.estimate_status,
+        core.estimate_missing, c.state_fresh,
     )  # fmt: skip
 
 
@@ -320,6 +328,46 @@ def _b_gps_raw(s: TelemetrySnapshot, mav: mavlink.MAVLink, t_ms: int) -> list:
     ]
 
 
+# EKF_STATUS_REPORT flags (ArduPilot's EKF_STATUS_FLAGS).
+EKF_POSITION_FLAGS = (
+    M.EKF_POS_HORIZ_REL | M.EKF_POS_HORIZ_ABS | M.EKF_POS_VERT_ABS | M.EKF_POS_VERT_AGL
+    | M.EKF_PRED_POS_HORIZ_REL | M.EKF_PRED_POS_HORIZ_ABS
+)  # fmt: skip
+EKF_VELOCITY_FLAGS = M.EKF_VELOCITY_HORIZ | M.EKF_VELOCITY_VERT
+EKF_HEALTHY_FLAGS = M.EKF_ATTITUDE | EKF_VELOCITY_FLAGS | EKF_POSITION_FLAGS
+#: the variances (normalised innovation test ratios, as ArduPilot reports them) when healthy;
+#: 1.0 is the limit, reported for what is not estimated.
+EKF_HEALTHY_VARIANCE = 0.01
+
+
+def ekf_flags(s: TelemetrySnapshot) -> int:
+    """The ``EKF_STATUS_REPORT`` flags of the FC's estimate (``fc.estimate``): everything while
+    the state is fresh and measured; the position (or velocity) flags cleared while they are
+    dead-reckoned; attitude only once the position is lost or in the state-loss failsafe;
+    nothing without a fresh state or with the attitude lost. Never CONST_POS_MODE."""
+    if s.state is None or not s.state_fresh or s.estimate_status == EST_ATTITUDE_LOST:
+        return 0
+    if s.failsafe or s.estimate_status not in (EST_OK, EST_DEAD_RECKONING):
+        return M.EKF_ATTITUDE
+    flags = EKF_HEALTHY_FLAGS
+    if s.estimate_status == EST_DEAD_RECKONING:
+        if s.estimate_missing & MISSING_POSITION:
+            flags &= ~EKF_POSITION_FLAGS
+        if s.estimate_missing & MISSING_VELOCITY:
+            flags &= ~EKF_VELOCITY_FLAGS
+    return flags
+
+
+def _b_ekf_status(s: TelemetrySnapshot, mav: mavlink.MAVLink, t_ms: int) -> list:
+    flags = ekf_flags(s)
+    ok, bad = EKF_HEALTHY_VARIANCE, 1.0
+    vel = ok if flags & M.EKF_VELOCITY_HORIZ else bad
+    pos_h = ok if flags & M.EKF_POS_HORIZ_ABS else bad
+    pos_v = ok if flags & M.EKF_POS_VERT_ABS else bad
+    att = ok if flags & M.EKF_ATTITUDE else bad
+    return [mav.ekf_status_report_encode(flags, vel, pos_h, pos_v, att, 0.0)]
+
+
 def _b_vfr_hud(s: TelemetrySnapshot, mav: mavlink.MAVLink, t_ms: int) -> list:
     st = s.state
     if st is None:
@@ -347,6 +395,7 @@ _BUILDERS: dict[int, Builder] = {
     M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: _b_global_position,
     M.MAVLINK_MSG_ID_GPS_RAW_INT: _b_gps_raw,
     M.MAVLINK_MSG_ID_VFR_HUD: _b_vfr_hud,
+    M.MAVLINK_MSG_ID_EKF_STATUS_REPORT: _b_ekf_status,
 }
 
 
