@@ -74,8 +74,10 @@ def fc_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
 
 @pytest.fixture
 def fresh_fc_url(tmp_path: Path) -> Iterator[str]:
-    """A SITL of this test's own (flights change the state)."""
-    with _sitl(tmp_path) as sitl:
+    """A SITL of this test's own (flights change the state), paced at 4x real time: unpaced, the
+    lockstep runs so far ahead between two CLI invocations (each a process start) that the FC's
+    10 s disarm delay can pass between `gcs arm` and `gcs takeoff`."""
+    with _sitl(tmp_path, speed=4.0) as sitl:
         assert sitl.gcs_address
         yield f"udpout:{sitl.gcs_address}"
 
