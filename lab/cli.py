@@ -94,6 +94,33 @@ def _compare(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=compare.main)
 
 
+def _campaign(sub: argparse._SubParsersAction) -> None:
+    from lab.campaign import cli as campaign_cli
+
+    p = sub.add_parser(
+        "campaign",
+        help="Monte Carlo and grid campaigns over thousands of flights on a Dask cluster; replay of any one",
+        description="Campaign files (docs/campaigns.md): a base scenario, controllers, seeds and variations of any"
+        " scenario field, flown on a local Dask cluster or an existing scheduler.",
+    )
+    campaign_cli.add_arguments(p)
+    p.set_defaults(handler=campaign_cli.main)
+
+
+def _tune(sub: argparse._SubParsersAction) -> None:
+    from lab.tuning import study
+
+    p = sub.add_parser(
+        "tune",
+        help="gain tuning with Optuna: trials flown as campaign units; best gains as a .parm file and a TOML fragment",
+        description="Optuna ask-and-tell over named FC gains with ranges, each trial's flights (scenario groups x seeds)"
+        " flown on the campaign engine, the objective built from their metrics (docs/campaigns.md). The study lives"
+        " in DIR/study.journal: --resume continues it.",
+    )
+    study.add_arguments(p)
+    p.set_defaults(handler=study.main)
+
+
 def _plot(sub: argparse._SubParsersAction) -> None:
     from ground.logs import cli as logs_cli
 
@@ -145,7 +172,7 @@ def _mission(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=missions_cli.main)
 
 
-SUBCOMMANDS = (_run, _compare, _paper, _sitl, _demo, _bench, _plot, _log, _gcs, _mission)
+SUBCOMMANDS = (_run, _compare, _campaign, _tune, _paper, _sitl, _demo, _bench, _plot, _log, _gcs, _mission)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,253 @@
+"""The campaign engine: units as Dask tasks on a local or remote cluster, results as they finish.
+
+:class:`ClusterOptions` says where to run: a fresh ``LocalCluster`` (processes, one thread each,
+one worker per core unless ``workers`` says otherwise), an existing scheduler's address
+(``tcp://HOST:PORT``) or its scheduler file. :class:`Engine` connects (an unreachable scheduler is
+a :class:`~lab.campaign.spec.CampaignError` before anything is submitted), submits units with
+unique keys (Dask would otherwise share the result of two identical calls), and hands back each
+unit's row as it finishes.
+
+Failure handling, so a campaign never sticks:
+
+- a flight over its ``timeout_s`` stops itself (the in-process watchdog, or the SITL processes
+  killed) and comes back "timed out";
+- a task that still has not come back ``grace`` seconds after its limit (a hang outside the
+  flight loop) is cancelled, recorded "timed out", and its worker restarted (through its nanny);
+- a worker that dies (killed, out of memory, a crash in native code) makes its task "error";
+  Dask retries it on another worker once before giving up (``allowed-failures`` of a local
+  cluster; an external scheduler keeps its own setting).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+import uuid
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from lab.campaign.spec import CampaignError
+from lab.campaign.units import Unit
+
+#: a unit's task: the unit in, its result row out.
+UnitTask = Callable[[Unit], dict[str, Any]]
+
+
+@dataclass(frozen=True)
+class ClusterOptions:
+    """Where units run: ``address`` (``tcp://HOST:PORT``) or ``scheduler_file`` of an existing
+    Dask scheduler, else a ``LocalCluster`` of ``workers`` processes (default: the cores)."""
+
+    workers: int | None = None
+    address: str | None = None
+    scheduler_file: Path | None = None
+    #: seconds to wait for an existing scheduler.
+    connect_timeout_s: float = 10.0
+
+    def __post_init__(self) -> None:
+        if self.workers is not None and self.workers < 1:
+            raise CampaignError(f"--workers must be >= 1, got {self.workers}")
+        if self.address is not None and self.scheduler_file is not None:
+            raise CampaignError("give either --cluster or --scheduler-file, not both")
+        if self.address is not None and not self.address.strip():
+            raise CampaignError("--cluster needs a scheduler address such as tcp://127.0.0.1:8786")
+        if self.scheduler_file is not None and not self.scheduler_file.is_file():
+            raise CampaignError(f"--scheduler-file {self.scheduler_file}: no such file")
+
+    @property
+    def local(self) -> bool:
+        return self.address is None and self.scheduler_file is None
+
+
+def _dashboard_available() -> bool:
+    try:
+        import bokeh  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _error_row(unit: Unit, status: str, message: str) -> dict[str, Any]:
+    return {"unit": unit.index, "group": unit.group, "controller": unit.controller, "seed_index": unit.seed_index, "seed": unit.seed,
+            "status": status, "message": message, "wall_s": 0.0, "sim_s": 0.0, **dict(unit.values)}  # fmt: skip
+
+
+class Engine:
+    """A connection to a Dask cluster that flies units (a context manager: leaving it closes the
+    client and a local cluster it started)."""
+
+    def __init__(self, options: ClusterOptions, *, task: UnitTask | None = None, grace_s: float = 30.0, tag: str = "unit") -> None:
+        self.options = options
+        if task is None:
+            from lab.campaign.flight import fly_row
+
+            task = fly_row
+        self.task = task
+        self.grace_s = grace_s
+        self.tag = f"{tag}-{uuid.uuid4().hex[:8]}"
+        self.client: Any = None
+        self.cluster: Any = None
+        self._pending: dict[Any, Unit] = {}
+        self._started: dict[str, float] = {}
+        self._last_check = 0.0
+
+    # -- connection --------------------------------------------------------------------------------
+    def __enter__(self) -> Engine:
+        import dask
+        from distributed import Client, LocalCluster
+
+        o = self.options
+        if o.local:
+            n = o.workers or os.cpu_count() or 1
+            with dask.config.set({"distributed.scheduler.allowed-failures": 1, "distributed.worker.daemon": False,
+                                  "distributed.admin.system-monitor.gil.enabled": False}):  # fmt: skip
+                self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, silence_logs=logging.ERROR,
+                                            dashboard_address=":0" if _dashboard_available() else None)  # fmt: skip
+                self.client = Client(self.cluster)
+            return self
+        where = o.address if o.address is not None else f"scheduler file {o.scheduler_file}"
+        try:
+            if o.address is not None:
+                self.client = Client(o.address, timeout=o.connect_timeout_s)
+            else:
+                self.client = Client(scheduler_file=str(o.scheduler_file), timeout=o.connect_timeout_s)
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise CampaignError(f"cannot reach the Dask scheduler at {where}: {exc or type(exc).__name__}") from None
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for f in list(self._pending):
+            f.cancel()
+        self._pending.clear()
+        if self.client is not None:
+            try:
+                self.client.close(timeout=10)
+            except Exception:  # closing after Ctrl-C or a lost scheduler must not hide the first error
+                pass
+        if self.cluster is not None:
+            try:
+                self.cluster.close(timeout=10)
+            except Exception:
+                pass
+
+    @property
+    def n_workers(self) -> int:
+        return max(1, len(self.client.scheduler_info(n_workers=-1).get("workers", {})))
+
+    def wait_for_workers(self, n: int = 1, timeout_s: float = 60.0) -> None:
+        try:
+            self.client.wait_for_workers(n, timeout=timeout_s)
+        except TimeoutError:
+            raise CampaignError(f"the scheduler has no worker after {timeout_s:g} s (start `dask worker SCHEDULER` on a machine)") from None
+
+    @property
+    def dashboard(self) -> str | None:
+        if self.options.local and not _dashboard_available():
+            return None
+        try:
+            link = self.client.dashboard_link
+        except Exception:
+            return None
+        return link or None
+
+    @property
+    def where(self) -> str:
+        if self.options.local:
+            return f"local cluster, {self.n_workers} worker processes"
+        return f"Dask scheduler {self.client.scheduler.address}, {self.n_workers} workers"
+
+    # -- units ---------------------------------------------------------------------------------------
+    def submit(self, units: Sequence[Unit]) -> None:
+        """Queue ``units`` (unique task keys: the engine's tag and the unit index)."""
+        for u in units:
+            fut = self.client.submit(self.task, u, key=f"{self.tag}-{u.index}", pure=False)
+            self._pending[fut] = u
+
+    @property
+    def pending(self) -> int:
+        return len(self._pending)
+
+    def poll(self, timeout_s: float = 1.0) -> list[tuple[Unit, dict[str, Any]]]:
+        """The units finished within ``timeout_s`` (possibly none), with their rows."""
+        from distributed import wait
+
+        if not self._pending:
+            return []
+        try:
+            wait(list(self._pending), timeout=timeout_s, return_when="FIRST_COMPLETED")
+        except TimeoutError:  # nothing finished in time: look for overdue tasks
+            pass
+        done = [f for f in self._pending if f.done()]
+        out: list[tuple[Unit, dict[str, Any]]] = []
+        for fut in done:
+            unit = self._pending.pop(fut)
+            self._started.pop(fut.key, None)
+            out.append((unit, self._row_of(fut, unit)))
+        out += self._overdue()
+        return out
+
+    def _row_of(self, fut: Any, unit: Unit) -> dict[str, Any]:
+        from distributed import KilledWorker
+
+        if fut.status == "finished":
+            try:
+                return dict(fut.result())
+            except Exception as exc:
+                return _error_row(unit, "error", f"{type(exc).__name__}: {exc}")
+        if fut.status == "cancelled":
+            return _error_row(unit, "error", "the task was cancelled (its worker or the scheduler went away)")
+        problem: BaseException | None
+        try:
+            problem = fut.exception()
+        except Exception as e:
+            problem = e
+        if isinstance(problem, KilledWorker):
+            return _error_row(unit, "error", "its worker died while flying it (killed, out of memory or crashed), twice")
+        return _error_row(unit, "error", f"{type(problem).__name__}: {problem}")
+
+    def _overdue(self) -> list[tuple[Unit, dict[str, Any]]]:
+        """Cancel tasks running past their limit plus the grace; restart their workers."""
+        now = time.monotonic()
+        if now - self._last_check < 1.0 or not self._pending:
+            return []
+        self._last_check = now
+        try:
+            processing = self.client.processing()
+        except Exception:
+            return []
+        by_key = {f.key: f for f in self._pending}
+        running: dict[str, str] = {}
+        for worker, keys in processing.items():
+            for k in keys:
+                running[k] = worker
+                self._started.setdefault(k, now)
+        out: list[tuple[Unit, dict[str, Any]]] = []
+        restart: set[str] = set()
+        for k, t0 in list(self._started.items()):
+            fut = by_key.get(k)
+            if fut is None:
+                self._started.pop(k, None)
+                continue
+            unit = self._pending[fut]
+            if now - t0 > unit.timeout_s + self.grace_s and k in running:
+                self._pending.pop(fut)
+                self._started.pop(k, None)
+                fut.cancel()
+                restart.add(running[k])
+                out.append((unit, _error_row(unit, "timed out", f"no result {unit.timeout_s + self.grace_s:g} s after it started (a hang): cancelled, its worker restarted")))
+        if restart:
+            try:
+                self.client.restart_workers(list(restart), timeout=60)
+            except Exception as exc:  # a worker without a nanny cannot be restarted from here
+                logging.getLogger(__name__).warning("could not restart worker(s) %s: %s", ", ".join(sorted(restart)), exc)
+        return out
+
+    def run(self, units: Sequence[Unit], on_row: Callable[[Unit, dict[str, Any]], None]) -> None:
+        """Fly every unit; ``on_row`` gets each one's row as it finishes (in finishing order)."""
+        self.submit(units)
+        while self._pending:
+            for unit, row in self.poll(1.0):
+                on_row(unit, row)
