@@ -8,6 +8,11 @@ noise and gust draws). Every flight is scored with :func:`ground.logs.metrics.fl
 *true* state from 6 s on (after the take-off), so a sensor fault is scored by what the vehicle did,
 not by what its faulty sensors said.
 
+The flights are units of the campaign engine (:mod:`lab.campaign`): a local Dask cluster of
+``--jobs`` worker processes, or a running scheduler (``--cluster``), the flight and its scoring
+:func:`lab.campaign.flight.fly_unit`, the table's statistics :mod:`lab.campaign.summary`; a
+flight's status is ``ok``, ``crashed``, ``diverged``, ``timed out`` or ``error``.
+
 Outputs in ``--out`` (default ``out/compare``):
 
 - ``results.csv``: one row per flight (case, controller, seed, status, every metric);
@@ -30,21 +35,20 @@ import json
 import math
 import os
 import sys
-import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from fc.core import FlightCore, TickOutput
-from fc.flight import VehicleState
-from fc.params import config_for, options_for
-from lab.runner import simulate, wire_state
-from sim_bridge.build import plant_for
-from smcpilot.errors import ConfigError, DivergenceError
+from lab.campaign.engine import ClusterOptions, Engine
+from lab.campaign.flight import Trace
+from lab.campaign.flight import fly_unit as campaign_fly_unit
+from lab.campaign.run import Progress, retrace
+from lab.campaign.spec import Variant
+from lab.campaign.summary import ci95, summarize
+from lab.campaign.summary import markdown_table as campaign_table
+from lab.campaign.units import Unit as CampaignUnit
+from smcpilot.errors import ConfigError
 from smcpilot.faults import FaultSpec
 from smcpilot.plan import PlanStep
 from smcpilot.scenario import EnvironmentSpec, Scenario
@@ -59,16 +63,6 @@ TABLE_METRICS = (
     ("recover_s", "recover s"),
     ("motor_tv_per_s", "motor TV /s"),
 )
-
-
-@dataclass(frozen=True)
-class Variant:
-    """A controller as the study flies it: the FC's law plus parameter overrides."""
-
-    label: str
-    controller: str
-    params: tuple[tuple[str, float], ...] = ()
-    description: str = ""
 
 
 #: the controllers compared.
@@ -135,69 +129,30 @@ def study_cases(duration_s: float = 20.0, t_event_s: float = 10.0) -> tuple[Case
     )  # fmt: skip
 
 
-# -- one flight ---------------------------------------------------------------------------------------
-@dataclass
-class Trace:
-    """Samples of one flight (every ``every`` ticks) and its metrics."""
-
-    t_s: list[float] = field(default_factory=list)
-    pos_err_m: list[float] = field(default_factory=list)
-    tilt_deg: list[float] = field(default_factory=list)
-
-
-@dataclass(frozen=True)
-class Unit:
-    """One flight of the study."""
-
-    case: Case
-    variant: Variant
-    seed: int
-    record_every: int = 5
-
-    def scenario(self) -> Scenario:
-        return self.case.scenario.with_changes(controller=self.variant.controller, params=self.variant.params, seed=self.seed)
+# -- the flights: units of the campaign engine (lab.campaign) ------------------------------------------
+def study_unit(case: Case, variant: Variant, seed: int, index: int = 0) -> CampaignUnit:
+    """The campaign unit of one flight of the study: the case's scenario with the variant's law,
+    parameters and the noise seed ``seed``, the case's plant (model errors), scored from the case's
+    window on."""
+    sc = case.scenario.with_changes(controller=variant.controller, params=variant.params, seed=seed)
+    return CampaignUnit(index, case.name, variant.label, seed, sc, case.plant_vehicle, score_from_s=case.window_from_s)
 
 
-def fly_unit(unit: Unit) -> tuple[dict[str, Any], Trace]:
-    """Fly one unit in this process: (the result row, the sampled trace)."""
-    from ground.logs.metrics import flight_metrics
-    from lab.metrics import MetricsRecorder
+#: the study's unit (kept name): ``Unit(case, variant, seed)``.
+Unit = study_unit
 
-    sc = unit.scenario()
-    config = config_for(sc)
-    core = FlightCore(config, sc.vehicle, plan=sc.plan, estimator=options_for(sc).estimator)
-    plant = plant_for(sc if unit.case.plant_vehicle is None else sc.with_changes(vehicle=unit.case.plant_vehicle))
-    rec = MetricsRecorder(core, every=unit.record_every)
-    truth = plant.truth
 
-    def on_tick(k: int, t_us: int, wire: tuple[float, ...], st: VehicleState, out: TickOutput, motors: tuple[float, ...]) -> None:
-        # scored on the true state (what the vehicle did), not on what the faulty sensors said
-        if k % unit.record_every == 0:
-            rec.on_tick(k, t_us, wire, wire_state(truth()), out, motors)
+def fly_unit(unit: CampaignUnit) -> tuple[dict[str, Any], Trace]:
+    """Fly one unit in this process: (its campaign result row, its trace)."""
+    row, trace = campaign_fly_unit(unit, trace=True)
+    assert trace is not None or row["status"] == "error", row
+    return row, trace if trace is not None else Trace()
 
-    status, message = "ok", ""
-    diverged_t_s: float | None = None
-    wall0 = time.perf_counter()
-    try:
-        simulate(core, plant, sc.n_ticks, rate_hz=sc.rate_hz, physics_hz=sc.physics_hz, on_tick=on_tick)
-    except DivergenceError as exc:
-        status, message = "diverged", str(exc)
-        diverged_t_s = core.t_us * 1e-6
-    wall = time.perf_counter() - wall0
-    a = rec.arrays()
-    keep = a["t_s"] >= unit.case.window_from_s  # score the event, not the take-off before it
-    metrics = flight_metrics(
-        a["t_s"][keep], a["position_m"][keep], a["target_m"][keep], a["euler_rad"][keep], a["euler_ref_rad"][keep],
-        a["motors"][keep], a["armed"][keep], a["landing"][keep], fault_starts_s=unit.case.fault_starts_s,
-        velocity_m_s=a["velocity_m_s"][keep], target_yaw_rad=a["target_yaw_rad"][keep], sigma=a["sigma"][keep],
-        land_speed_mps=float(config.land_speed_mps), diverged_t_s=diverged_t_s,
-    )  # fmt: skip
-    row: dict[str, Any] = {"case": unit.case.name, "controller": unit.variant.label, "seed": unit.seed, "status": status,
-                           "message": message, "wall_s": round(wall, 3), **metrics}  # fmt: skip
-    err = np.linalg.norm(a["position_m"] - a["target_m"], axis=1)
-    eul = a["euler_rad"]
-    tilt = np.degrees(np.arccos(np.clip(np.cos(eul[:, 0]) * np.cos(eul[:, 1]), -1.0, 1.0)))
-    return row, Trace(a["t_s"].tolist(), err.tolist(), tilt.tolist())
+
+def _study_row(row: dict[str, Any]) -> dict[str, Any]:
+    """A campaign row as the study's results.csv writes it: case, controller, seed, status, ..."""
+    skip = {"unit", "group", "controller", "seed_index", "seed"}
+    return {"case": row["group"], "controller": row["controller"], "seed": row["seed_index"], **{k: v for k, v in row.items() if k not in skip}}
 
 
 # -- the study ----------------------------------------------------------------------------------------
@@ -219,89 +174,49 @@ def run_study(
     seeds: int,
     *,
     jobs: int = 1,
-    progress: Callable[[int, int, int, float], None] | None = None,
+    cluster: ClusterOptions | None = None,
+    quiet: bool = True,
 ) -> StudyResult:
-    """Fly every case × variant × seed (seeds 0 .. ``seeds``-1); the result does not depend on ``jobs``."""
-    units = [Unit(c, v, s) for c in cases for v in variants for s in range(seeds)]
+    """Fly every case × variant × seed (seeds 0 .. ``seeds``-1) on the campaign engine (a local
+    cluster of ``jobs`` workers, or ``cluster``); the result does not depend on the workers."""
+    units = [study_unit(c, v, s, i) for i, (c, v, s) in enumerate((c, v, s) for c in cases for v in variants for s in range(seeds))]
     rows: list[dict[str, Any] | None] = [None] * len(units)
-    worst: dict[tuple[str, str], tuple[dict[str, Any], Trace]] = {}
-    t0 = time.perf_counter()
-    done = failed = 0
+    progress = Progress(len(units), label="compare", quiet=quiet)
 
-    def take(i: int, row: dict[str, Any], trace: Trace) -> None:
-        nonlocal done, failed
-        rows[i] = row
-        done += 1
-        failed += bool(row.get("crashed")) or row["status"] != "ok"
-        key = (row["case"], row["controller"])
-        if key not in worst or _badness(row) > _badness(worst[key][0]):
-            worst[key] = (row, trace)
-        if progress is not None:
-            progress(done, len(units), failed, time.perf_counter() - t0)
+    def take(unit: CampaignUnit, row: dict[str, Any]) -> None:
+        rows[unit.index] = _study_row(row)
+        progress.update(row)
 
-    if jobs <= 1:
-        for i, u in enumerate(units):
-            take(i, *fly_unit(u))
-    else:
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
-            for i, (row, trace) in enumerate(pool.map(fly_unit, units, chunksize=1)):
-                take(i, row, trace)
-    return StudyResult([r for r in rows if r is not None], worst)
+    try:
+        with Engine(cluster or ClusterOptions(workers=jobs), tag="compare") as engine:
+            engine.run(units, take)
+            done = [r for r in rows if r is not None]
+            worst_of: dict[tuple[str, str], int] = {}
+            for i, r in enumerate(rows):
+                if r is None:
+                    continue
+                key = (r["case"], r["controller"])
+                if key not in worst_of or _badness(r) > _badness(rows[worst_of[key]] or {}):
+                    worst_of[key] = i
+            picked = list(worst_of.items())
+            traces = retrace(engine, [units[i] for _, i in picked])
+    finally:
+        progress.close()
+    worst = {key: (rows[i] or {}, tr if tr is not None else Trace()) for (key, i), tr in zip(picked, traces)}
+    return StudyResult(done, worst)
 
 
-def _ci95(values: Sequence[Any]) -> tuple[float, float, float] | None:
-    """(mean, low, high) of a Student-t 95 % interval; None without finite values."""
-    x = np.asarray([v for v in values if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)], dtype=float)
-    if x.size == 0:
-        return None
-    mean = float(x.mean())
-    if x.size < 2:
-        return mean, mean, mean
-    from scipy import stats
-
-    half = float(stats.t.ppf(0.975, x.size - 1) * x.std(ddof=1) / math.sqrt(x.size))
-    return mean, mean - half, mean + half
+_ci95 = ci95
 
 
 def summarize_study(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per case × controller: crash rate and the mean/95 % CI of every table metric."""
-    groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
-    for r in rows:
-        groups.setdefault((r["case"], r["controller"]), []).append(r)
-    out = []
-    for (case, ctrl), rs in groups.items():
-        entry: dict[str, Any] = {"case": case, "controller": ctrl, "flights": len(rs),
-                                 "crash_rate": sum(bool(r.get("crashed")) for r in rs) / len(rs)}  # fmt: skip
-        for key, _label in TABLE_METRICS:
-            ci = _ci95([r.get(key) for r in rs])
-            entry[key] = None if ci is None else {"mean": ci[0], "ci95": [ci[1], ci[2]]}
-        out.append(entry)
-    return out
-
-
-def _cell(entry: dict[str, Any], key: str) -> str:
-    v = entry.get(key)
-    if v is None:
-        return "–"
-    mean, (lo, hi) = v["mean"], v["ci95"]
-    digits = 1 if key == "max_tilt_deg" else 2 if abs(mean) >= 1 else 3
-    return f"{mean:.{digits}f} ± {max(hi - mean, mean - lo):.{digits}f}"
+    return summarize(rows, group_key="case", metrics=TABLE_METRICS)
 
 
 def markdown_table(summary: Sequence[dict[str, Any]], variants: Sequence[Variant]) -> str:
     """One row per case × controller: crashes, then the table metrics (mean ± 95 % CI half-width)."""
-    head = "| case | controller | crashed | " + " | ".join(label for _, label in TABLE_METRICS) + " |"
-    lines = [head, "|" + "---|" * (3 + len(TABLE_METRICS))]
-    order = {v.label: i for i, v in enumerate(variants)}
-    cases: list[str] = []
-    for e in summary:
-        if e["case"] not in cases:
-            cases.append(e["case"])
-    for case in cases:
-        for e in sorted((e for e in summary if e["case"] == case), key=lambda e: order.get(e["controller"], 99)):
-            crashed = f"{round(e['crash_rate'] * e['flights'])}/{e['flights']}"
-            lines.append(f"| {case} | {e['controller']} | {crashed} | " + " | ".join(_cell(e, k) for k, _ in TABLE_METRICS) + " |")
-    return "\n".join(lines) + "\n"
+    return campaign_table(summary, group_key="case", failures="crashed", metrics=TABLE_METRICS, order=[v.label for v in variants])
 
 
 # -- files and figures --------------------------------------------------------------------------------
@@ -400,7 +315,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="comma-separated controllers, or all (default): " + ", ".join(f"{v.label} ({v.description})" for v in VARIANTS))
     p.add_argument("--seeds", type=int, default=5, help="seeds per case and controller (default 5): noise and gust draws")
     p.add_argument("--duration", type=float, default=20.0, metavar="S", help="simulated seconds per flight (default 20; the event at 10 s)")
-    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="flights in parallel, one process each (default: the cores)")
+    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
+                   help="flights in parallel: worker processes of the local Dask cluster (default: the cores)")
+    p.add_argument("--cluster", metavar="tcp://HOST:PORT", help="fly on this running Dask scheduler instead (docs/campaigns.md)")
     p.add_argument("--out", type=Path, default=Path("out/compare"), help="output directory (default out/compare)")
     p.add_argument("--no-plots", action="store_true", help="skip the figures")
     p.add_argument("--quiet", action="store_true", help="no progress line")
@@ -428,24 +345,11 @@ def main(args: argparse.Namespace) -> int:
     cases = _pick(args.cases, study_cases(args.duration), lambda c: c.name, "case")
     variants = _pick(args.controllers, VARIANTS, lambda v: v.label, "controller")
     total = len(cases) * len(variants) * args.seeds
-    tty = sys.stderr.isatty()
-    last = [0.0]
-
-    def progress(done: int, n: int, failed: int, elapsed: float) -> None:
-        if args.quiet:
-            return
-        if not tty and done != n and elapsed - last[0] < 5.0:
-            return
-        last[0] = elapsed
-        rate = done / elapsed if elapsed > 0 else 0.0
-        eta = (n - done) / rate if rate > 0 else math.inf
-        line = f"compare: {done}/{n} flights, {failed} crashed or failed, {rate:.2f} flights/s, ETA {eta:4.0f} s"
-        print(("\r" + line) if tty else line, end="" if tty and done != n else "\n", file=sys.stderr, flush=True)
-
+    cluster = ClusterOptions(workers=None if args.cluster else args.jobs, address=args.cluster)
     if not args.quiet:
-        print(f"compare: {total} flights ({len(cases)} cases × {len(variants)} controllers × {args.seeds} seeds), {args.jobs} at a time",
-              file=sys.stderr)  # fmt: skip
-    result = run_study(cases, variants, args.seeds, jobs=args.jobs, progress=progress)
+        print(f"compare: {total} flights ({len(cases)} cases × {len(variants)} controllers × {args.seeds} seeds),"
+              f" {'on ' + args.cluster if args.cluster else f'{args.jobs} at a time'}", file=sys.stderr)  # fmt: skip
+    result = run_study(cases, variants, args.seeds, cluster=cluster, quiet=args.quiet)
     paths = write_outputs(result, cases, variants, args.out, figures=not args.no_plots)
     print(paths["table"].read_text(encoding="utf-8"), end="")
     print(f"results: {paths['results']}  summary: {paths['summary']}  table: {paths['table']}"

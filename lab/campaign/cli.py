@@ -17,12 +17,15 @@ def add_cluster_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--cluster", metavar="tcp://HOST:PORT", help="use the running Dask scheduler at this address (`dask scheduler`)")
     g.add_argument("--scheduler-file", type=Path, metavar="FILE", help="use the Dask scheduler described by this file"
                    " (`dask scheduler --scheduler-file FILE`, dask-jobqueue)")  # fmt: skip
+    g.add_argument("--connect-timeout", type=float, default=10.0, metavar="S", help="give up reaching the scheduler after S seconds (default 10)")
 
 
 def cluster_options(args: argparse.Namespace) -> ClusterOptions:
     if args.workers is not None and (args.cluster or args.scheduler_file):
         raise CampaignError("--workers sizes a local cluster: not with --cluster or --scheduler-file (start the workers there)")
-    return ClusterOptions(workers=args.workers, address=args.cluster, scheduler_file=args.scheduler_file)
+    if not args.connect_timeout > 0:
+        raise CampaignError(f"--connect-timeout must be > 0 s, got {args.connect_timeout}")
+    return ClusterOptions(workers=args.workers, address=args.cluster, scheduler_file=args.scheduler_file, connect_timeout_s=args.connect_timeout)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -11,8 +11,9 @@ Failure handling, so a campaign never sticks:
 
 - a flight over its ``timeout_s`` stops itself (the in-process watchdog, or the SITL processes
   killed) and comes back "timed out";
-- a task that still has not come back ``grace`` seconds after its limit (a hang outside the
-  flight loop) is cancelled, recorded "timed out", and its worker restarted (through its nanny);
+- a task that still has not come back twice its limit plus ``grace`` seconds after a worker took
+  it (a hang outside the flight loop; the worker may hold one task queued behind the one it
+  flies) is cancelled, recorded "timed out", and its worker restarted (through its nanny);
 - a worker that dies (killed, out of memory, a crash in native code) makes its task "error";
   Dask retries it on another worker once before giving up (``allowed-failures`` of a local
   cluster; an external scheduler keeps its own setting).
@@ -75,6 +76,11 @@ def _error_row(unit: Unit, status: str, message: str) -> dict[str, Any]:
             "status": status, "message": message, "wall_s": 0.0, "sim_s": 0.0, **dict(unit.values)}  # fmt: skip
 
 
+def _executing_keys(dask_worker: Any) -> list[str]:
+    """(Runs on a worker.) The keys of the tasks it is executing."""
+    return [str(ts.key) for ts in dask_worker.state.executing]
+
+
 class Engine:
     """A connection to a Dask cluster that flies units (a context manager: leaving it closes the
     client and a local cluster it started)."""
@@ -96,16 +102,22 @@ class Engine:
 
     # -- connection --------------------------------------------------------------------------------
     def __enter__(self) -> Engine:
-        import dask
-        from distributed import Client, LocalCluster
+        try:
+            import dask
+            from distributed import Client, LocalCluster
+        except ImportError as exc:
+            raise CampaignError(f"campaigns run on Dask, which is not installed ({exc.name}): pip install 'smcpilot[campaign]'") from None
 
         o = self.options
         if o.local:
             n = o.workers or os.cpu_count() or 1
-            with dask.config.set({"distributed.scheduler.allowed-failures": 1, "distributed.worker.daemon": False,
+            # saturation 1.0: a worker holds only the unit it flies (the rest wait on the scheduler), so a worker
+            # that dies or hangs takes no queued unit with it
+            with dask.config.set({"distributed.scheduler.allowed-failures": 1, "distributed.scheduler.worker-saturation": 1.0,
+                                  "distributed.worker.daemon": False,
                                   "distributed.admin.system-monitor.gil.enabled": False}):  # fmt: skip
                 self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, silence_logs=logging.ERROR,
-                                            dashboard_address=":0" if _dashboard_available() else None)  # fmt: skip
+                                            dashboard_address=":0")  # fmt: skip
                 self.client = Client(self.cluster)
             return self
         where = o.address if o.address is not None else f"scheduler file {o.scheduler_file}"
@@ -224,26 +236,41 @@ class Engine:
             for k in keys:
                 running[k] = worker
                 self._started.setdefault(k, now)
+        for k in [k for k in self._started if k not in running]:  # back in the queue (a worker restarted): not started
+            del self._started[k]
+        over = [k for k, t0 in self._started.items() if k in by_key and k in running
+                and now - t0 > 2.0 * self._pending[by_key[k]].timeout_s + self.grace_s]  # fmt: skip
         out: list[tuple[Unit, dict[str, Any]]] = []
         restart: set[str] = set()
-        for k, t0 in list(self._started.items()):
-            fut = by_key.get(k)
-            if fut is None:
-                self._started.pop(k, None)
-                continue
-            unit = self._pending[fut]
-            if now - t0 > unit.timeout_s + self.grace_s and k in running:
-                self._pending.pop(fut)
+        if over:
+            executing = self._executing(sorted({running[k] for k in over}))
+            for k in over:
+                if k not in executing:  # queued on its worker behind another task: not started yet
+                    self._started[k] = now
+                    continue
+                fut = by_key[k]
+                unit = self._pending.pop(fut)
                 self._started.pop(k, None)
                 fut.cancel()
                 restart.add(running[k])
-                out.append((unit, _error_row(unit, "timed out", f"no result {unit.timeout_s + self.grace_s:g} s after it started (a hang): cancelled, its worker restarted")))
+                out.append((unit, _error_row(unit, "timed out", f"no result {2.0 * unit.timeout_s + self.grace_s:g} s after its worker took it"
+                                             " (a hang): cancelled, the worker restarted")))  # fmt: skip
         if restart:
+            for k in [k for k, w in running.items() if w in restart]:
+                self._started.pop(k, None)
             try:
                 self.client.restart_workers(list(restart), timeout=60)
             except Exception as exc:  # a worker without a nanny cannot be restarted from here
                 logging.getLogger(__name__).warning("could not restart worker(s) %s: %s", ", ".join(sorted(restart)), exc)
         return out
+
+    def _executing(self, workers: Sequence[str]) -> set[str]:
+        """The task keys these workers are executing now (their event loop answers while a task hangs)."""
+        try:
+            found = self.client.run(_executing_keys, workers=list(workers), on_error="return")
+        except Exception:
+            return set()
+        return {k for keys in found.values() if isinstance(keys, list) for k in keys}
 
     def run(self, units: Sequence[Unit], on_row: Callable[[Unit, dict[str, Any]], None]) -> None:
         """Fly every unit; ``on_row`` gets each one's row as it finishes (in finishing order)."""

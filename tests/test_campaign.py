@@ -1,0 +1,275 @@
+"""``smcpilot campaign``: a small campaign on a local Dask cluster, the same results with 1 and 2
+workers, resume after a real Ctrl-C, a hang recorded as timed out, a worker that dies, a campaign on
+a scheduler and worker started here, replay, and the one-line errors."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lab.campaign.engine import ClusterOptions, Engine
+from lab.campaign.results import read_rows
+from lab.campaign.spec import load_campaign
+from lab.campaign.units import expand, scenario_seed
+from lab.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+
+SMALL = """
+name = "small"
+seed = 3
+seeds = 3
+duration_s = 1.5
+score_from_s = 0.5
+controllers = ["adaptive_pid_smc", "cascade_pid"]
+
+[scenario]
+[scenario.environment]
+noise = true
+
+[[scenario.step]]
+t_s = 0.0
+action = "takeoff"
+alt_m = 1.0
+
+[[vary]]
+field = "plant.mass_kg"
+dist = "uniform"
+low = 1.0
+high = 1.2
+relative = true
+
+[[vary]]
+field = "environment.wind_force_ned_n[0]"
+dist = "normal"
+mean = 0.0
+std = 0.3
+
+[[vary]]
+field = "environment.gust_std_n"
+grid = [0.0, 0.4]
+"""
+
+
+def _write(tmp_path: Path, text: str, name: str = "c.toml") -> Path:
+    p = tmp_path / name
+    p.write_text(text, encoding="utf-8")
+    return p
+
+
+def _rows(out: Path) -> list[dict[str, str]]:
+    with (out / "results.csv").open(encoding="utf-8", newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _strip(rows: list[dict[str, str]]) -> list[dict[str, str]]:
+    return sorted(({k: v for k, v in r.items() if k != "wall_s"} for r in rows), key=lambda r: int(r["unit"]))
+
+
+def test_small_campaign_on_a_local_cluster_is_the_same_with_one_and_two_workers(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    camp = _write(tmp_path, SMALL)
+    assert main(["campaign", "run", str(camp), "--out", str(tmp_path / "one"), "--workers", "1", "--quiet", "--no-plots"]) == 0
+    assert main(["campaign", "run", str(camp), "--out", str(tmp_path / "two"), "--workers", "2", "--quiet", "--worst", "3"]) == 0
+    one, two = _rows(tmp_path / "one"), _rows(tmp_path / "two")
+    assert len(one) == len(two) == 12  # 2 groups × 2 controllers × 3 seeds
+    assert _strip(one) == _strip(two)  # every sampled value, seed, metric and status, whatever the workers
+    by_unit = {int(r["unit"]): r for r in one}
+    assert sorted(by_unit) == list(range(12))
+    for r in one:
+        assert r["status"] == "ok" and r["crashed"] == "False" and float(r["sim_s"]) == pytest.approx(1.5)
+        assert 1.0 * 0.5 <= float(r["plant.mass_kg"]) and float(r["environment.gust_std_n"]) in (0.0, 0.4)
+    # seed index s: the same draws for every controller and group (paired), different across s
+    for s in range(3):
+        same = [r for r in one if r["seed_index"] == str(s)]
+        assert len({(r["seed"], r["plant.mass_kg"], r["environment.wind_force_ned_n[0]"]) for r in same}) == 1
+        assert same[0]["seed"] == str(scenario_seed(3, s))
+    assert len({r["seed"] for r in one}) == 3 and len({r["plant.mass_kg"] for r in one}) == 3
+    # the controllers differ in flight, not only in name
+    assert by_unit[0]["iae_pos_m_s"] != by_unit[3]["iae_pos_m_s"]
+    summary = json.loads((tmp_path / "two" / "summary.json").read_text(encoding="utf-8"))
+    groups = {(g["group"], g["controller"]): g for g in summary["groups"]}
+    assert set(groups) == {(f"environment.gust_std_n={g}", c) for g in ("0", "0.4") for c in ("adaptive_pid_smc", "cascade_pid")}
+    assert all(g["flights"] == 3 and g["failure_rate"] == 0.0 for g in groups.values())
+    worst = (tmp_path / "two" / "worst.md").read_text(encoding="utf-8")
+    assert worst.count("smcpilot campaign replay") == 3
+    figs = sorted(p.name for p in (tmp_path / "two" / "figures").iterdir())
+    assert "worst_runs.png" in figs and "ecdf_max_pos_err_m.png" in figs and "box_iae_pos_m_s.png" in figs
+    out = capsys.readouterr().out
+    assert "| environment.gust_std_n=0.4 | cascade_pid | 0/3 |" in out and f"smcpilot campaign replay {tmp_path / 'two'} " in out
+
+    # replay: the unit flown again in this process gives its row exactly, and writes its tlog
+    unit = json.loads(json.dumps(int(one[7]["unit"])))
+    assert main(["campaign", "replay", str(tmp_path / "one"), str(unit), "--no-plots"]) == 0
+    out = capsys.readouterr().out
+    assert "gives the unit's results.csv row exactly" in out
+    tlog = tmp_path / "one" / "replay" / f"unit-{unit}" / f"unit-{unit}.tlog"
+    assert tlog.stat().st_size > 10_000
+    from ground.logs import load_log
+
+    log = load_log(tlog)
+    assert log.has_smc and float(log.alt_m[-1]) > 0.3  # the take-off was flown and logged
+
+
+def test_sampled_values_follow_their_distributions(tmp_path: Path) -> None:
+    camp = _write(tmp_path, SMALL.replace("seeds = 3", "seeds = 400").replace("grid = [0.0, 0.4]", "grid = [0.0]")
+                  .replace('controllers = ["adaptive_pid_smc", "cascade_pid"]', 'controllers = ["cascade_pid"]'))  # fmt: skip
+    spec = load_campaign(camp)
+    units = expand(spec)
+    mass = np.array([dict(u.values)["plant.mass_kg"] for u in units]) / spec.base.vehicle.mass_kg
+    wind = np.array([u.scenario.environment.wind_force_ned_n[0] for u in units])
+    assert 1.0 <= mass.min() and mass.max() <= 1.2 and abs(mass.mean() - 1.1) < 0.01
+    assert abs(wind.mean()) < 0.05 and abs(wind.std() - 0.3) < 0.03
+    assert all(u.scenario.vehicle == spec.base.vehicle for u in units)  # plant.*: the FC keeps its model
+    assert all(u.plant_vehicle is not None and u.plant_vehicle.mass_kg == pytest.approx(m * spec.base.vehicle.mass_kg) for u, m in zip(units, mass))
+
+
+def test_resume_after_ctrl_c_flies_only_the_missing_units(tmp_path: Path) -> None:
+    camp = _write(tmp_path, SMALL.replace("seeds = 3", "seeds = 8").replace("duration_s = 1.5", "duration_s = 3.0"))
+    out = tmp_path / "out"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.Popen([sys.executable, "-m", "lab.cli", "campaign", "run", str(camp), "--out", str(out), "--workers", "1", "--quiet",
+                             "--no-plots"], cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)  # fmt: skip
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and len(read_rows(out / "results.csv")) < 3:
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.05)
+        os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C: the whole foreground group, workers too
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 130, err.decode()
+    before = _rows(out)
+    assert 3 <= len(before) < 32, "the interrupt came too late to test anything"
+    assert main(["campaign", "run", str(camp), "--out", str(out), "--workers", "1", "--quiet", "--no-plots"]) == 2  # no silent overwrite
+    assert main(["campaign", "run", str(camp), "--out", str(out), "--workers", "2", "--resume", "--quiet", "--no-plots"]) == 0
+    after = _rows(out)
+    assert after[: len(before)] == before  # nothing finished was lost or flown twice
+    assert sorted(int(r["unit"]) for r in after) == list(range(32))
+    # the resumed half equals a run in one go
+    assert main(["campaign", "run", str(camp), "--out", str(tmp_path / "whole"), "--workers", "2", "--quiet", "--no-plots"]) == 0
+    assert _strip(after) == _strip(_rows(tmp_path / "whole"))
+
+
+def test_a_flight_over_its_time_limit_is_recorded_as_timed_out(tmp_path: Path) -> None:
+    text = "timeout_s = 3.0\n" + SMALL.replace("seeds = 3", "seeds = 1").replace("grid = [0.0, 0.4]", "grid = [0.0]")
+    camp = _write(tmp_path, text + '\n[[vary]]\nfield = "duration_s"\ngrid = [1.0, 5000.0]\n')
+    t0 = time.monotonic()
+    assert main(["campaign", "run", str(camp), "--out", str(tmp_path / "out"), "--workers", "2", "--quiet", "--no-plots"]) == 0
+    assert time.monotonic() - t0 < 60
+    rows = {(r["duration_s"], r["controller"]): r for r in _rows(tmp_path / "out")}
+    assert len(rows) == 4
+    for ctrl in ("adaptive_pid_smc", "cascade_pid"):
+        assert rows[("1.0", ctrl)]["status"] == "ok"
+        hung = rows[("5000.0", ctrl)]
+        assert hung["status"] == "timed out" and "3 s limit" in hung["message"] and 0 < float(hung["sim_s"]) < 5000
+
+
+def _hang(unit):  # a task that never returns (not even cooperatively): the engine's backstop
+    if unit.index == 0:
+        time.sleep(3600)
+    return {"unit": unit.index, "status": "ok", "message": ""}
+
+
+def _die(unit):  # a task that kills its worker process
+    if unit.index == 0:
+        os._exit(3)
+    return {"unit": unit.index, "status": "ok", "message": ""}
+
+
+@pytest.mark.parametrize(("task", "status", "words"), [(_hang, "timed out", "a hang"), (_die, "error", "worker died")], ids=["hang", "killed-worker"])
+def test_a_hung_task_or_a_dead_worker_fails_its_unit_not_the_campaign(tmp_path: Path, task, status: str, words: str) -> None:
+    import cloudpickle
+
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])  # the workers need not import this test module
+    from dataclasses import replace
+
+    spec = load_campaign(_write(tmp_path, SMALL.replace("seeds = 3", "seeds = 2").replace("grid = [0.0, 0.4]", "grid = [0.0]")))
+    units = [replace(u, timeout_s=1.0) for u in expand(spec)[:3]]
+    rows: dict[int, dict] = {}
+    t0 = time.monotonic()
+    with Engine(ClusterOptions(workers=1), task=task, grace_s=1.0) as engine:
+        engine.run(units, lambda u, r: rows.__setitem__(u.index, r))
+    assert time.monotonic() - t0 < 90
+    assert rows[0]["status"] == status and words in rows[0]["message"]
+    assert rows[1]["status"] == rows[2]["status"] == "ok"  # the others flew on the restarted worker
+
+
+@pytest.fixture
+def dask_cluster(tmp_path: Path):
+    """A Dask scheduler and one worker on 127.0.0.1, as separate processes (own process groups)."""
+    sched_file = tmp_path / "scheduler.json"
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    common = {"cwd": tmp_path, "env": env, "stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL, "start_new_session": True}
+    procs = [subprocess.Popen([sys.executable, "-m", "dask", "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                               "--scheduler-file", str(sched_file)], **common)]  # type: ignore[call-overload]  # fmt: skip
+    try:
+        deadline = time.monotonic() + 60
+        while not sched_file.exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        address = json.loads(sched_file.read_text(encoding="utf-8"))["address"]
+        procs.append(subprocess.Popen([sys.executable, "-m", "dask", "worker", address, "--nthreads", "1", "--nworkers", "1", "--no-dashboard",
+                                       "--host", "127.0.0.1"], **common))  # type: ignore[call-overload]  # fmt: skip
+        yield address, sched_file
+    finally:
+        for p in reversed(procs):
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGTERM)
+        for p in reversed(procs):
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait()
+
+
+def test_the_same_campaign_on_a_running_scheduler(tmp_path: Path, dask_cluster, capsys: pytest.CaptureFixture[str]) -> None:
+    address, sched_file = dask_cluster
+    assert address.startswith("tcp://127.0.0.1:")
+    camp = _write(tmp_path, SMALL.replace("seeds = 3", "seeds = 2"))
+    assert main(["campaign", "run", str(camp), "--out", str(tmp_path / "remote"), "--cluster", address, "--no-plots"]) == 0
+    assert f"Dask scheduler {address}, 1 workers" in capsys.readouterr().err
+    assert main(["campaign", "run", str(camp), "--out", str(tmp_path / "local"), "--workers", "1", "--quiet", "--no-plots"]) == 0
+    remote = _rows(tmp_path / "remote")
+    assert len(remote) == 8 and _strip(remote) == _strip(_rows(tmp_path / "local"))
+
+
+@pytest.mark.parametrize(
+    ("text", "argv", "words"),
+    [
+        (SMALL.replace('field = "plant.mass_kg"', 'field = "plant.mas_kg"'), [], ["unknown field 'plant.mas_kg'", "did you mean 'mass_kg'"]),
+        (SMALL.replace('field = "plant.mass_kg"', 'field = "vehicel.mass_kg"'), [], ["unknown field 'vehicel.mass_kg'", "did you mean 'vehicle'"]),
+        (SMALL.replace("dist = \"uniform\"\nlow = 1.0\nhigh = 1.2", "dist = \"uniform\"\nlow = 1.2\nhigh = 1.2"), [], ["empty range", "low (1.2) must be below high (1.2)"]),
+        (SMALL.replace("std = 0.3", "std = -0.3"), [], ["normal needs std > 0"]),
+        (SMALL.replace('dist = "normal"', 'dist = "gaussian"'), [], ["dist must be one of"]),
+        (SMALL.replace("grid = [0.0, 0.4]", "grid = []"), [], ["grid must be a non-empty list"]),
+        (SMALL.replace("grid = [0.0, 0.4]", "grid = [-1.0]"), [], ["unit 0", "gust_std_n must be >= 0"]),
+        (SMALL + '\n[[vary]]\nfield = "fc.params.SMC_R_KPP"\ngrid = [1.0]\n', [], ["unknown FC parameter 'SMC_R_KPP'", "did you mean 'SMC_R_KP'"]),
+        (SMALL + '\n[[vary]]\nfield = "fault[1].start_s"\ngrid = [1.0]\n', [], ["has 0 fault table(s)"]),
+        (SMALL, ["--cluster", "tcp://127.0.0.1:9"], ["cannot reach the Dask scheduler at tcp://127.0.0.1:9"]),
+        (SMALL, ["--sitl"], ["plant.* fields", "in-process only"]),
+    ],
+    ids=["field-typo", "section-typo", "empty-range", "normal-std", "unknown-dist", "empty-grid", "refused-value", "param-typo",
+         "no-such-fault", "unreachable-scheduler", "plant-with-sitl"],
+)  # fmt: skip
+def test_bad_input_is_one_line_exit_2_and_nothing_started(tmp_path: Path, capsys: pytest.CaptureFixture[str], text: str, argv: list[str],
+                                                        words: list[str]) -> None:  # fmt: skip
+    camp = _write(tmp_path, text)
+    out = tmp_path / "out"
+    assert main(["campaign", "run", str(camp), "--out", str(out), "--quiet", "--connect-timeout", "1", *argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("smcpilot campaign: error:"), err
+    for w in words:
+        assert w in err
+    assert not out.exists()  # nothing started, nothing written
