@@ -234,15 +234,17 @@ def run_tune(spec: TuneSpec, out: Path, cluster: Any, *, sitl: bool = False, res
     say = echo or (lambda s: None)
     probe = expand(spec.campaign, sitl=sitl)  # every check on the scenario set before anything starts
     per_trial = len(probe)
-    study = _open_study(spec, out, resume)
+    if (out / "study.journal").exists() and not resume:
+        raise CampaignError(f"{out} already holds a study: add --resume to continue it, or use another --out")
     dists = _distributions(spec)
-    finished = [t for t in study.trials if t.state.is_finished()]
     gain_names = [g.name for g in spec.gains]
     cols = columns(["trial", *gain_names, *(c for c, _ in probe[0].values)])
     engine = Engine(cluster, tag=f"{spec.name}-tune")
-    with engine:
+    with engine:  # an unreachable scheduler fails here, before the study is created
         if not cluster.local:
             engine.wait_for_workers(1)
+        study = _open_study(spec, out, resume)
+        finished = [t for t in study.trials if t.state.is_finished()]
         parallel = spec.parallel or max(1, math.ceil(engine.n_workers / per_trial))
         say(f"tune {spec.name}: {spec.trials} trials of {per_trial} flights ({spec.campaign.n_groups} groups × {len(spec.campaign.variants)}"
             f" controllers × {spec.campaign.seeds} seeds), {parallel} at a time, on the {engine.where}"
