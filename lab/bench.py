@@ -188,7 +188,13 @@ def _bench_codec() -> None:
               f"   decode {dec_slow:5.2f} → {dec_fast:4.2f} ({dec_slow / dec_fast:.1f}×)")  # fmt: skip
 
 
-_EXTRA_TARGETS: list[Callable[[argparse._SubParsersAction], None]] = [_add_sitl]
+def _add_campaign(sub: argparse._SubParsersAction) -> None:
+    from lab.campaign import bench as campaign_bench
+
+    campaign_bench.add_arguments(sub)
+
+
+_EXTRA_TARGETS: list[Callable[[argparse._SubParsersAction], None]] = [_add_sitl, _add_campaign]
 
 
 def main(args: argparse.Namespace) -> int:

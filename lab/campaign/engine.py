@@ -99,12 +99,13 @@ class Engine:
         self._pending: dict[Any, Unit] = {}
         self._started: dict[str, float] = {}
         self._last_check = 0.0
+        self._ac: Any = None
 
     # -- connection --------------------------------------------------------------------------------
     def __enter__(self) -> Engine:
         try:
             import dask
-            from distributed import Client, LocalCluster
+            from distributed import Client, LocalCluster, as_completed
         except ImportError as exc:
             raise CampaignError(f"campaigns run on Dask, which is not installed ({exc.name}): pip install 'smcpilot[campaign]'") from None
 
@@ -119,6 +120,7 @@ class Engine:
                 self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, silence_logs=logging.ERROR,
                                             dashboard_address=":0")  # fmt: skip
                 self.client = Client(self.cluster)
+            self._ac = as_completed()
             return self
         where = o.address if o.address is not None else f"scheduler file {o.scheduler_file}"
         try:
@@ -128,6 +130,7 @@ class Engine:
                 self.client = Client(scheduler_file=str(o.scheduler_file), timeout=o.connect_timeout_s)
         except (OSError, TimeoutError, ValueError) as exc:
             raise CampaignError(f"cannot reach the Dask scheduler at {where}: {exc or type(exc).__name__}") from None
+        self._ac = as_completed()
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -177,22 +180,24 @@ class Engine:
         for u in units:
             fut = self.client.submit(self.task, u, key=f"{self.tag}-{u.index}", pure=False)
             self._pending[fut] = u
+            self._ac.add(fut)
 
     @property
     def pending(self) -> int:
         return len(self._pending)
 
     def poll(self, timeout_s: float = 1.0) -> list[tuple[Unit, dict[str, Any]]]:
-        """The units finished within ``timeout_s`` (possibly none), with their rows."""
-        from distributed import wait
-
+        """The units finished within ``timeout_s`` (possibly none), with their rows. Workers never
+        wait for this: every submitted unit is queued on the scheduler."""
         if not self._pending:
             return []
-        try:
-            wait(list(self._pending), timeout=timeout_s, return_when="FIRST_COMPLETED")
-        except TimeoutError:  # nothing finished in time: look for overdue tasks
-            pass
-        done = [f for f in self._pending if f.done()]
+        deadline = time.monotonic() + timeout_s
+        done: list[Any] = []
+        while True:
+            done = [f for f in self._ac.next_batch(block=False) if f in self._pending]
+            if done or time.monotonic() >= deadline:
+                break
+            time.sleep(0.02)
         out: list[tuple[Unit, dict[str, Any]]] = []
         for fut in done:
             unit = self._pending.pop(fut)
