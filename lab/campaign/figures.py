@@ -91,8 +91,9 @@ def write_distribution_figures(rows: Sequence[dict[str, Any]], fig_dir: Path, *,
     return paths
 
 
-def write_worst_figure(worst: Sequence[tuple[dict[str, Any], Trace]], path: Path, *, title: str = "worst runs") -> Path:
-    """Position error and tilt against time of the worst runs (one line each, labelled with the unit)."""
+def write_worst_figure(worst: Sequence[tuple[dict[str, Any], Trace]], path: Path, *, title: str = "worst runs", score_from_s: float = 0.0) -> Path:
+    """Position error and tilt against time of the worst runs (one line each, labelled with the
+    unit); the part before ``score_from_s`` (not scored: the take-off) shaded."""
     plt = _plt()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(8.5, 5.5), sharex=True)
@@ -104,6 +105,9 @@ def write_worst_figure(worst: Sequence[tuple[dict[str, Any], Trace]], path: Path
         if isinstance(start, (int, float)) and math.isfinite(start):
             for ax in (a1, a2):
                 ax.axvline(start, color="k", ls=":", lw=0.8)
+    if score_from_s > 0:
+        for ax in (a1, a2):
+            ax.axvspan(0.0, score_from_s, color="0.85", alpha=0.6, lw=0, label="not scored (take-off)" if ax is a1 else None)
     a1.set_ylabel("position error (m)")
     a1.set_yscale("symlog", linthresh=0.1)
     a1.grid(alpha=0.3)

@@ -46,26 +46,49 @@ def fingerprint(units: Sequence[Unit]) -> str:
 
 
 class Progress:
-    """One live line (tqdm): done / total, failed, flights per second, ETA; a line every few
-    seconds when stderr is not a terminal."""
+    """One live line on a terminal (tqdm): done / total, failed, flights per second, ETA; without a
+    terminal (a log file, CI), the same as a plain line every ``every_s`` seconds and at the end."""
 
-    def __init__(self, total: int, done: int = 0, *, label: str = "campaign", quiet: bool = False) -> None:
-        from tqdm import tqdm
-
+    def __init__(self, total: int, done: int = 0, *, label: str = "campaign", quiet: bool = False, every_s: float = 10.0) -> None:
         self.failed = 0
-        self.bar = tqdm(total=total, initial=done, desc=label, unit="flight", file=sys.stderr, disable=quiet, dynamic_ncols=True,
-                        mininterval=0.5 if sys.stderr.isatty() else 5.0, smoothing=0.1)  # fmt: skip
+        self.total, self.done, self.start_done = total, done, done
+        self.label, self.quiet, self.every_s = label, quiet, every_s
+        self.t0 = self.last = time.perf_counter()
+        self.bar: Any = None
+        if not quiet and sys.stderr.isatty():
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=total, initial=done, desc=label, unit="flight", file=sys.stderr, dynamic_ncols=True, smoothing=0.1)
 
     def update(self, row: dict[str, Any]) -> None:
         self.failed += is_failure(row)
-        self.bar.set_postfix_str(f"{self.failed} failed", refresh=False)
-        self.bar.update(1)
+        self.done += 1
+        if self.bar is not None:
+            self.bar.set_postfix_str(f"{self.failed} failed", refresh=False)
+            self.bar.update(1)
+        elif not self.quiet:
+            now = time.perf_counter()
+            if now - self.last >= self.every_s or self.done == self.total:
+                self.last = now
+                print(self.line(now), file=sys.stderr, flush=True)
+
+    def line(self, now: float) -> str:
+        rate = (self.done - self.start_done) / (now - self.t0) if now > self.t0 else 0.0
+        eta = (self.total - self.done) / rate if rate > 0 else math.inf
+        return (f"{self.label}: {self.done}/{self.total} flights, {self.failed} failed, {rate:.2f} flights/s, "
+                + (f"ETA {eta:.0f} s" if math.isfinite(eta) else "ETA –"))  # fmt: skip
 
     def note(self, text: str) -> None:
-        self.bar.write(text, file=sys.stderr)
+        if self.quiet:
+            return
+        if self.bar is not None:
+            self.bar.write(text, file=sys.stderr)
+        else:
+            print(text, file=sys.stderr, flush=True)
 
     def close(self) -> None:
-        self.bar.close()
+        if self.bar is not None:
+            self.bar.close()
 
 
 @dataclass
@@ -201,7 +224,7 @@ def write_outputs(spec: CampaignSpec, units: Sequence[Unit], rows: Sequence[dict
         traces = retrace(engine, traced)
         pairs = [(r, t) for r, t in zip(bad, traces) if t is not None and t.t_s]
         if pairs:
-            write_worst_figure(pairs, fig_dir / "worst_runs.png", title=f"{spec.name}: the {len(pairs)} worst runs")
+            write_worst_figure(pairs, fig_dir / "worst_runs.png", title=f"{spec.name}: the {len(pairs)} worst runs", score_from_s=spec.score_from_s)
         paths["figures"] = fig_dir
     return paths
 
