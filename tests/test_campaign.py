@@ -273,3 +273,21 @@ def test_bad_input_is_one_line_exit_2_and_nothing_started(tmp_path: Path, capsys
     for w in words:
         assert w in err
     assert not out.exists()  # nothing started, nothing written
+
+
+def test_sitl_units_fly_as_two_processes_and_a_hung_one_is_killed(tmp_path: Path) -> None:
+    """--sitl: each unit is the real FC and simulator over UDP; one over its limit is stopped (its
+    process group), recorded as timed out, and leaves no process behind."""
+    import psutil
+
+    text = "timeout_s = 8.0\n" + SMALL.replace("seeds = 3", "seeds = 1").replace("grid = [0.0, 0.4]", "grid = [0.0]").replace(
+        'controllers = ["adaptive_pid_smc", "cascade_pid"]', 'controllers = ["adaptive_pid_smc"]')
+    text = text[: text.index("[[vary]]\nfield = \"plant.mass_kg\"")] + text[text.index("[[vary]]\nfield = \"environment.wind"):]
+    camp = _write(tmp_path, text + '\n[[vary]]\nfield = "duration_s"\ngrid = [1.0, 5000.0]\n')
+    out = tmp_path / "out"
+    assert main(["campaign", "run", str(camp), "--out", str(out), "--workers", "1", "--sitl", "--quiet", "--no-plots"]) == 0
+    rows = {r["duration_s"]: r for r in _rows(out)}
+    assert rows["1.0"]["status"] == "ok" and float(rows["1.0"]["sim_s"]) > 0.9 and rows["1.0"]["iae_pos_m_s"] != ""
+    assert rows["5000.0"]["status"] == "timed out" and "8 s limit" in rows["5000.0"]["message"]
+    left = [p for p in psutil.process_iter(["cmdline"]) if any("smcpilot-unit-" in a for a in (p.info["cmdline"] or []))]
+    assert not left, left

@@ -96,7 +96,7 @@ def write_worst_figure(worst: Sequence[tuple[dict[str, Any], Trace]], path: Path
     unit); the part before ``score_from_s`` (not scored: the take-off) shaded."""
     plt = _plt()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig, (a1, a2) = plt.subplots(2, 1, figsize=(8.5, 5.5), sharex=True)
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(11.5, 5.5), sharex=True)
     for row, tr in worst:
         lab = f"unit {row['unit']}: {row['controller']}, {row['group']}, seed {row['seed_index']} ({row['status']})"
         a1.plot(tr.t_s, tr.pos_err_m, lw=1, label=lab)
@@ -115,7 +115,7 @@ def write_worst_figure(worst: Sequence[tuple[dict[str, Any], Trace]], path: Path
     a2.set_xlabel("simulated time (s)")
     a2.grid(alpha=0.3)
     a1.set_title(title, fontsize=9)
-    a1.legend(fontsize=7)
+    a1.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

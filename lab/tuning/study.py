@@ -27,7 +27,7 @@ marking trials a crash left RUNNING as failed. With ``parallel`` = 1 a study is 
 sampler is seeded); in parallel, which trial the sampler sees first depends on finishing order.
 
 Outputs: ``results.csv`` (every flight, with its trial and gains), ``trials.csv``, ``best.parm``
-(the best gains as ``NAME VALUE`` lines the FC loads with ``--param-file``), ``best.toml`` (a
+(the best gains as ``NAME VALUE`` lines the FC loads: ``python -m fc --param-file``), ``best.toml`` (a
 ``[fc] params`` fragment a scenario accepts), ``history.png`` (the optimisation history).
 """
 
@@ -301,7 +301,7 @@ def _outputs(spec: TuneSpec, study: Any, out: Path) -> TuneResult:
     v = spec.campaign.variants[0]
     lines = [f"# smcpilot tune {spec.name}: the best gains (trial {best.number}, objective {best.value:.6g} = {spec.objective.statistic}"
              f" {spec.objective.metric} + {spec.objective.failure_penalty:g} per failed flight), controller {v.controller}",
-             "# load with: smcpilot sitl --param-file FILE (NAME VALUE; the FC's other parameters keep their values)"]  # fmt: skip
+             "# the FC loads it: python -m fc --param-file FILE, or as fc-params.parm in the log directory of smcpilot sitl"]  # fmt: skip
     lines += [f"{k} {val!r}" for k, val in gains.items()]
     paths["parm"] = out / "best.parm"
     paths["parm"].write_text("\n".join(lines) + "\n", encoding="utf-8")
@@ -317,13 +317,13 @@ def _outputs(spec: TuneSpec, study: Any, out: Path) -> TuneResult:
                         *(t.params.get(k, "") for k in gains)])  # fmt: skip
     baseline = next((t.value for t in study.trials if t.number == 0 and t.state == TrialState.COMPLETE), None) if spec.baseline else None
     paths["history"] = write_history(study, out / "history.png", title=f"{spec.name}: {spec.objective.statistic} {spec.objective.metric}"
-                                     f" + {spec.objective.failure_penalty:g} per failed flight")  # fmt: skip
+                                     f" + {spec.objective.failure_penalty:g} per failed flight", baseline=spec.baseline)  # fmt: skip
     (out / "best.json").write_text(json.dumps({"trial": best.number, "objective": best.value, "gains": gains, "baseline_objective": baseline,
                                                "trials": len(study.trials)}, indent=2) + "\n", encoding="utf-8")  # fmt: skip
     return TuneResult(study, float(best.value), gains, baseline, paths)
 
 
-def write_history(study: Any, path: Path, *, title: str) -> Path:
+def write_history(study: Any, path: Path, *, title: str, baseline: bool = False) -> Path:
     """The optimisation history: each trial's objective, the best so far, failed trials marked."""
     import matplotlib
 
@@ -336,6 +336,8 @@ def write_history(study: Any, path: Path, *, title: str) -> Path:
     fig, ax = plt.subplots(figsize=(7.5, 4.2))
     xs, ys = [t.number for t in ok], [t.value for t in ok]
     ax.plot(xs, ys, "o", ms=4, alpha=0.7, label="trial objective")
+    if baseline and ok and ok[0].number == 0:
+        ax.plot([0], [ok[0].value], "s", ms=8, mfc="none", color="k", label="trial 0: the scenario's own gains")
     best, run = math.inf, []
     for y in ys:
         best = min(best, y)
