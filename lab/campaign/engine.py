@@ -107,7 +107,7 @@ class Engine:
             import dask
             from distributed import Client, LocalCluster, as_completed
         except ImportError as exc:
-            raise CampaignError(f"campaigns run on Dask, which is not installed ({exc.name}): pip install 'smcpilot[campaign]'") from None
+            raise CampaignError(f"campaigns run on Dask, which is not installed ({exc.name}): pip install 'dask[distributed]'") from None
 
         o = self.options
         if o.local:

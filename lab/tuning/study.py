@@ -377,6 +377,10 @@ def main(args: argparse.Namespace) -> int:
 
     from lab.campaign.cli import cluster_options
 
+    try:
+        import optuna  # noqa: F401
+    except ImportError:
+        raise CampaignError("smcpilot tune needs Optuna: pip install 'smcpilot[campaign]' (or pip install optuna)") from None
     spec = load_tune(args.tune)
     if args.trials is not None:
         if args.trials < 1:
