@@ -66,8 +66,14 @@ def run_main(args: argparse.Namespace) -> int:
         raise CampaignError(f"--worst must be >= 0, got {args.worst}")
     spec = load_campaign(args.campaign)
     cluster = cluster_options(args)
-    result = run_campaign(spec, args.out, cluster, sitl=args.sitl, resume=args.resume, worst_n=args.worst, figures=not args.no_plots,
-                          quiet=args.quiet, echo=lambda s: print(s, file=sys.stderr, flush=True))  # fmt: skip
+    try:
+        result = run_campaign(spec, args.out, cluster, sitl=args.sitl, resume=args.resume, worst_n=args.worst, figures=not args.no_plots,
+                              quiet=args.quiet, echo=lambda s: print(s, file=sys.stderr, flush=True))  # fmt: skip
+    except KeyboardInterrupt:
+        if (args.out / "results.csv").exists():
+            print(f"smcpilot campaign: the finished flights are in {args.out / 'results.csv'}; the same command with --resume flies the rest",
+                  file=sys.stderr)  # fmt: skip
+        raise
     print(result.paths["table"].read_text(encoding="utf-8"), end="")
     bad = result.paths["worst"].read_text(encoding="utf-8").split("\n", 2)[-1]
     if bad.strip():
