@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from lab.campaign.engine import ClusterOptions, Engine
 from lab.campaign.results import read_rows
@@ -291,3 +293,37 @@ def test_sitl_units_fly_as_two_processes_and_a_hung_one_is_killed(tmp_path: Path
     assert rows["5000.0"]["status"] == "timed out" and "8 s limit" in rows["5000.0"]["message"]
     left = [p for p in psutil.process_iter(["cmdline"]) if any("smcpilot-unit-" in a for a in (p.info["cmdline"] or []))]
     assert not left, left
+
+
+@pytest.mark.parametrize("path", sorted((ROOT / "examples" / "campaigns").glob("*.toml")), ids=lambda p: p.name)
+def test_example_campaign_and_tuning_files_load_and_expand(path: Path) -> None:
+    import tomllib
+
+    if "gain" in tomllib.loads(path.read_text(encoding="utf-8")):
+        from lab.tuning.study import load_tune
+
+        spec = load_tune(path).campaign
+    else:
+        spec = load_campaign(path)
+    units = expand(spec)
+    assert len(units) == spec.n_units > 0 and [u.index for u in units] == list(range(len(units)))
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), low=st.floats(-5, 5), width=st.floats(1e-3, 10), seeds=st.integers(1, 6))
+def test_draws_are_in_range_deterministic_and_independent_of_other_variations(seed: int, low: float, width: float, seeds: int) -> None:
+    from lab.campaign.spec import parse_campaign
+
+    def doc(extra: list[dict]) -> dict:
+        return {"seed": seed, "seeds": seeds, "scenario": {"duration_s": 1.0},
+                "vary": [{"field": "environment.wind_force_ned_n[1]", "dist": "uniform", "low": low, "high": low + width}, *extra]}  # fmt: skip
+
+    one = expand(parse_campaign(doc([])))
+    again = expand(parse_campaign(doc([])))
+    more = expand(parse_campaign(doc([{"field": "environment.noise_scale", "dist": "log-uniform", "low": 0.5, "high": 2.0}])))
+    east = [u.scenario.environment.wind_force_ned_n[1] for u in one]
+    assert all(low <= e <= low + width for e in east)
+    assert east == [u.scenario.environment.wind_force_ned_n[1] for u in again]  # the same file, the same units
+    assert east == [u.scenario.environment.wind_force_ned_n[1] for u in more]  # another variation leaves this one's draws
+    assert [u.seed for u in one] == [u.seed for u in more] == [scenario_seed(seed, s) for s in range(seeds)]
+    assert all(0.5 <= u.scenario.environment.noise_scale <= 2.0 for u in more)
