@@ -245,6 +245,8 @@ def test_the_same_campaign_on_a_running_scheduler(tmp_path: Path, dask_cluster, 
     assert main(["campaign", "run", str(camp), "--out", str(tmp_path / "local"), "--workers", "1", "--quiet", "--no-plots"]) == 0
     remote = _rows(tmp_path / "remote")
     assert len(remote) == 8 and _strip(remote) == _strip(_rows(tmp_path / "local"))
+    assert main(["campaign", "run", str(camp), "--out", str(tmp_path / "by-file"), "--scheduler-file", str(sched_file), "--quiet", "--no-plots"]) == 0
+    assert _strip(_rows(tmp_path / "by-file")) == _strip(remote)
 
 
 @pytest.mark.parametrize(

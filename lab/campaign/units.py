@@ -15,7 +15,9 @@ comparison (the controller is the only difference between two units of one seed 
 
 from __future__ import annotations
 
+import functools
 import itertools
+import json
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -100,6 +102,18 @@ def _set(container: Any, key: Any, ref: FieldRef, value: Any, relative: bool) ->
     return value
 
 
+#: (controller, rate, parameters) already accepted by the FC's parameter table.
+_CHECKED: set[tuple[Any, ...]] = set()
+
+
+@functools.lru_cache(maxsize=64)
+def _template(base: Scenario) -> str:
+    """The scenario document of ``base`` with the vehicle inline, as JSON (copied per unit)."""
+    doc = base.to_mapping()
+    doc["vehicle"] = {"plant": base.plant, **base.vehicle.to_dict()}
+    return json.dumps(doc)
+
+
 def apply_values(
     base: Scenario, variant: Variant, values: Sequence[tuple[Variation, Any]], seed: int
 ) -> tuple[Scenario, VehicleParams | None, dict[str, Any]]:
@@ -109,8 +123,7 @@ def apply_values(
     :class:`~smcpilot.scenario.ScenarioError` for a value the scenario refuses)."""
     from fc.params import PARAM_INDEX, PARAMS, config_for
 
-    doc = base.to_mapping()
-    doc["vehicle"] = {"plant": base.plant, **base.vehicle.to_dict()}
+    doc = json.loads(_template(base))
     doc["fc"]["controller"] = variant.controller
     params = {**dict(base.params), **dict(variant.params)}
     plant: dict[str, Any] | None = None
@@ -148,7 +161,12 @@ def apply_values(
         for ref, value, rel in plant.values():
             applied[ref.text] = _set(pdoc, ref.key, ref, value, rel)
         plant_vehicle = VehicleParams.from_mapping(pdoc, source="plant")
-    config_for(scenario)  # unknown or out-of-range FC parameters: an error now, not in a worker
+    key = (scenario.controller, scenario.rate_hz, scenario.params)
+    if key not in _CHECKED:  # unknown or out-of-range FC parameters: an error now, not in a worker
+        config_for(scenario)
+        if len(_CHECKED) > 10_000:
+            _CHECKED.clear()
+        _CHECKED.add(key)
     return scenario, plant_vehicle, applied
 
 
