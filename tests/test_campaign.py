@@ -69,8 +69,9 @@ def _write(tmp_path: Path, text: str, name: str = "c.toml") -> Path:
 
 
 def _rows(out: Path) -> list[dict[str, str]]:
+    """The complete rows of results.csv as text (a last line an interrupt cut short is not one)."""
     with (out / "results.csv").open(encoding="utf-8", newline="") as f:
-        return list(csv.DictReader(f))
+        return [r for r in csv.DictReader(f) if None not in r.values() and None not in r]
 
 
 def _strip(rows: list[dict[str, str]]) -> list[dict[str, str]]:
