@@ -4,8 +4,8 @@ Order: scenario group (a point of the grids) × controller × seed index; a unit
 order is its id (``smcpilot campaign replay DIR UNIT``).
 
 Seeds: every draw of seed index ``s`` comes from ``numpy.random.SeedSequence(campaign_seed,
-spawn_key=(s, j))``: ``j = 0`` gives the scenario seed (the simulator seeds its noise, gust and
-fault streams from it, each by name), ``j = 1 + k`` the stream of the k-th ``[[vary]]`` table
+spawn_key=(s, j))``: ``j = 0`` gives the scenario seed (the simulator splits separate gust and
+sensor-noise streams off it, and seeds the faults' streams from it by name), ``j = 1 + k`` the stream of the k-th ``[[vary]]`` table
 (initial conditions, vehicle, wind, fault timing: whatever it varies). So a unit's draws depend only
 on the campaign seed, its seed index and the variation, never on the number of workers or the order
 units finish in; adding a variation leaves the others' draws as they were; and seed ``s`` is the
