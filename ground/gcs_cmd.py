@@ -32,6 +32,7 @@ import json
 import math
 import os
 import sys
+import threading
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -209,6 +210,25 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     s.add_argument("--once", action="store_true", help="print one frame and exit")
     s.add_argument("--rate-hz", type=float, default=4.0, metavar="HZ", help="updates per wall second (default 4)")
     s.set_defaults(gcs_handler=_watch)
+    _accept_link_options_after_action(p)
+
+
+def _accept_link_options_after_action(p: argparse.ArgumentParser) -> None:
+    """Let ``--connect``, ``--timeout`` and ``--sysid`` also follow the action (``gcs status
+    --timeout 2``): every action's parser repeats them with no default of its own, so a value
+    given before the action stands unless one after it overrides it."""
+    link_options = [a for a in p._actions if "--connect" in a.option_strings or "--timeout" in a.option_strings
+                    or "--sysid" in a.option_strings]  # fmt: skip
+    pending = [a for a in p._actions if isinstance(a, argparse._SubParsersAction)]
+    while pending:
+        for leaf in pending.pop().choices.values():
+            nested = [a for a in leaf._actions if isinstance(a, argparse._SubParsersAction)]
+            if nested:
+                pending.extend(nested)
+                continue
+            for opt in link_options:
+                leaf.add_argument(*opt.option_strings, dest=opt.dest, type=opt.type, metavar=opt.metavar,
+                                  default=argparse.SUPPRESS, help=opt.help)  # fmt: skip
 
 
 # --------------------------------------------------------------------------------------- handlers
@@ -218,14 +238,23 @@ def main(args: argparse.Namespace) -> int:
         raise ConfigError(f"--timeout must be > 0 seconds, got {args.timeout}")
     handler: Callable[[Vehicle, argparse.Namespace, TextIO], int] = args.gcs_handler
     _precheck(args)
+    # Say at once what we wait for, unless the heartbeat comes quickly (the usual case).
+    waiting = threading.Timer(
+        0.3, lambda: print(f"smcpilot gcs: waiting up to {args.timeout:g} s for a vehicle on {args.connect} ...",
+                           file=sys.stderr, flush=True))  # fmt: skip
+    waiting.daemon = True
+    waiting.start()
     try:
         with Vehicle(args.connect, system_id=args.sysid, connect_timeout_s=args.timeout) as vehicle:
+            waiting.cancel()
             return handler(vehicle, args, sys.stdout)
     except UnknownModeError:
         raise  # a usage error: exit 2 through the CLI's handler
     except VehicleError as exc:
         print(f"smcpilot gcs: error: {exc}", file=sys.stderr)
         return EXIT_VEHICLE
+    finally:
+        waiting.cancel()
 
 
 def _precheck(args: argparse.Namespace) -> None:

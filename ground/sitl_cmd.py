@@ -14,7 +14,8 @@ from pathlib import Path
 from typing import Any
 
 from ground.sitl import Sitl, SitlError, SitlOptions, print_connect_help
-from smcpilot.errors import ConfigError
+from smcpilot.errors import ConfigError, EndpointError
+from smcpilot.link import parse_endpoint
 from smcpilot.protocol import FC_CONTROLLERS
 from smcpilot.scenario import Scenario
 
@@ -59,12 +60,14 @@ def add_sitl_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _options(args: argparse.Namespace, **extra: Any) -> SitlOptions:
-    if args.speed is not None and not args.speed > 0:
-        raise ConfigError("--speed must be > 0")
-    if getattr(args, "duration", None) is not None and not args.duration > 0:
-        raise ConfigError("--duration must be > 0 simulated seconds")
-    if args.gust_std is not None and args.gust_std < 0:
-        raise ConfigError("--gust-std must be >= 0")
+    if args.speed is not None and not (math.isfinite(args.speed) and args.speed > 0):
+        raise ConfigError(f"--speed must be a finite number > 0, got {args.speed:g}")
+    duration = getattr(args, "duration", None)
+    if duration is not None and not (math.isfinite(duration) and duration > 0):
+        raise ConfigError(f"--duration must be a finite number > 0 of simulated seconds, got {duration:g}"
+                          " (leave it out to run until Ctrl-C)")  # fmt: skip
+    if args.gust_std is not None and not (math.isfinite(args.gust_std) and args.gust_std >= 0):
+        raise ConfigError(f"--gust-std must be a finite number >= 0, got {args.gust_std:g}")
     if args.vehicle is not None and not args.vehicle.is_file():
         raise ConfigError(f"vehicle file not found: {args.vehicle}")
     kw: dict[str, Any] = dict(speed=args.speed, log_dir=args.log_dir)
@@ -88,22 +91,64 @@ def _raise_terminated(*_: object) -> None:
     raise _Terminated()
 
 
+#: exit code of the FC and the simulator for a configuration error (a bad URL, file or value).
+_CHILD_EXIT_CONFIG = 2
+
+
+def _startup_config_error(sitl: Sitl) -> str | None:
+    """The one-line reason if a child ended during start-up with a configuration error, else None."""
+    for child in (sitl.fc, sitl.sim):
+        if child is not None and child.proc.poll() == _CHILD_EXIT_CONFIG:
+            errors = [ln.split("error:", 1)[1].strip() for ln in child.tail if "error:" in ln]
+            return errors[-1] if errors else f"{child.name} rejected its configuration"
+    return None
+
+
 def _launch_and_wait(
-    opts: SitlOptions, command: str, started: Callable[[Sitl], None] | None = None
+    opts: SitlOptions,
+    command: str,
+    started: Callable[[Sitl], None] | None = None,
+    progress: Callable[[Sitl], Callable[[], None]] | None = None,
 ) -> tuple[int | None, Sitl, float]:
     """Run SITL to its end; (exit code if it did not end normally, the launcher, wall seconds).
 
-    Ctrl-C gives 130, SIGTERM 143 (both processes are stopped either way), a failed child 1.
+    Ctrl-C gives 130, SIGTERM 143 (both processes are stopped either way), a failed child 1, a
+    child that rejected its configuration during start-up 2 (one line: its reason). Output of
+    the children during start-up is held back until they are ready, so that a rejected
+    configuration is reported once. ``progress``, given the started launcher, returns the function
+    that stops the progress line it started.
     """
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     t0 = time.monotonic()
-    sitl = Sitl(opts, echo=lambda line: print(line, flush=True))
+    held: list[str] | None = []
+
+    def echo(line: str) -> None:
+        if held is not None:
+            held.append(line)
+        else:
+            print(line, flush=True)
+
+    def release() -> None:
+        nonlocal held
+        lines, held = held or [], None
+        for line in lines:
+            print(line, flush=True)
+
+    sitl = Sitl(opts, echo=echo)
     rc: int | None = None
+    stop_progress: Callable[[], None] | None = None
     try:
         with sitl:
+            release()
             if started is not None:
                 started(sitl)
-            sitl.wait()
+            if progress is not None:
+                stop_progress = progress(sitl)
+            try:
+                sitl.wait()
+            finally:
+                if stop_progress is not None:
+                    stop_progress()
     except KeyboardInterrupt:
         print(f"smcpilot {command}: stopped", file=sys.stderr)
         rc = 130
@@ -111,16 +156,30 @@ def _launch_and_wait(
         print(f"smcpilot {command}: terminated", file=sys.stderr)
         rc = 143
     except SitlError as exc:
-        print(f"smcpilot {command}: error: {exc}", file=sys.stderr)
-        rc = 1
+        reason = _startup_config_error(sitl) if held is not None else None
+        if reason is not None:
+            print(f"smcpilot {command}: error: {reason}", file=sys.stderr)
+            held = None  # the children's own report of it is that line
+            rc = 2
+        else:
+            release()
+            print(f"smcpilot {command}: error: {exc}", file=sys.stderr)
+            rc = 1
     finally:
         signal.signal(signal.SIGTERM, old)
+        if held is not None:
+            release()
     return rc, sitl, time.monotonic() - t0
 
 
 def sitl_main(args: argparse.Namespace) -> int:
     if args.plan is not None and not args.plan.is_file():
         raise ConfigError(f"plan file not found: {args.plan}")
+    if args.gcs != "none":
+        try:
+            parse_endpoint(args.gcs)
+        except EndpointError as exc:
+            raise ConfigError(f"--gcs: {exc}, or none") from None
     opts = _options(
         args,
         lockstep=args.lockstep,
