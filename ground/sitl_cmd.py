@@ -13,6 +13,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from ground.logs.housekeeping import KEEP_PLAIN, compress_old_flights, format_bytes
+from ground.logs.progress import ProgressLine
 from ground.sitl import Sitl, SitlError, SitlOptions, print_connect_help
 from smcpilot.errors import ConfigError, EndpointError
 from smcpilot.link import parse_endpoint
@@ -44,6 +46,8 @@ def add_common(p: argparse.ArgumentParser, *, lockstep_flag: bool) -> None:
     p.add_argument("--noise", action="store_true", default=None, help="sensor noise on the simulated state")
     p.add_argument("--wind-force", type=_ned_triple, metavar="N,E,D", help="constant wind force, newtons, NED")
     p.add_argument("--gust-std", type=float, default=None, metavar="N", help="horizontal gust force std, newtons (default 0)")
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                   help="lockstep: a progress line on stderr (simulated time, speed, ETA); default: only on a terminal")  # fmt: skip
 
 
 def add_sitl_arguments(p: argparse.ArgumentParser) -> None:
@@ -108,47 +112,50 @@ def _launch_and_wait(
     opts: SitlOptions,
     command: str,
     started: Callable[[Sitl], None] | None = None,
-    progress: Callable[[Sitl], Callable[[], None]] | None = None,
+    progress_total_s: float | None | bool = False,
 ) -> tuple[int | None, Sitl, float]:
     """Run SITL to its end; (exit code if it did not end normally, the launcher, wall seconds).
 
     Ctrl-C gives 130, SIGTERM 143 (both processes are stopped either way), a failed child 1, a
     child that rejected its configuration during start-up 2 (one line: its reason). Output of
     the children during start-up is held back until they are ready, so that a rejected
-    configuration is reported once. ``progress``, given the started launcher, returns the function
-    that stops the progress line it started.
+    configuration is reported once. ``progress_total_s`` other than False shows a progress line on
+    stderr (simulated seconds of the whole run, or None if open-ended) while SITL runs.
     """
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     t0 = time.monotonic()
     held: list[str] | None = []
 
-    def echo(line: str) -> None:
+    line: ProgressLine | None = None
+
+    def echo(text: str) -> None:
         if held is not None:
-            held.append(line)
+            held.append(text)
         else:
-            print(line, flush=True)
+            if line is not None:
+                line.clear()
+            print(text, flush=True)
 
     def release() -> None:
         nonlocal held
         lines, held = held or [], None
-        for line in lines:
-            print(line, flush=True)
+        for text in lines:
+            print(text, flush=True)
 
     sitl = Sitl(opts, echo=echo)
     rc: int | None = None
-    stop_progress: Callable[[], None] | None = None
     try:
         with sitl:
             release()
             if started is not None:
                 started(sitl)
-            if progress is not None:
-                stop_progress = progress(sitl)
+            if progress_total_s is not False and sitl.tlog is not None:
+                line = ProgressLine(sitl.tlog, progress_total_s or None, sys.stderr).start()
             try:
                 sitl.wait()
             finally:
-                if stop_progress is not None:
-                    stop_progress()
+                if line is not None:
+                    line.stop()
     except KeyboardInterrupt:
         print(f"smcpilot {command}: stopped", file=sys.stderr)
         rc = 130
@@ -172,6 +179,21 @@ def _launch_and_wait(
     return rc, sitl, time.monotonic() - t0
 
 
+def _progress(args: argparse.Namespace, total_s: float | None) -> float | None | bool:
+    """The ``progress_total_s`` of :func:`_launch_and_wait`: False unless asked or on a terminal."""
+    wanted = args.progress if args.progress is not None else sys.stderr.isatty()
+    return total_s if wanted else False
+
+
+def _tidy_log_dir(log_dir: Path) -> None:
+    """Compress the logs of older flights (all but the newest few stay readable by pymavlink)."""
+    done = compress_old_flights(log_dir)
+    if done:
+        before, after = sum(r.bytes_before for r in done), sum(r.bytes_after for r in done)
+        print(f"logs: compressed {len(done)} older flight log(s) in {log_dir}/ ({format_bytes(before)} -> {format_bytes(after)};"
+              f" the newest {KEEP_PLAIN} stay plain; `smcpilot log clean` deletes old flights)")  # fmt: skip
+
+
 def sitl_main(args: argparse.Namespace) -> int:
     if args.plan is not None and not args.plan.is_file():
         raise ConfigError(f"plan file not found: {args.plan}")
@@ -193,15 +215,17 @@ def sitl_main(args: argparse.Namespace) -> int:
         print_connect_help(sitl)
         print("  stop with Ctrl-C" + (f"; runs {args.duration:g} simulated seconds" if args.duration else ""), flush=True)
 
-    rc, sitl, wall = _launch_and_wait(opts, "sitl", started)
+    rc, sitl, wall = _launch_and_wait(opts, "sitl", started, _progress(args, args.duration) if args.lockstep else False)
     if rc is not None:
         return rc
     fcs = sitl.fc_summary or {}
-    sim_s = fcs.get("sim_time_s")
+    # The simulator's clock is the simulated time (the FC's runs from its own start in real time).
+    sim_s = (sitl.sim_summary or {}).get("sim_time_s", fcs.get("sim_time_s"))
     print(
         f"SITL ended: {sim_s if sim_s is not None else float('nan'):.2f} simulated s in {wall:.2f} wall s,"
         f" {fcs.get('ticks', 0)} control ticks, {fcs.get('overruns', 0)} overruns; log {sitl.tlog}"
     )
+    _tidy_log_dir(args.log_dir)
     return 0
 
 
@@ -227,7 +251,7 @@ def demo_main(args: argparse.Namespace) -> int:
     opts = _options(args, lockstep=True, duration_s=DEMO_DURATION_S, gcs=None, plan=plan)
     print(f"demo: lockstep SITL, {DEMO_DURATION_S:g} s of flight ({plan.name}): take-off to 3 m, set-points,"
           " a heading change across ±180°, landing", flush=True)  # fmt: skip
-    rc, sitl, wall = _launch_and_wait(opts, "demo")
+    rc, sitl, wall = _launch_and_wait(opts, "demo", progress_total_s=_progress(args, DEMO_DURATION_S))
     if rc is not None:
         return rc
     fcs = sitl.fc_summary or {}
@@ -251,6 +275,7 @@ def demo_main(args: argparse.Namespace) -> int:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(result, indent=2, allow_nan=False) + "\n", encoding="utf-8")
         print(f"results: {args.json}")
+    _tidy_log_dir(args.log_dir)
     return 0
 
 
