@@ -36,10 +36,13 @@ def _style(name: str, **override: object) -> dict:
     return {**STYLES.get(name, {}), **override}
 
 
-def _note_overlap(fig, names) -> None:
-    """Say under the figure that a dashed known-bound curve may hide in the adaptive one."""
-    if "pid_smc" in names and "adaptive_pid_smc" in names:
-        fig.text(0.5, 0.005, OVERLAP_NOTE, ha="center", va="bottom", fontsize=8, color="0.3")
+def _note_overlap(fig, names, extra: str = "") -> None:
+    """Say under the figure that a dashed known-bound curve may hide in the adaptive one (and ``extra``)."""
+    notes = [OVERLAP_NOTE] if "pid_smc" in names and "adaptive_pid_smc" in names else []
+    if extra:
+        notes.append(extra)
+    if notes:
+        fig.text(0.5, 0.005, " ".join(notes), ha="center", va="bottom", fontsize=8, color="0.3")
 
 
 def _grid(title: str, nrows: int = 2, ncols: int = 2, height: float = 6.5):
@@ -145,7 +148,7 @@ def write_figures(run: PaperRun, out_dir: str | Path) -> list[Path]:
     _legend(axes[0, 0], fontsize=8)
     for ax in axes[-1]:
         ax.set_xlabel("t [s]")
-    _note_overlap(fig, trs)
+    _note_overlap(fig, trs, "Axes clipped at the 99.5th percentile of |u| (sign SMC left out of it): higher peaks are cut.")
     paths.append(_save(fig, out, "inputs.png"))
 
     # 5. chi_hat
