@@ -371,7 +371,7 @@ def write_figures(result: StudyResult, cases: Sequence[Case], variants: Sequence
     for c in cases:
         fig, (a1, a2) = plt.subplots(2, 1, figsize=(8, 5.3), sharex=True)
         # Widest first, narrower and dashed on top: controllers that fly alike stay visible.
-        styles = [{"lw": 2.6, "alpha": 0.6}, {"lw": 1.3, "ls": (0, (4, 2))}, {"lw": 1.0}, {"lw": 1.0, "ls": (0, (1, 1))}]
+        styles: list[dict[str, Any]] = [{"lw": 2.6, "alpha": 0.6}, {"lw": 1.3, "ls": (0, (4, 2))}, {"lw": 1.0}, {"lw": 1.0, "ls": (0, (1, 1))}]
         for k, lab in enumerate(labels):
             w = result.worst.get((c.name, lab))
             if w is None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -23,7 +24,7 @@ COLORS = {"pid_smc": "tab:blue", "adaptive_pid_smc": "tab:green", "sign_smc": "t
 SYMBOLS = {"phi": "φ", "theta": "θ", "psi": "ψ", "z": "z"}
 #: The two PID-SMC flavours nearly coincide in most panels: the known-bound one is drawn dashed on
 #: top of a wider adaptive line, so that both stay visible, and the figures say so.
-STYLES = {
+STYLES: dict[str, dict[str, Any]] = {
     "pid_smc": {"ls": (0, (4, 2)), "lw": 1.2, "zorder": 4},
     "adaptive_pid_smc": {"lw": 2.4, "alpha": 0.8, "zorder": 3},
     "sign_smc": {"lw": 1.2, "zorder": 2},
