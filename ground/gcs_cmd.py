@@ -459,6 +459,8 @@ def _watch(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
             else:
                 out.write(render_line(t) + "\n")
             out.flush()
+            if getattr(out, "broken", False):  # the reader went away (`... | head`): nothing to watch for
+                return EXIT_OK
             time.sleep(period)
     except KeyboardInterrupt:
         return EXIT_OK

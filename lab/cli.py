@@ -212,6 +212,10 @@ class PipeSafeStdout(io.TextIOBase):
     def writable(self) -> bool:
         return True
 
+    def __getattr__(self, name: str) -> object:
+        """Everything else (``reconfigure``, ``buffer``, ``line_buffering``) is the stream's own."""
+        return getattr(self._stream, name)
+
 
 def main(argv: Sequence[str] | None = None) -> int:
     original = sys.stdout

@@ -209,3 +209,20 @@ def test_mission_run_is_not_aborted_when_stdout_goes_away(tmp_path: Path) -> Non
     assert rc == 0, err
     data = json.loads(report.read_text(encoding="utf-8"))
     assert data["passed"] is True and data["finished"] is True
+
+
+def test_pipe_safe_stdout_is_still_the_stream_for_everything_else() -> None:
+    """Commands that reconfigure stdout (``smcpilot bench``) or ask for its encoding still can."""
+    from lab.cli import PipeSafeStdout
+
+    read_end, write_end = os.pipe()
+    with open(write_end, "w", encoding="utf-8") as raw:
+        out = PipeSafeStdout(raw)  # type: ignore[arg-type]
+        out.reconfigure(line_buffering=True)  # type: ignore[attr-defined]
+        assert raw.line_buffering and out.encoding == "utf-8"
+        os.close(read_end)  # the reader goes away
+        out.write("x" * 100_000)  # more than a pipe holds: EPIPE, then silence
+        out.flush()
+        assert out.broken
+        out.write("later\n")  # still fine
+        assert not out.isatty()
