@@ -238,23 +238,53 @@ def main(args: argparse.Namespace) -> int:
         raise ConfigError(f"--timeout must be > 0 seconds, got {args.timeout}")
     handler: Callable[[Vehicle, argparse.Namespace, TextIO], int] = args.gcs_handler
     _precheck(args)
-    # Say at once what we wait for, unless the heartbeat comes quickly (the usual case).
-    waiting = threading.Timer(
-        0.3, lambda: print(f"smcpilot gcs: waiting up to {args.timeout:g} s for a vehicle on {args.connect} ...",
-                           file=sys.stderr, flush=True))  # fmt: skip
-    waiting.daemon = True
-    waiting.start()
+    waiting = _WaitingNotice(f"smcpilot gcs: waiting up to {args.timeout:g} s for a vehicle on {args.connect} ...", sys.stderr)
     try:
         with Vehicle(args.connect, system_id=args.sysid, connect_timeout_s=args.timeout) as vehicle:
-            waiting.cancel()
+            waiting.done()
             return handler(vehicle, args, sys.stdout)
     except UnknownModeError:
         raise  # a usage error: exit 2 through the CLI's handler
     except VehicleError as exc:
+        waiting.done()
         print(f"smcpilot gcs: error: {exc}", file=sys.stderr)
         return EXIT_VEHICLE
     finally:
-        waiting.cancel()
+        waiting.done()
+
+
+class _WaitingNotice:
+    """On a terminal, say what we wait for unless the vehicle answers within ``after_s``, and erase
+    it again once it does or we give up, so what remains is the command's own output or its one
+    error line. Elsewhere (a script, a log) nothing is written."""
+
+    def __init__(self, text: str, out: TextIO, after_s: float = 0.3) -> None:
+        self._text, self._out = text, out
+        self._lock = threading.Lock()
+        self._shown = self._finished = False
+        self._timer: threading.Timer | None = None
+        if out.isatty():
+            self._timer = threading.Timer(after_s, self._show)
+            self._timer.daemon = True
+            self._timer.start()
+
+    def _show(self) -> None:
+        with self._lock:
+            if not self._finished:
+                self._out.write(self._text)
+                self._out.flush()
+                self._shown = True
+
+    def done(self) -> None:
+        with self._lock:
+            if self._finished:
+                return
+            self._finished = True
+            if self._timer is not None:
+                self._timer.cancel()
+            if self._shown:
+                self._out.write("\r\x1b[K")
+                self._out.flush()
 
 
 def _precheck(args: argparse.Namespace) -> None:
