@@ -54,7 +54,7 @@ from fc.gcs import GcsHandler
 from fc.params import ParamStore, param_messages
 from fc.streams import StreamScheduler
 from smcpilot.clock import SimClock, WallClock
-from smcpilot.errors import RateMismatchError, WatchdogError
+from smcpilot.errors import RateMismatchError, TlogError, WatchdogError
 from smcpilot.fastcodec import encode_debug_float_array, encode_hil_actuator_controls
 from smcpilot.faults import SIM_PARAM_INDEX
 from smcpilot.frames import body_rates_to_euler_rates, euler_frd_to_flu, ned_to_nwu, rates_frd_to_flu
@@ -297,7 +297,10 @@ class FlightControllerApp:
             if self.tlog is not None and not self.tlog.closed:  # the run's own overrun count, for the log's readers
                 lm, now_us = self._logmav, self.clock.now_us()
                 count = lm.named_value_int_encode((now_us // 1000) & 0xFFFFFFFF, OVERRUN_NAME.encode(), self.stats.overruns)
-                self.tlog.write(now_us, count.pack(lm))
+                try:
+                    self.tlog.write(now_us, count.pack(lm))
+                except TlogError as exc:  # the log must still be closed below
+                    self.say(f"fc: warning: {exc}")
             self.close()
             self.say("FC_SUMMARY " + json.dumps(summary, sort_keys=True))
         return self._exit_code
