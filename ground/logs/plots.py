@@ -337,7 +337,7 @@ def _figure_controller(  # type: ignore[no-untyped-def]
                     # Lines, not a band: on the symlog axis a band of ±dead_zone would cover most of it.
                     for sign in (1.0, -1.0):
                         ax.axhline(sign * dead_zone, color="0.35", ls="--", lw=0.8,
-                                   label=f"dead zone |σ| < {dead_zone:g} ({bounds_source}): χ̂ holds" if sign > 0 else None)  # fmt: skip
+                                   label=f"dead zone |σ| < {dead_zone:g} ({bounds_source}): χ̂ does not grow" if sign > 0 else None)  # fmt: skip
                 ax.set_yscale("symlog", linthresh=1e-3)
                 ax.set_ylabel(f"σ_{symbols[c]} [{sigma_unit}]")
             else:
