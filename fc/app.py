@@ -54,14 +54,14 @@ from fc.gcs import GcsHandler
 from fc.params import ParamStore, param_messages
 from fc.streams import StreamScheduler
 from smcpilot.clock import SimClock, WallClock
-from smcpilot.errors import RateMismatchError, WatchdogError
+from smcpilot.errors import RateMismatchError, TlogError, WatchdogError
 from smcpilot.fastcodec import encode_debug_float_array, encode_hil_actuator_controls
 from smcpilot.faults import SIM_PARAM_INDEX
 from smcpilot.frames import body_rates_to_euler_rates, euler_frd_to_flu, ned_to_nwu, rates_frd_to_flu
 from smcpilot.geo import Home
 from smcpilot.link import MavlinkUdp
 from smcpilot.plan import PlanStep
-from smcpilot.protocol import ACTUATOR_FLAG_LOCKSTEP, FC_COMPONENT_ID, SIM_COMPONENT_ID, SMC_ARRAY_ID, SMC_ARRAY_NAME
+from smcpilot.protocol import ACTUATOR_FLAG_LOCKSTEP, FC_COMPONENT_ID, OVERRUN_NAME, SIM_COMPONENT_ID, SMC_ARRAY_ID, SMC_ARRAY_NAME
 from smcpilot.tlog import TlogWriter
 from smcpilot.vehicle import VehicleParams
 
@@ -294,6 +294,13 @@ class FlightControllerApp:
             summary["links"] = {"sim": self.sim.counters.as_dict(), "gcs": self.gcs.counters.as_dict() if self.gcs else None}
             summary["gcs_rejected"] = dict(self.gcs_handler.rejected)
             summary["tlog"] = str(self.tlog.path) if self.tlog is not None else None
+            if self.tlog is not None and not self.tlog.closed:  # the run's own overrun count, for the log's readers
+                lm, now_us = self._logmav, self.clock.now_us()
+                count = lm.named_value_int_encode((now_us // 1000) & 0xFFFFFFFF, OVERRUN_NAME.encode(), self.stats.overruns)
+                try:
+                    self.tlog.write(now_us, count.pack(lm))
+                except TlogError as exc:  # the log must still be closed below
+                    self.say(f"fc: warning: {exc}")
             self.close()
             self.say("FC_SUMMARY " + json.dumps(summary, sort_keys=True))
         return self._exit_code

@@ -217,7 +217,7 @@ def _build() -> tuple[ParamSpec, ...]:
     return tuple(specs)
 
 
-# == Fault injection and the estimator (issue 9) ====================================================
+# == Fault injection and the estimator ============================================================
 # FC settings kept beside FcConfig (FcOptions), and the simulator's volatile SIM_* parameters.
 
 

@@ -32,6 +32,7 @@ import json
 import math
 import os
 import sys
+import threading
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -209,6 +210,25 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     s.add_argument("--once", action="store_true", help="print one frame and exit")
     s.add_argument("--rate-hz", type=float, default=4.0, metavar="HZ", help="updates per wall second (default 4)")
     s.set_defaults(gcs_handler=_watch)
+    _accept_link_options_after_action(p)
+
+
+def _accept_link_options_after_action(p: argparse.ArgumentParser) -> None:
+    """Let ``--connect``, ``--timeout`` and ``--sysid`` also follow the action (``gcs status
+    --timeout 2``): every action's parser repeats them with no default of its own, so a value
+    given before the action stands unless one after it overrides it."""
+    link_options = [a for a in p._actions if "--connect" in a.option_strings or "--timeout" in a.option_strings
+                    or "--sysid" in a.option_strings]  # fmt: skip
+    pending = [a for a in p._actions if isinstance(a, argparse._SubParsersAction)]
+    while pending:
+        for leaf in pending.pop().choices.values():
+            nested = [a for a in leaf._actions if isinstance(a, argparse._SubParsersAction)]
+            if nested:
+                pending.extend(nested)
+                continue
+            for opt in link_options:
+                leaf.add_argument(*opt.option_strings, dest=opt.dest, type=opt.type, metavar=opt.metavar,
+                                  default=argparse.SUPPRESS, help=opt.help)  # fmt: skip
 
 
 # --------------------------------------------------------------------------------------- handlers
@@ -218,14 +238,53 @@ def main(args: argparse.Namespace) -> int:
         raise ConfigError(f"--timeout must be > 0 seconds, got {args.timeout}")
     handler: Callable[[Vehicle, argparse.Namespace, TextIO], int] = args.gcs_handler
     _precheck(args)
+    waiting = _WaitingNotice(f"smcpilot gcs: waiting up to {args.timeout:g} s for a vehicle on {args.connect} ...", sys.stderr)
     try:
         with Vehicle(args.connect, system_id=args.sysid, connect_timeout_s=args.timeout) as vehicle:
+            waiting.done()
             return handler(vehicle, args, sys.stdout)
     except UnknownModeError:
         raise  # a usage error: exit 2 through the CLI's handler
     except VehicleError as exc:
+        waiting.done()
         print(f"smcpilot gcs: error: {exc}", file=sys.stderr)
         return EXIT_VEHICLE
+    finally:
+        waiting.done()
+
+
+class _WaitingNotice:
+    """On a terminal, say what we wait for unless the vehicle answers within ``after_s``, and erase
+    it again once it does or we give up, so what remains is the command's own output or its one
+    error line. Elsewhere (a script, a log) nothing is written."""
+
+    def __init__(self, text: str, out: TextIO, after_s: float = 0.3) -> None:
+        self._text, self._out = text, out
+        self._lock = threading.Lock()
+        self._shown = self._finished = False
+        self._timer: threading.Timer | None = None
+        if out.isatty():
+            self._timer = threading.Timer(after_s, self._show)
+            self._timer.daemon = True
+            self._timer.start()
+
+    def _show(self) -> None:
+        with self._lock:
+            if not self._finished:
+                self._out.write(self._text)
+                self._out.flush()
+                self._shown = True
+
+    def done(self) -> None:
+        with self._lock:
+            if self._finished:
+                return
+            self._finished = True
+            if self._timer is not None:
+                self._timer.cancel()
+            if self._shown:
+                self._out.write("\r\x1b[K")
+                self._out.flush()
 
 
 def _precheck(args: argparse.Namespace) -> None:
@@ -430,6 +489,8 @@ def _watch(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
             else:
                 out.write(render_line(t) + "\n")
             out.flush()
+            if getattr(out, "broken", False):  # the reader went away (`... | head`): nothing to watch for
+                return EXIT_OK
             time.sleep(period)
     except KeyboardInterrupt:
         return EXIT_OK

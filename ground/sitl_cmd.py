@@ -13,8 +13,11 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from ground.logs.housekeeping import KEEP_PLAIN, compress_old_flights, format_bytes
+from ground.logs.progress import ProgressLine
 from ground.sitl import Sitl, SitlError, SitlOptions, print_connect_help
-from smcpilot.errors import ConfigError
+from smcpilot.errors import ConfigError, EndpointError
+from smcpilot.link import parse_endpoint
 from smcpilot.protocol import FC_CONTROLLERS
 from smcpilot.scenario import Scenario
 
@@ -43,6 +46,8 @@ def add_common(p: argparse.ArgumentParser, *, lockstep_flag: bool) -> None:
     p.add_argument("--noise", action="store_true", default=None, help="sensor noise on the simulated state")
     p.add_argument("--wind-force", type=_ned_triple, metavar="N,E,D", help="constant wind force, newtons, NED")
     p.add_argument("--gust-std", type=float, default=None, metavar="N", help="horizontal gust force std, newtons (default 0)")
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                   help="lockstep: a progress line on stderr (simulated time, speed, ETA); default: only on a terminal")  # fmt: skip
 
 
 def add_sitl_arguments(p: argparse.ArgumentParser) -> None:
@@ -59,12 +64,14 @@ def add_sitl_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _options(args: argparse.Namespace, **extra: Any) -> SitlOptions:
-    if args.speed is not None and not args.speed > 0:
-        raise ConfigError("--speed must be > 0")
-    if getattr(args, "duration", None) is not None and not args.duration > 0:
-        raise ConfigError("--duration must be > 0 simulated seconds")
-    if args.gust_std is not None and args.gust_std < 0:
-        raise ConfigError("--gust-std must be >= 0")
+    if args.speed is not None and not (math.isfinite(args.speed) and args.speed > 0):
+        raise ConfigError(f"--speed must be a finite number > 0, got {args.speed:g}")
+    duration = getattr(args, "duration", None)
+    if duration is not None and not (math.isfinite(duration) and duration > 0):
+        raise ConfigError(f"--duration must be a finite number > 0 of simulated seconds, got {duration:g}"
+                          " (leave it out to run until Ctrl-C)")  # fmt: skip
+    if args.gust_std is not None and not (math.isfinite(args.gust_std) and args.gust_std >= 0):
+        raise ConfigError(f"--gust-std must be a finite number >= 0, got {args.gust_std:g}")
     if args.vehicle is not None and not args.vehicle.is_file():
         raise ConfigError(f"vehicle file not found: {args.vehicle}")
     kw: dict[str, Any] = dict(speed=args.speed, log_dir=args.log_dir)
@@ -88,22 +95,67 @@ def _raise_terminated(*_: object) -> None:
     raise _Terminated()
 
 
+#: exit code of the FC and the simulator for a configuration error (a bad URL, file or value).
+_CHILD_EXIT_CONFIG = 2
+
+
+def _startup_config_error(sitl: Sitl) -> str | None:
+    """The one-line reason if a child ended during start-up with a configuration error, else None."""
+    for child in (sitl.fc, sitl.sim):
+        if child is not None and child.proc.poll() == _CHILD_EXIT_CONFIG:
+            errors = [ln.split("error:", 1)[1].strip() for ln in child.tail if "error:" in ln]
+            return errors[-1] if errors else f"{child.name} rejected its configuration"
+    return None
+
+
 def _launch_and_wait(
-    opts: SitlOptions, command: str, started: Callable[[Sitl], None] | None = None
+    opts: SitlOptions,
+    command: str,
+    started: Callable[[Sitl], None] | None = None,
+    progress_total_s: float | None | bool = False,
 ) -> tuple[int | None, Sitl, float]:
     """Run SITL to its end; (exit code if it did not end normally, the launcher, wall seconds).
 
-    Ctrl-C gives 130, SIGTERM 143 (both processes are stopped either way), a failed child 1.
+    Ctrl-C gives 130, SIGTERM 143 (both processes are stopped either way), a failed child 1, a
+    child that rejected its configuration during start-up 2 (one line: its reason). Output of
+    the children during start-up is held back until they are ready, so that a rejected
+    configuration is reported once. ``progress_total_s`` other than False shows a progress line on
+    stderr (simulated seconds of the whole run, or None if open-ended) while SITL runs.
     """
     old = signal.signal(signal.SIGTERM, _raise_terminated)
     t0 = time.monotonic()
-    sitl = Sitl(opts, echo=lambda line: print(line, flush=True))
+    held: list[str] | None = []
+
+    line: ProgressLine | None = None
+
+    def echo(text: str) -> None:
+        if held is not None:
+            held.append(text)
+        else:
+            if line is not None:
+                line.clear()
+            print(text, flush=True)
+
+    def release() -> None:
+        nonlocal held
+        lines, held = held or [], None
+        for text in lines:
+            print(text, flush=True)
+
+    sitl = Sitl(opts, echo=echo)
     rc: int | None = None
     try:
         with sitl:
+            release()
             if started is not None:
                 started(sitl)
-            sitl.wait()
+            if progress_total_s is not False and sitl.tlog is not None:
+                line = ProgressLine(sitl.tlog, progress_total_s or None, sys.stderr).start()
+            try:
+                sitl.wait()
+            finally:
+                if line is not None:
+                    line.stop()
     except KeyboardInterrupt:
         print(f"smcpilot {command}: stopped", file=sys.stderr)
         rc = 130
@@ -111,16 +163,45 @@ def _launch_and_wait(
         print(f"smcpilot {command}: terminated", file=sys.stderr)
         rc = 143
     except SitlError as exc:
-        print(f"smcpilot {command}: error: {exc}", file=sys.stderr)
-        rc = 1
+        reason = _startup_config_error(sitl) if held is not None else None
+        if reason is not None:
+            print(f"smcpilot {command}: error: {reason}", file=sys.stderr)
+            held = None  # the children's own report of it is that line
+            rc = 2
+        else:
+            release()
+            print(f"smcpilot {command}: error: {exc}", file=sys.stderr)
+            rc = 1
     finally:
         signal.signal(signal.SIGTERM, old)
+        if held is not None:
+            release()
     return rc, sitl, time.monotonic() - t0
+
+
+def _progress(args: argparse.Namespace, total_s: float | None) -> float | None | bool:
+    """The ``progress_total_s`` of :func:`_launch_and_wait`: False unless asked or on a terminal."""
+    wanted = args.progress if args.progress is not None else sys.stderr.isatty()
+    return total_s if wanted else False
+
+
+def _tidy_log_dir(log_dir: Path) -> None:
+    """Compress the logs of older flights (all but the newest few stay readable by pymavlink)."""
+    done = compress_old_flights(log_dir)
+    if done:
+        before, after = sum(r.bytes_before for r in done), sum(r.bytes_after for r in done)
+        print(f"logs: compressed {len(done)} older flight log(s) in {log_dir}/ ({format_bytes(before)} -> {format_bytes(after)};"
+              f" the newest {KEEP_PLAIN} stay plain; `smcpilot log clean` deletes old flights)")  # fmt: skip
 
 
 def sitl_main(args: argparse.Namespace) -> int:
     if args.plan is not None and not args.plan.is_file():
         raise ConfigError(f"plan file not found: {args.plan}")
+    if args.gcs != "none":
+        try:
+            parse_endpoint(args.gcs)
+        except EndpointError as exc:
+            raise ConfigError(f"--gcs: {exc}, or none") from None
     opts = _options(
         args,
         lockstep=args.lockstep,
@@ -134,15 +215,17 @@ def sitl_main(args: argparse.Namespace) -> int:
         print_connect_help(sitl)
         print("  stop with Ctrl-C" + (f"; runs {args.duration:g} simulated seconds" if args.duration else ""), flush=True)
 
-    rc, sitl, wall = _launch_and_wait(opts, "sitl", started)
+    rc, sitl, wall = _launch_and_wait(opts, "sitl", started, _progress(args, args.duration) if args.lockstep else False)
     if rc is not None:
         return rc
     fcs = sitl.fc_summary or {}
-    sim_s = fcs.get("sim_time_s")
+    # The simulator's clock is the simulated time (the FC's runs from its own start in real time).
+    sim_s = (sitl.sim_summary or {}).get("sim_time_s", fcs.get("sim_time_s"))
     print(
         f"SITL ended: {sim_s if sim_s is not None else float('nan'):.2f} simulated s in {wall:.2f} wall s,"
         f" {fcs.get('ticks', 0)} control ticks, {fcs.get('overruns', 0)} overruns; log {sitl.tlog}"
     )
+    _tidy_log_dir(args.log_dir)
     return 0
 
 
@@ -168,7 +251,7 @@ def demo_main(args: argparse.Namespace) -> int:
     opts = _options(args, lockstep=True, duration_s=DEMO_DURATION_S, gcs=None, plan=plan)
     print(f"demo: lockstep SITL, {DEMO_DURATION_S:g} s of flight ({plan.name}): take-off to 3 m, set-points,"
           " a heading change across ±180°, landing", flush=True)  # fmt: skip
-    rc, sitl, wall = _launch_and_wait(opts, "demo")
+    rc, sitl, wall = _launch_and_wait(opts, "demo", progress_total_s=_progress(args, DEMO_DURATION_S))
     if rc is not None:
         return rc
     fcs = sitl.fc_summary or {}
@@ -192,6 +275,7 @@ def demo_main(args: argparse.Namespace) -> int:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(result, indent=2, allow_nan=False) + "\n", encoding="utf-8")
         print(f"results: {args.json}")
+    _tidy_log_dir(args.log_dir)
     return 0
 
 

@@ -64,7 +64,7 @@ def bench_control(args: argparse.Namespace) -> int:
         ctrl = build_controller(name, model, opts)
         st = ctrl.initial_state(meas)
         us = _best_us(functools.partial(ctrl.step, meas, ref, st, 0.002), n, args.repeat)
-        print(f"  {name:<18} {us:7.2f} µs/step   ({us / floor:.2f}× baseline; target ≤ 10 µs)")
+        print(f"  {name:<18} {us:7.2f} µs/step   ({us / floor:.2f}× baseline; goal ≤ 10 µs)")
 
     u = model.hover_inputs()
     f = lambda t, y: plant.derivatives(t, y, u)[0]  # noqa: E731
@@ -85,7 +85,7 @@ def bench_control(args: argparse.Namespace) -> int:
             f"  {name:<18} {sc.duration_s / best:6.1f}× real time  ({best * 1e6 / steps:6.1f} µs per 1 ms step,"
             f" {best * 1e6 / steps / floor:.1f}× baseline){'  DIVERGED' if tr.diverged else ''}"
         )
-    print("\ntargets (issue 3): controller step ≤ 10 µs; paper scenario ≥ 50× real time per controller")
+    print("\ngoals: controller step ≤ 10 µs; paper scenario ≥ 50× real time per controller")
     return 0
 
 
@@ -140,7 +140,7 @@ def bench_sitl(args: argparse.Namespace) -> int:
             f" ({1e6 / (loop_speed * 500):.1f} µs per control tick; {loop_speed / ceiling:.2f} of the in-process ceiling;"
             f" {total:.2f} s wall incl. start-up)"
         )
-        print("  targets (issue 4): ≥ 20× over UDP on 2 cores, 40× wanted")
+        print("  goal: ≥ 20× over UDP on 2 cores, 40× wanted")
         if args.realtime_s > 0:
             opts = SitlOptions.of(lockstep=False, duration_s=args.realtime_s, controller=args.controller, gcs=None,
                                plan=plan_path, tlog=Path(tmp) / "bench-rt.tlog")  # fmt: skip

@@ -6,8 +6,11 @@ Errors the user can fix (a bad option, gain or file) print one line and exit 2; 
 from __future__ import annotations
 
 import argparse
+import io
+import os
 import sys
 from collections.abc import Callable, Sequence
+from typing import TextIO
 
 from smcpilot import __version__
 from smcpilot.errors import SmcpilotError
@@ -188,7 +191,76 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class PipeSafeStdout(io.TextIOBase):
+    """``sys.stdout`` that survives its reader going away (``smcpilot log summary LOG | head``).
+
+    The first write or flush that meets a closed pipe points file descriptor 1 at the null device,
+    and every later write succeeds and goes nowhere: the command (a mission in flight, a SITL run)
+    carries on to its end and its exit code, without a ``BrokenPipeError`` traceback.
+    """
+
+    def __init__(self, stream: TextIO) -> None:
+        super().__init__()
+        self._stream = stream
+        #: True once the reader of stdout has gone.
+        self.broken = False
+
+    def _detach_fd(self) -> None:
+        self.broken = True
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(devnull, self._stream.fileno())
+        finally:
+            os.close(devnull)
+
+    def write(self, text: str) -> int:  # type: ignore[override]
+        try:
+            return self._stream.write(text)
+        except BrokenPipeError:
+            self._detach_fd()
+            return len(text)
+
+    def flush(self) -> None:
+        try:
+            self._stream.flush()
+        except BrokenPipeError:
+            self._detach_fd()
+
+    def isatty(self) -> bool:
+        return self._stream.isatty()
+
+    def fileno(self) -> int:
+        return self._stream.fileno()
+
+    @property
+    def encoding(self) -> str:  # type: ignore[override]
+        return self._stream.encoding
+
+    def writable(self) -> bool:
+        return True
+
+    def __getattr__(self, name: str) -> object:
+        """Everything else (``reconfigure``, ``buffer``, ``line_buffering``) is the stream's own."""
+        return getattr(self._stream, name)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    original = sys.stdout
+    if not isinstance(original, PipeSafeStdout):
+        try:
+            original.fileno()
+        except (AttributeError, OSError, ValueError):
+            pass  # captured (pytest, StringIO): no file descriptor to protect
+        else:
+            sys.stdout = PipeSafeStdout(original)  # type: ignore[assignment]
+    try:
+        return _main(argv)
+    finally:
+        sys.stdout.flush()
+        sys.stdout = original
+
+
+def _main(argv: Sequence[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     handler: Handler = args.handler

@@ -23,7 +23,7 @@ Outputs in ``--out`` (default ``out/compare``):
 - each case's scenario as ``scenarios/<case>.toml`` (``smcpilot run`` flies it; the plant-side
   model errors of ``mass+30`` and ``inertia+30`` are the one thing a scenario file cannot say).
 
-The cases are those of issue 9's study (:func:`study_cases`); the controllers are the FC's laws
+The cases are those of the robustness study (:func:`study_cases`, docs/robustness.md); the controllers are the FC's laws
 and the adaptive PID-SMC without its disturbance observer (the paper's law as printed).
 """
 
@@ -284,24 +284,30 @@ def write_figures(result: StudyResult, cases: Sequence[Case], variants: Sequence
         fig.savefig(fig_dir / f"box_{key}.png", dpi=110)
         plt.close(fig)
     for c in cases:
-        fig, (a1, a2) = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
-        for lab in labels:
+        fig, (a1, a2) = plt.subplots(2, 1, figsize=(8, 5.3), sharex=True)
+        # Widest first, narrower and dashed on top: controllers that fly alike stay visible.
+        styles: list[dict[str, Any]] = [{"lw": 2.6, "alpha": 0.6}, {"lw": 1.3, "ls": (0, (4, 2))}, {"lw": 1.0}, {"lw": 1.0, "ls": (0, (1, 1))}]
+        for k, lab in enumerate(labels):
             w = result.worst.get((c.name, lab))
             if w is None:
                 continue
             row, tr = w
-            a1.plot(tr.t_s, tr.pos_err_m, label=f"{lab} (seed {row['seed']})", lw=1)
-            a2.plot(tr.t_s, tr.tilt_deg, lw=1)
+            style = styles[k % len(styles)]
+            a1.plot(tr.t_s, tr.pos_err_m, label=f"{lab} (seed {row['seed']})", **style)
+            a2.plot(tr.t_s, tr.tilt_deg, **style)
         for t_f in c.fault_starts_s:
             for ax in (a1, a2):
                 ax.axvline(t_f, color="k", ls=":", lw=0.8)
         a1.set_ylabel("position error (m)")
         a1.set_yscale("symlog", linthresh=0.1)
+        a1.set_ylim(bottom=0.0)  # a distance: nothing below zero
         a2.set_ylabel("tilt (°)")
         a2.set_xlabel("t (s)")
         a1.set_title(f"{c.name}: worst flight per controller — {c.description}", fontsize=9)
         a1.legend(fontsize=7)
-        fig.tight_layout()
+        fig.text(0.5, 0.005, "Widest line first, narrower and dashed ones on top: a line that does not show lies under another.",
+                 ha="center", va="bottom", fontsize=7, color="0.3")  # fmt: skip
+        fig.tight_layout(rect=(0, 0.03, 1, 1))
         fig.savefig(fig_dir / f"worst_{c.name}.png", dpi=110)
         plt.close(fig)
     return fig_dir

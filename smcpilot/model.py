@@ -1,4 +1,4 @@
-"""The paper's quadrotor model, corrected (``pid-smc-spec.md`` §1): the one place its equations live.
+"""The paper's quadrotor model, corrected (``docs/pid-smc.md`` §1): the one place its equations live.
 
 Frame: the paper's inertial frame, z up. Euler angles phi (roll), theta (pitch), psi (yaw) in rad;
 as in the paper, Euler-angle rates stand in for body rates (small-angle simplification).

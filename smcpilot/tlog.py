@@ -13,12 +13,16 @@ an owner that wants every record on disk installs such a handler and closes the 
 ``finally`` or ``with`` block.
 
 :func:`read_tlog` reads a log back as ``(time_us, message)`` pairs with exact integer timestamps
-(pymavlink's own reader turns them into float seconds).
+(pymavlink's own reader turns them into float seconds). It also reads a gzip-compressed log
+(``.tlog.gz``, written by :func:`compress_tlog`; ``smcpilot log compress``), which pymavlink
+itself does not: ``gunzip -k LOG.tlog.gz`` gives its plain ``.tlog`` back, byte for byte.
 """
 
 from __future__ import annotations
 
+import gzip
 import os
+import shutil
 import struct
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -28,7 +32,10 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from smcpilot.errors import TlogError, TlogFormatError
 
-__all__ = ["TlogWriter", "read_tlog", "TIMESTAMP_BYTES"]
+__all__ = ["TlogWriter", "read_tlog", "compress_tlog", "GZIP_SUFFIX", "TIMESTAMP_BYTES"]
+
+#: Suffix of a compressed log: ``flight.tlog`` -> ``flight.tlog.gz``.
+GZIP_SUFFIX = ".gz"
 
 #: Size of the timestamp that precedes every packet in a ``.tlog``.
 TIMESTAMP_BYTES = 8
@@ -180,7 +187,7 @@ def read_tlog(path: str | os.PathLike[str]) -> Iterator[tuple[int, mavlink.MAVLi
     decode = decoder.decode
     path = Path(path)
     try:
-        handle = open(path, "rb")
+        handle = gzip.open(path, "rb") if path.name.endswith(GZIP_SUFFIX) else open(path, "rb")
     except OSError as exc:
         raise TlogError(f"cannot open tlog {path}: {exc.strerror}") from exc
     with handle:
@@ -193,7 +200,10 @@ def read_tlog(path: str | os.PathLike[str]) -> Iterator[tuple[int, mavlink.MAVLi
                 del data[:start]
                 offset += start
                 start = 0
-                chunk = handle.read(_READ_CHUNK_BYTES)
+                try:
+                    chunk = handle.read(_READ_CHUNK_BYTES)
+                except (OSError, EOFError) as exc:  # a damaged or cut .tlog.gz
+                    raise TlogFormatError(f"{path}: cannot decompress after byte {offset + len(data)}: {exc}") from exc
                 if chunk:
                     data += chunk
                 else:
@@ -233,3 +243,24 @@ def read_tlog(path: str | os.PathLike[str]) -> Iterator[tuple[int, mavlink.MAVLi
             message._timestamp = time_us * 1.0e-6
             start = end
             yield time_us, message
+
+
+def compress_tlog(path: str | os.PathLike[str], *, level: int = 6) -> Path:
+    """Compress the ``.tlog`` at ``path`` to ``path + '.gz'`` (gzip) and delete the original.
+
+    The compressed file is written beside it under a temporary name and renamed only when
+    complete, so an interrupted call leaves the original in place. Returns the new path.
+    """
+    src = Path(path)
+    dst = src.with_name(src.name + GZIP_SUFFIX)
+    tmp = src.with_name(src.name + GZIP_SUFFIX + ".part")
+    try:
+        with open(src, "rb") as fin, open(tmp, "wb") as raw:
+            with gzip.GzipFile(filename=src.name, mode="wb", compresslevel=level, fileobj=raw) as fout:
+                shutil.copyfileobj(fin, fout, _READ_CHUNK_BYTES)
+        os.replace(tmp, dst)
+        src.unlink()
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise TlogError(f"cannot compress tlog {src}: {exc.strerror or exc}") from exc
+    return dst

@@ -1,6 +1,6 @@
 """The paper's printed typos, each switchable so a reader can see why its correction matters.
 
-Every name below reverts one correction of ``pid-smc-spec.md`` to the paper's literal text.
+Every name below reverts one correction of ``docs/pid-smc.md`` to the paper's literal text.
 Model typos change :class:`smcpilot.model.PaperModel` (and therefore both the simulated plant and
 the controller's nominal model, since the paper writes one set of equations for both); controller
 typos change only the control law in :mod:`fc.control.pid_smc`.
@@ -31,7 +31,7 @@ TYPOS: dict[str, tuple[str, str, str]] = {
     ),
     "fdot": (
         "eqs. (20), (27), (34)",
-        "time derivatives of f drop half of each product rule (a1 theta_dd psi_dd, ...)",
+        "time derivatives of f write the a1, a4, a7 cross terms as a product of derivatives (a1 theta_dd psi_dd, ...)",
         "full product rule: a1 (theta_dd psi_dot + theta_dot psi_dd), ...",
     ),
     "prefactor": (

@@ -1,6 +1,6 @@
 """Vehicle parameters: one frozen dataclass, units in every name, defaults from the spec.
 
-The defaults are the spec's parameter set (``pid-smc-spec.md`` §1, a widely used identification
+The defaults are the spec's parameter set (``docs/pid-smc.md`` §1, a widely used identification
 of a small quadrotor in the paper's notation) plus the actuator limits a real vehicle has
 (thrust/weight about 2, an idle speed, a first-order motor lag), which the paper's ideal plant
 ignores.

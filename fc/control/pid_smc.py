@@ -1,4 +1,4 @@
-"""The PID sliding-mode controller of the paper, corrected (``pid-smc-spec.md`` §§2-4).
+"""The PID sliding-mode controller of the paper, corrected (``docs/pid-smc.md`` §§2-4).
 
 Per channel k (phi, theta, psi, z), with e = x - x_d:
 

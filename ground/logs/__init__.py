@@ -10,6 +10,9 @@ for flights without a log; :func:`log_metrics` feeds them a log); :func:`plot_lo
 writes PNG figures (:mod:`ground.logs.plots`). The CLI pieces (:func:`add_plot_arguments` /
 :func:`plot_main` for ``smcpilot plot LOG`` and :func:`add_log_arguments` / :func:`log_main` for
 ``smcpilot log summary LOG``, :mod:`ground.logs.cli`) are wired into :mod:`lab.cli`.
+:mod:`ground.logs.housekeeping` keeps a log directory small (``smcpilot log compress``,
+``smcpilot log clean``, and the compression of older flights after ``sitl`` and ``demo``);
+:mod:`ground.logs.progress` draws the progress line of a flight from its growing log.
 """
 
 from __future__ import annotations

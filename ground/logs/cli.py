@@ -1,6 +1,7 @@
 """The command-line pieces of the log tools, wired into :mod:`lab.cli`:
 :func:`add_plot_arguments` / :func:`plot_main` for ``smcpilot plot LOG`` and
-:func:`add_log_arguments` / :func:`log_main` for ``smcpilot log summary LOG``."""
+:func:`add_log_arguments` / :func:`log_main` for ``smcpilot log summary LOG``,
+``smcpilot log compress LOG...`` and ``smcpilot log clean [DIR]``."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import sys
 from pathlib import Path
 from typing import Callable
 
+from ground.logs.housekeeping import DEFAULT_KEEP, clean_logs, compress_logs, flight_stem, format_bytes
 from ground.logs.load import LogError, load_log
 from ground.logs.plots import plot_log
 from ground.logs.summary import DEFAULT_SETTLE_S, print_summary, summarize
@@ -33,7 +35,7 @@ def add_plot_arguments(p: argparse.ArgumentParser) -> None:
 def plot_main(args: argparse.Namespace) -> int:
     """``smcpilot plot``: write the figures, print their paths. Exit 1 if the log has nothing to plot."""
     log_path: Path = args.log
-    out_dir: Path = args.out if args.out is not None else log_path.with_name(f"{log_path.stem}-plots")
+    out_dir: Path = args.out if args.out is not None else log_path.with_name(f"{flight_stem(log_path)}-plots")
     log = load_log(log_path)
     for note in log.warnings:
         print(f"note: {note}", file=sys.stderr)
@@ -69,6 +71,29 @@ def add_log_arguments(p: argparse.ArgumentParser) -> None:
     )
     s.set_defaults(log_handler=_summary_main)
 
+    c = sub.add_parser(
+        "compress",
+        help="gzip flight logs (about 2.5x smaller); smcpilot log/plot still read them, `gunzip -k` for pymavlink",
+        description="Compress each .tlog to .tlog.gz (gzip) and delete the original once the copy is complete."
+        " smcpilot log summary and smcpilot plot read .tlog.gz directly; pymavlink (mavlogdump.py, MAVProxy)"
+        " needs the plain file back: gunzip -k LOG.tlog.gz. A directory compresses every .tlog in it.",
+    )
+    c.add_argument("paths", type=Path, nargs="+", metavar="LOG|DIR", help=".tlog files or directories of them")
+    c.set_defaults(log_handler=_compress_main)
+
+    k = sub.add_parser(
+        "clean",
+        help=f"delete all but the newest flights in a log directory (default: keep {DEFAULT_KEEP})",
+        description="Delete the oldest flights in DIR: each flight's .tlog (or .tlog.gz), its .scenario.toml and its"
+        " -plots/ directory go together. The parameter file (fc-params.parm) is never touched. --compress gzips"
+        " the older flights instead of deleting them.",
+    )
+    k.add_argument("dir", type=Path, nargs="?", default=Path("logs"), metavar="DIR", help="log directory (default logs/)")
+    k.add_argument("--keep", type=int, default=DEFAULT_KEEP, metavar="N", help=f"newest flights to keep (default {DEFAULT_KEEP})")
+    k.add_argument("--compress", action="store_true", help="compress the older flights' logs instead of deleting them")
+    k.add_argument("--dry-run", action="store_true", help="only print what would be done")
+    k.set_defaults(log_handler=_clean_main)
+
 
 def log_main(args: argparse.Namespace) -> int:
     """``smcpilot log SUBCOMMAND``: dispatch to the chosen subcommand."""
@@ -90,4 +115,29 @@ def _summary_main(args: argparse.Namespace) -> int:
             args.json.write_text(text + "\n")
         except OSError as exc:
             raise LogError(f"cannot write {args.json}: {exc.strerror}") from exc
+    return 0
+
+
+def _compress_main(args: argparse.Namespace) -> int:
+    results = compress_logs(args.paths)
+    before = sum(r.bytes_before for r in results)
+    after = sum(r.bytes_after for r in results)
+    for r in results:
+        print(f"{r.path}: {format_bytes(r.bytes_before)} -> {format_bytes(r.bytes_after)}")
+    if not results:
+        print("no .tlog to compress", file=sys.stderr)
+        return 1
+    print(f"{len(results)} log(s): {format_bytes(before)} -> {format_bytes(after)}")
+    return 0
+
+
+def _clean_main(args: argparse.Namespace) -> int:
+    if args.keep < 0:
+        raise LogError(f"--keep must be >= 0, got {args.keep}")
+    report = clean_logs(args.dir, keep=args.keep, compress=args.compress, dry_run=args.dry_run)
+    verb = ("would compress" if args.compress else "would delete") if args.dry_run else ("compressed" if args.compress else "deleted")
+    for path in report.touched:
+        print(f"{verb} {path}")
+    print(f"{args.dir}: {report.flights} flight(s), kept the newest {min(args.keep, report.flights)};"
+          f" {verb} {len(report.touched)} file(s), {format_bytes(report.bytes_freed)} freed")  # fmt: skip
     return 0

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from ground.logs.load import CHANNELS, FlightLog, LogError, _wrap_deg
+from ground.logs.metrics import SIGMA_TAU_S, lowpass
 from ground.logs.summary import DEFAULT_SETTLE_S, _hold, _setpoint_changes, _tracking_masks
 from smcpilot.protocol import CHANNEL_TAGS
 
@@ -318,27 +319,35 @@ def _figure_controller(  # type: ignore[no-untyped-def]
     fig, axes = plt.subplots(4, len(cols), figsize=(11 if len(cols) == 2 else 8, 8.5), sharex=True, squeeze=False)
     fig.suptitle(f"{log.name}: PID manifold σ and adaptive gain χ̂ per channel (from {log.ctrl_source})")
     symbols = {"phi": "φ", "theta": "θ", "psi": "ψ", "z": "z"}
+    units = {"phi": ("rad/s", "rad/s²"), "theta": ("rad/s", "rad/s²"), "psi": ("rad/s", "rad/s²"), "z": ("m/s", "m/s²")}
     for i, c in enumerate(CHANNELS):
+        sigma_unit, chi_unit = units[c]
         for k, what in enumerate(cols):
             ax = axes[i, k]
             _shade_armed(ax, log)
             if what == "sigma":
-                ax.plot(log.ctrl_t_s, log.sigma[:, i], color="tab:purple", lw=0.9, label="σ")
+                sigma = log.sigma[:, i]
+                ax.plot(log.ctrl_t_s, sigma, color="tab:purple", lw=0.6, alpha=0.45, label="σ (every tick)")
+                ok = np.isfinite(sigma)
+                if ok.sum() > 2:
+                    smooth = np.full(sigma.shape, np.nan)
+                    smooth[ok] = lowpass(log.ctrl_t_s[ok], sigma[ok], SIGMA_TAU_S)
+                    ax.plot(log.ctrl_t_s, smooth, color="indigo", lw=1.0, label=f"σ low-passed (τ = {SIGMA_TAU_S:g} s)")
                 if dead_zone:
-                    ax.axhspan(
-                        -dead_zone, dead_zone, color="0.5", alpha=0.15, lw=0,
-                        label=f"dead zone ±{dead_zone:g} ({bounds_source}): χ̂ holds",
-                    )  # fmt: skip
+                    # Lines, not a band: on the symlog axis a band of ±dead_zone would cover most of it.
+                    for sign in (1.0, -1.0):
+                        ax.axhline(sign * dead_zone, color="0.35", ls="--", lw=0.8,
+                                   label=f"dead zone |σ| < {dead_zone:g} ({bounds_source}): χ̂ does not grow" if sign > 0 else None)  # fmt: skip
                 ax.set_yscale("symlog", linthresh=1e-3)
-                ax.set_ylabel(f"σ_{symbols[c]}")
+                ax.set_ylabel(f"σ_{symbols[c]} [{sigma_unit}]")
             else:
                 ax.plot(log.ctrl_t_s, log.chi_hat[:, i], color="tab:green", lw=1.2, label="χ̂")
                 if bounds is not None:
                     _draw_bounds(ax, log.chi_hat[:, i], bounds, bounds_source)
-                ax.set_ylabel(f"χ̂_{symbols[c]}")
+                ax.set_ylabel(f"χ̂_{symbols[c]} [{chi_unit}]")
             ax.grid(alpha=0.3)
     for k in range(len(cols)):
-        axes[0, k].legend(fontsize=8, loc="upper right")
+        axes[0, k].legend(fontsize=7, loc="lower left" if cols[k] == "sigma" else "upper left")
     for ax in axes[-1]:
         ax.set_xlabel("t [s]")
     return fig
@@ -353,9 +362,10 @@ def _figure_track(plt, log: FlightLog):  # type: ignore[no-untyped-def]
     fig, ax = plt.subplots(1, 1, figsize=(7.5, 7.5))
     fig.suptitle(f"{log.name}: track seen from above")
     if has_pos:
-        ax.plot(log.east_m, log.north_m, color="tab:blue", lw=1.3, label="vehicle")
-        ax.plot(log.east_m[0], log.north_m[0], "o", color="tab:green", ms=7, label="start")
-        ax.plot(log.east_m[-1], log.north_m[-1], "s", color="tab:blue", ms=6, label="end")
+        ax.plot(log.east_m, log.north_m, color="tab:blue", lw=1.3, label="vehicle", zorder=2)
+        # Hollow and drawn last, so that a set-point at the same spot (home) shows through.
+        ax.plot(log.east_m[0], log.north_m[0], "o", mfc="none", mec="tab:green", mew=2, ms=13, label="start", zorder=5)
+        ax.plot(log.east_m[-1], log.north_m[-1], "s", mfc="none", mec="navy", mew=1.5, ms=9, label="end", zorder=5)
         if log.att_t_s.size > 1:
             # Heading arrows every 2 s, only where the vehicle moved or turned since the last one.
             step_s = 2.0
@@ -372,22 +382,31 @@ def _figure_track(plt, log: FlightLog):  # type: ignore[no-untyped-def]
                 )  # fmt: skip
     if has_target:
         target = _target_ne_alt(log)
-        stacked: dict[tuple[float, float], int] = {}
+        # One label per spot, a line per set-point there (home is visited at take-off, on return, at landing).
+        spots: dict[tuple[float, float], list[str]] = {}
         for k in np.flatnonzero(_setpoint_changes(log)):
             n_t, e_t, alt_t = target[k]
             if not (math.isfinite(n_t) and math.isfinite(e_t)):
                 continue
-            ax.plot(e_t, n_t, "x", color="tab:red", ms=10, mew=2, label="set-point" if not stacked else None)
-            key = (round(e_t, 2), round(n_t, 2))
-            ax.annotate(
-                f"t={log.smc_t_s[k]:.1f} s, alt {alt_t:.1f} m, yaw {log.target_yaw_deg[k]:.0f}°",
-                (e_t, n_t), xytext=(8, 8 + 13 * stacked.get(key, 0)), textcoords="offset points", fontsize=8,
-                color="tab:red",
-            )  # fmt: skip
-            stacked[key] = stacked.get(key, 0) + 1
+            spots.setdefault((round(float(e_t), 2), round(float(n_t), 2)), []).append(
+                f"t={log.smc_t_s[k]:.1f} s: alt {alt_t:.1f} m, yaw {log.target_yaw_deg[k]:.0f}°"
+            )
+        if spots:
+            es = [e for e, _ in spots]
+            ns = [n for _, n in spots]
+            ax.plot(es, ns, "x", color="tab:red", ms=10, mew=2, label="set-point", zorder=4)
+            all_e = np.concatenate([log.east_m[np.isfinite(log.east_m)], es]) if has_pos else np.asarray(es)
+            mid_e = 0.5 * (float(np.min(all_e)) + float(np.max(all_e)))
+            for (e_t, n_t), lines in spots.items():
+                right_half = e_t > mid_e
+                ax.annotate(
+                    "\n".join(lines), (e_t, n_t), xytext=(-10 if right_half else 10, -10), textcoords="offset points",
+                    ha="right" if right_half else "left", va="top", fontsize=8, color="tab:red", zorder=6,
+                    bbox={"boxstyle": "round,pad=0.25", "fc": "white", "ec": "none", "alpha": 0.8},
+                )  # fmt: skip
     ax.set_xlabel("east [m]")
     ax.set_ylabel("north [m]")
-    ax.margins(0.12)
+    ax.margins(0.15)
     ax.set_aspect("equal", adjustable="datalim")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="best")

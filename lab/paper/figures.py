@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -21,6 +22,28 @@ LABELS = {
 }
 COLORS = {"pid_smc": "tab:blue", "adaptive_pid_smc": "tab:green", "sign_smc": "tab:red", "cascade_pid": "tab:gray"}
 SYMBOLS = {"phi": "φ", "theta": "θ", "psi": "ψ", "z": "z"}
+#: The two PID-SMC flavours nearly coincide in most panels: the known-bound one is drawn dashed on
+#: top of a wider adaptive line, so that both stay visible, and the figures say so.
+STYLES: dict[str, dict[str, Any]] = {
+    "pid_smc": {"ls": (0, (4, 2)), "lw": 1.2, "zorder": 4},
+    "adaptive_pid_smc": {"lw": 2.4, "alpha": 0.8, "zorder": 3},
+    "sign_smc": {"lw": 1.2, "zorder": 2},
+    "cascade_pid": {"lw": 1.2, "zorder": 2},
+}
+OVERLAP_NOTE = "PID-SMC (known χ) is dashed, on top of the adaptive PID-SMC: where only one shows, the two coincide."
+
+
+def _style(name: str, **override: object) -> dict:
+    return {**STYLES.get(name, {}), **override}
+
+
+def _note_overlap(fig, names, extra: str = "") -> None:
+    """Say under the figure that a dashed known-bound curve may hide in the adaptive one (and ``extra``)."""
+    notes = [OVERLAP_NOTE] if "pid_smc" in names and "adaptive_pid_smc" in names else []
+    if extra:
+        notes.append(extra)
+    if notes:
+        fig.text(0.5, 0.005, " ".join(notes), ha="center", va="bottom", fontsize=8, color="0.3")
 
 
 def _grid(title: str, nrows: int = 2, ncols: int = 2, height: float = 6.5):
@@ -35,7 +58,7 @@ def _legend(ax, **kw) -> None:
 
 
 def _save(fig, out: Path, name: str) -> Path:
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.025 if fig.texts else 0, 1, 1))
     path = out / name
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -61,7 +84,7 @@ def write_figures(run: PaperRun, out_dir: str | Path) -> list[Path]:
     for i, c in enumerate(CHANNELS):
         ax = axes.flat[i]
         for name, tr in trs.items():
-            ax.plot(tr.t_s, tr.x[:, 2 * i], color=COLORS[name], label=LABELS[name], lw=1.2)
+            ax.plot(tr.t_s, tr.x[:, 2 * i], color=COLORS[name], label=LABELS[name], **_style(name))
             _mark_divergence(ax, tr)
         first = next(iter(trs.values()))
         ax.plot(first.t_s, first.x_ref[:, i], "k--", lw=1, label="reference")
@@ -70,6 +93,7 @@ def write_figures(run: PaperRun, out_dir: str | Path) -> list[Path]:
     _legend(axes[0, 0], fontsize=8)
     for ax in axes[-1]:
         ax.set_xlabel("t [s]")
+    _note_overlap(fig, trs)
     paths.append(_save(fig, out, "states.png"))
 
     # 2. tracking errors (symlog so both the transient and the residual show)
@@ -77,14 +101,15 @@ def write_figures(run: PaperRun, out_dir: str | Path) -> list[Path]:
     for i, c in enumerate(CHANNELS):
         ax = axes.flat[i]
         for name, tr in trs.items():
-            ax.plot(tr.t_s, tr.errors[:, i], color=COLORS[name], label=LABELS[name], lw=1.2)
-        ax.axhspan(-0.01, 0.01, color="k", alpha=0.07)
+            ax.plot(tr.t_s, tr.errors[:, i], color=COLORS[name], label=LABELS[name], **_style(name))
+        ax.axhspan(-0.01, 0.01, color="k", alpha=0.07, label="±0.01" if i == 0 else None)
         ax.set_yscale("symlog", linthresh=1e-3)
         ax.set_ylabel(f"e_{SYMBOLS[c]} [{STATE_UNITS[i]}]")
         ax.grid(alpha=0.3)
     _legend(axes[0, 0], fontsize=8)
     for ax in axes[-1]:
         ax.set_xlabel("t [s]")
+    _note_overlap(fig, trs)
     paths.append(_save(fig, out, "errors.png"))
 
     # 3. S and sigma of the PID-SMC flavours
@@ -95,16 +120,18 @@ def write_figures(run: PaperRun, out_dir: str | Path) -> list[Path]:
         for i, c in enumerate(CHANNELS):
             for name, tr in smc.items():
                 assert tr.s is not None and tr.sigma is not None  # smc holds the sliding-mode laws only
-                axes[i, 0].plot(tr.t_s, tr.s[:, i], color=COLORS[name], label=LABELS[name], lw=1.2)
-                axes[i, 1].plot(tr.t_s, tr.sigma[:, i], color=COLORS[name], label=LABELS[name], lw=1.2)
-            axes[i, 0].set_ylabel(f"S_{SYMBOLS[c]}")
-            axes[i, 1].set_ylabel(f"σ_{SYMBOLS[c]}")
+                axes[i, 0].plot(tr.t_s, tr.s[:, i], color=COLORS[name], label=LABELS[name], **_style(name))
+                axes[i, 1].plot(tr.t_s, tr.sigma[:, i], color=COLORS[name], label=LABELS[name], **_style(name))
+            unit = "m/s" if c == "z" else "rad/s"  # c1 [1/s], c2, kp dimensionless, ki [1/s], kd [s]
+            axes[i, 0].set_ylabel(f"S_{SYMBOLS[c]} [{unit}]")
+            axes[i, 1].set_ylabel(f"σ_{SYMBOLS[c]} [{unit}]")
             for ax in axes[i]:
                 ax.set_yscale("symlog", linthresh=1e-3)
                 ax.grid(alpha=0.3)
         _legend(axes[0, 0], fontsize=8)
         axes[-1, 0].set_xlabel("t [s]")
         axes[-1, 1].set_xlabel("t [s]")
+        _note_overlap(fig, smc)
         paths.append(_save(fig, out, "sliding.png"))
 
     # 4. inputs per channel
@@ -112,7 +139,7 @@ def write_figures(run: PaperRun, out_dir: str | Path) -> list[Path]:
     for i, c in enumerate(CHANNELS):
         ax = axes.flat[i]
         for name, tr in trs.items():
-            ax.plot(tr.t_s, tr.u[:, i], color=COLORS[name], label=LABELS[name], lw=0.8)
+            ax.plot(tr.t_s, tr.u[:, i], color=COLORS[name], label=LABELS[name], **_style(name, lw=STYLES.get(name, {}).get("lw", 1.2) * 0.7))
         ax.set_ylabel(f"u_{SYMBOLS[c]} [{INPUT_UNITS[i]}]")
         ax.grid(alpha=0.3)
         finite = np.concatenate([tr.u[:, i] for tr in trs.values() if tr.controller != "sign_smc"] or [np.zeros(1)])
@@ -122,6 +149,7 @@ def write_figures(run: PaperRun, out_dir: str | Path) -> list[Path]:
     _legend(axes[0, 0], fontsize=8)
     for ax in axes[-1]:
         ax.set_xlabel("t [s]")
+    _note_overlap(fig, trs, "Axes clipped at the 99.5th percentile of |u| (sign SMC left out of it): higher peaks are cut.")
     paths.append(_save(fig, out, "inputs.png"))
 
     # 5. chi_hat
@@ -135,30 +163,34 @@ def write_figures(run: PaperRun, out_dir: str | Path) -> list[Path]:
                 ax.plot(ad.t_s, ad.chi_hat[:, i], color=COLORS["adaptive_pid_smc"], label="χ̂ (adaptive)")
             if known is not None and known.chi_hat is not None:
                 ax.plot(known.t_s, known.chi_hat[:, i], "--", color=COLORS["pid_smc"], label="χ (known bound)")
-            ax.set_ylabel(f"χ_{SYMBOLS[c]}")
+            ax.set_ylabel(f"χ_{SYMBOLS[c]} [{'m/s²' if c == 'z' else 'rad/s²'}]")
             ax.grid(alpha=0.3)
         _legend(axes[0, 0], fontsize=8)
         for ax in axes[-1]:
             ax.set_xlabel("t [s]")
         paths.append(_save(fig, out, "chi_hat.png"))
 
-    # 6. rotor speeds (signed square root of w^2, so unrealisable commands show below zero)
+    # 6. rotor speeds (signed square root of w^2, so unrealisable commands would show below zero)
     n = len(trs)
     fig, axes = plt.subplots(n, 1, figsize=(11, 2.2 * n + 0.8), sharex=True, squeeze=False)
-    fig.suptitle(f"Rotor speeds (negative: ω² < 0, not realisable) ({sub})")
+    unrealisable = [LABELS[name] for name, tr in trs.items() if np.nanmin(tr.w_sq) < 0]
+    note = ("ω² < 0 (not realisable) in: " + ", ".join(unrealisable)) if unrealisable else "every ω² ≥ 0: all commands realisable"
+    fig.suptitle(f"Rotor speeds, signed √ω² ({note}) ({sub})")
     hover = float(np.sqrt(run.model.hover_omega_sq))
     for k, (name, tr) in enumerate(trs.items()):
         ax = axes[k, 0]
         w = np.sign(tr.w_sq) * np.sqrt(np.abs(tr.w_sq))
-        for j in range(4):
-            ax.plot(tr.t_s, w[:, j], lw=0.9, label=f"ω{j + 1}")
-        ax.axhline(hover, color="k", ls="--", lw=0.8, label="hover")
+        for j in range(4):  # 3 and 4 dashed on top: in this scenario they shadow 1 and 2 closely
+            ax.plot(tr.t_s, w[:, j], lw=1.6 if j < 2 else 0.9, ls="-" if j < 2 else (0, (3, 2)), label=f"ω{j + 1}")
+        ax.axhline(hover, color="k", ls=":", lw=0.8, label="hover (level)")
+        if np.nanmin(w) < 0:
+            ax.axhline(0.0, color="tab:red", lw=0.8, label="below: ω² < 0")
         ax.set_ylabel(f"{LABELS[name]}\n[rad/s]", fontsize=8)
         ax.grid(alpha=0.3)
         lim = np.nanpercentile(np.abs(w), 99.5)
         if np.isfinite(lim) and lim > 0:
             ax.set_ylim(min(-0.05 * lim, np.nanmin(w)) if np.nanmin(w) < 0 else 0.0, 1.2 * lim)
-    _legend(axes[0, 0], fontsize=7, ncol=5)
+    _legend(axes[0, 0], fontsize=7, ncol=6)
     axes[-1, 0].set_xlabel("t [s]")
     paths.append(_save(fig, out, "rotor_speeds.png"))
 
@@ -172,7 +204,7 @@ def write_figures(run: PaperRun, out_dir: str | Path) -> list[Path]:
         for name, tr in trs.items():
             sel = (tr.t_s >= z0) & (tr.t_s <= z0 + 0.1)
             if sel.any():
-                ax.plot(tr.t_s[sel], tr.u[sel, i], color=COLORS[name], label=LABELS[name], lw=1)
+                ax.plot(tr.t_s[sel], tr.u[sel, i], color=COLORS[name], label=LABELS[name], **_style(name))
         ax.set_title(f"u_{SYMBOLS[c]} [{INPUT_UNITS[i]}]", fontsize=9)
         ax.grid(alpha=0.3)
         ax2 = axes[1, i]
@@ -188,5 +220,6 @@ def write_figures(run: PaperRun, out_dir: str | Path) -> list[Path]:
             ax2.set_yscale("log")
         ax2.grid(alpha=0.3, axis="y")
     _legend(axes[0, 0], fontsize=7)
+    _note_overlap(fig, trs)
     paths.append(_save(fig, out, "chattering.png"))
     return paths

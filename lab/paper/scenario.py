@@ -1,4 +1,4 @@
-"""The paper's scenario (eq. 45 and §VI; ``pid-smc-spec.md`` §5)."""
+"""The paper's scenario (eq. 45 and §VI; ``docs/pid-smc.md`` §5)."""
 
 from __future__ import annotations
 
