@@ -66,7 +66,7 @@ def write_distribution_figures(rows: Sequence[dict[str, Any]], fig_dir: Path, *,
                     for c, vs in zip(ctrls, data):
                         if vs:
                             n = len(vs)
-                            ax.step(vs, [(i + 1) / n for i in range(n)], where="post", label=f"{c} (n={n})", lw=1.2)
+                            ax.step([vs[0], *vs], [0.0, *((i + 1) / n for i in range(n))], where="post", label=f"{c} (n={n})", lw=1.2)
                     ax.set_ylim(0.0, 1.02)
                     ax.set_ylabel("fraction of flights ≤ x", fontsize=8)
                     ax.set_xlabel(label, fontsize=8)
@@ -97,6 +97,7 @@ def write_worst_figure(worst: Sequence[tuple[dict[str, Any], Trace]], path: Path
     plt = _plt()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(11.5, 5.5), sharex=True)
+    fault_shown = False
     for row, tr in worst:
         lab = f"unit {row['unit']}: {row['controller']}, {row['group']}, seed {row['seed_index']} ({row['status']})"
         a1.plot(tr.t_s, tr.pos_err_m, lw=1, label=lab)
@@ -104,12 +105,14 @@ def write_worst_figure(worst: Sequence[tuple[dict[str, Any], Trace]], path: Path
         start = row.get("fault_start_s")
         if isinstance(start, (int, float)) and math.isfinite(start):
             for ax in (a1, a2):
-                ax.axvline(start, color="k", ls=":", lw=0.8)
+                ax.axvline(start, color="k", ls=":", lw=0.8, label="fault start" if ax is a1 and not fault_shown else None)
+            fault_shown = True
     if score_from_s > 0:
         for ax in (a1, a2):
             ax.axvspan(0.0, score_from_s, color="0.85", alpha=0.6, lw=0, label="not scored (take-off)" if ax is a1 else None)
     a1.set_ylabel("position error (m)")
     a1.set_yscale("symlog", linthresh=0.1)
+    a1.set_ylim(bottom=0.0)
     a1.grid(alpha=0.3)
     a2.set_ylabel("tilt (°)")
     a2.set_xlabel("simulated time (s)")
