@@ -34,7 +34,7 @@ _BENCH_DOC = {
 def add_arguments(sub: argparse._SubParsersAction) -> None:
     c = sub.add_parser("campaign", help="campaign engine: flights/s with 1 and 2 workers, per-unit overhead, in-process vs --sitl")
     c.add_argument("--units", type=int, default=16, help="units per measurement (default 16)")
-    c.add_argument("--duration", type=float, default=5.0, metavar="S", help="simulated seconds per flight (default 5)")
+    c.add_argument("--duration", type=float, default=10.0, metavar="S", help="simulated seconds per flight (default 10, a short campaign flight)")
     c.add_argument("--sitl-units", type=int, default=2, metavar="N", help="SITL units for the in-process vs --sitl line (default 2; 0 skips)")
     c.set_defaults(bench=bench_campaign)
 

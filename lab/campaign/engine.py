@@ -114,7 +114,8 @@ class Engine:
             n = o.workers or os.cpu_count() or 1
             # saturation 1.0: a worker holds only the unit it flies (the rest wait on the scheduler), so a worker
             # that dies or hangs takes no queued unit with it
-            with dask.config.set({"distributed.scheduler.allowed-failures": 1, "distributed.scheduler.worker-saturation": 1.0}):
+            with dask.config.set({"distributed.scheduler.allowed-failures": 1, "distributed.scheduler.worker-saturation": 1.0,
+                                  "distributed.worker.profile.enabled": False}):  # the sampling profiler costs the flight 1/4 of its speed
                 self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, silence_logs=logging.ERROR,
                                             dashboard_address=":0")  # fmt: skip
                 self.client = Client(self.cluster)
