@@ -267,6 +267,7 @@ class FlightControllerApp:
                 link.close()
         if self.tlog is not None:
             self.tlog.close()
+        self.params.close()  # the last parameter change on disk before we exit
 
     def run(self) -> int:
         sim_addr = "{}:{}".format(*self.sim.local_address)

@@ -513,6 +513,10 @@ class GcsHandler:
         """Per control tick: mission-protocol timeouts (wall clock) and the telemetry streams."""
         now = self.wall_s()
         self.mission.tick(now)
+        if self.params.write_errors:  # the writer thread could not save the parameter file
+            exc = self.params.write_errors.pop()
+            self.params.write_errors.clear()
+            self._event(M.MAV_SEVERITY_ERROR, f"Param file not written: {exc.strerror or exc}")
         self.stream(t_us)
 
 
