@@ -36,6 +36,7 @@ from smcpilot.faults import (
     check_sim_param,
     sensor_fault_from_params,
 )
+from smcpilot.limits import FENCE_ALT_MAX_RANGE_M, FENCE_RADIUS_RANGE_M
 from smcpilot.protocol import FC_CONTROLLERS
 from smcpilot.scenario import Scenario, ScenarioError
 
@@ -210,6 +211,10 @@ def _build() -> tuple[ParamSpec, ...]:
                   "control law: " + ", ".join(f"{i} {n}" for i, n in enumerate(FC_CONTROLLERS)),
                   _controller_get, _controller_set, is_int=True, restart=True)  # fmt: skip
     )
+    add("FENCE_ENABLE", "fence_enable", 0.0, 1.0, "", "1: targets outside the geofence (FENCE_RADIUS, FENCE_ALT_MAX) are refused;"
+        " 0: only the absolute limits hold (10 km, 500 m)", is_int=True, cast=bool)  # fmt: skip
+    add("FENCE_RADIUS", "fence_radius_m", *FENCE_RADIUS_RANGE_M, "m", "geofence: largest horizontal distance of a target from home")
+    add("FENCE_ALT_MAX", "fence_alt_max_m", *FENCE_ALT_MAX_RANGE_M, "m", "geofence: largest target altitude above home (take-off too)")
     add("SYSID_THISMAV", "system_id", 1.0, 255.0, "", "MAVLink system id", is_int=True, restart=True, cast=int)
     names = [s.name for s in specs]
     assert len(set(names)) == len(names) and all(len(n) <= 16 for n in names), names
