@@ -486,7 +486,7 @@ class FlightControllerApp:
         self.stats.sim_statustexts += 1
         self.say(f"fc: {text}")
         if self.gcs is not None:
-            self.gcs.send(telemetry.statustext(self.gcs.mav, int(msg.severity), text))
+            self.gcs.send_many(telemetry.statustexts(self.gcs.mav, int(msg.severity), text))
 
     def _poll_gcs(self) -> None:
         if self.gcs is None:
@@ -533,9 +533,10 @@ class FlightControllerApp:
         """A STATUSTEXT to ground stations (and the log), and a line on stdout."""
         self.say(f"fc: {text}")
         if self.gcs is not None:
-            self.gcs.send(telemetry.statustext(self.gcs.mav, severity, text))
+            self.gcs.send_many(telemetry.statustexts(self.gcs.mav, severity, text))
         elif self.tlog is not None:
-            self.tlog.write(self.clock.now_us(), telemetry.statustext(self._logmav, severity, text).pack(self._logmav))
+            lm = self._logmav
+            self.tlog.write_many(self.clock.now_us(), [m.pack(lm) for m in telemetry.statustexts(lm, severity, text)])
 
 
 def install_signal_handlers(app: FlightControllerApp) -> None:
