@@ -54,7 +54,7 @@ from fc.gcs import GcsHandler
 from fc.params import ParamStore, param_messages
 from fc.streams import StreamScheduler
 from smcpilot.clock import SimClock, WallClock
-from smcpilot.errors import RateMismatchError, WatchdogError
+from smcpilot.errors import LinkError, RateMismatchError, WatchdogError
 from smcpilot.fastcodec import encode_debug_float_array, encode_hil_actuator_controls
 from smcpilot.faults import SIM_PARAM_INDEX
 from smcpilot.frames import body_rates_to_euler_rates, euler_frd_to_flu, ned_to_nwu, rates_frd_to_flu
@@ -179,6 +179,7 @@ class FlightControllerApp:
         sim_system_id: int | None = None,
         out: TextIO = sys.stdout,
         monotonic: Callable[[], float] = time.monotonic,
+        gcs_port: int = 0,
     ) -> None:
         self.params = params if params is not None else ParamStore(config)
         config = self.params.config
@@ -208,11 +209,7 @@ class FlightControllerApp:
                 sim_url, source_system=sim_sysid, source_component=FC_COMPONENT, accept_system=sim_sysid,
                 tlog=self.tlog, clock_us=clock_us,
             )  # fmt: skip
-            self.gcs = (
-                MavlinkUdp(gcs_url, source_system=sysid, source_component=FC_COMPONENT, tlog=self.tlog, clock_us=clock_us)
-                if gcs_url
-                else None
-            )
+            self.gcs = self._open_gcs(gcs_url, gcs_port, sysid, clock_us) if gcs_url else None
         except Exception:
             if self.tlog is not None:  # a configuration error must not leave an empty log behind
                 self.tlog.close()
@@ -247,6 +244,18 @@ class FlightControllerApp:
         self._last_actuator: bytes | None = None
         self._stop = False
         self._exit_code = EXIT_OK
+
+    def _open_gcs(self, url: str, port: int, sysid: int, clock_us: Callable[[], int]) -> MavlinkUdp:
+        """The ground link; with ``port``, sending from that port of ours (a second ground
+        station writes to it while the first listens where we send); a port already taken
+        (another FC) falls back to a free one, said on stdout."""
+        try:
+            return MavlinkUdp(url, source_system=sysid, source_component=FC_COMPONENT, tlog=self.tlog, clock_us=clock_us, bind_port=port)
+        except LinkError as exc:
+            if not port:
+                raise
+            self.say(f"fc: ground port {port} not available ({exc}); using a free port (see FC_LISTENING gcs=)")
+        return MavlinkUdp(url, source_system=sysid, source_component=FC_COMPONENT, tlog=self.tlog, clock_us=clock_us)
 
     def telemetry_snapshot(self) -> telemetry.TelemetrySnapshot:
         """What ground-station telemetry reads, now (the GCS handler's snapshot provider)."""

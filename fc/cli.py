@@ -16,7 +16,7 @@ from fc.params import ParamStore, apply_scenario
 from smcpilot.errors import SmcpilotError
 from smcpilot.geo import Home
 from smcpilot.plan import load_plan
-from smcpilot.protocol import FC_CONTROLLERS
+from smcpilot.protocol import DEFAULT_GCS_URL, FC_CONTROLLERS, FC_GROUND_PORT
 from smcpilot.scenario import Scenario
 from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
 
@@ -30,9 +30,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--sim", default="udpin:127.0.0.1:14560", metavar="URL",
                    help="simulator link (default udpin:127.0.0.1:14560; udpin:HOST:0 picks a free port)")
-    p.add_argument("--gcs", default="udp:127.0.0.1:14550", metavar="URL",
+    p.add_argument("--gcs", default=DEFAULT_GCS_URL, metavar="URL",
                    help="ground link: udp:HOST:PORT sends telemetry there and answers whoever writes to our"
                    " port; udpin:HOST:PORT listens there (default udp:127.0.0.1:14550; 'none' for no ground link)")
+    p.add_argument("--gcs-port", type=int, default=None, metavar="PORT",
+                   help=f"with a udp:HOST:PORT ground link, send from this port of ours, so that other ground stations"
+                   f" can write to it (default {FC_GROUND_PORT} with the default --gcs, else any free port; 0: any free port)")
     p.add_argument("--controller", choices=FC_CONTROLLERS, default=None,
                    help=f"control law (default {d.controller}, or FC_CONTROLLER from the parameter file)")
     p.add_argument("--rate-hz", type=float, default=None, metavar="HZ",
@@ -141,6 +144,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             plan = scenario.plan if scenario is not None else ()
         if args.duration is not None and not args.duration > 0:
             raise SmcpilotError(f"--duration must be > 0 simulated seconds, got {args.duration}")
+        gcs_port = args.gcs_port if args.gcs_port is not None else (FC_GROUND_PORT if args.gcs == DEFAULT_GCS_URL else 0)
+        if not 0 <= gcs_port <= 65535:
+            raise SmcpilotError(f"--gcs-port must be a UDP port 0..65535, got {gcs_port}")
         tlog.parent.mkdir(parents=True, exist_ok=True)
         print(param_file_line(param_file, kept=kept, loaded=loaded, from_file=from_file, differences=params.differences()),
               flush=True)  # fmt: skip
@@ -160,6 +166,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             duration_s=args.duration,
             startup_timeout_s=args.startup_timeout_s,
             sim_system_id=args.sysid if args.sysid is not None else 1,
+            gcs_port=gcs_port,
         )
     except (SmcpilotError, OSError) as exc:
         print(f"fc: error: {exc}", file=sys.stderr)

@@ -254,6 +254,10 @@ class GcsHandler:
         if cmd == M.MAV_CMD_GET_HOME_POSITION:
             self._send_to(self.build(M.MAVLINK_MSG_ID_HOME_POSITION)[0], addr)
             return None
+        if cmd == M.MAV_CMD_RUN_PREARM_CHECKS:  # ArduPilot's answer: ACCEPTED, the failure said
+            why = c.prearm_failure()
+            self._event(M.MAV_SEVERITY_WARNING if why else M.MAV_SEVERITY_INFO, why or "PreArm: checks pass")
+            return None
         if cmd == M.MAV_CMD_INJECT_FAILURE:
             return self._inject_failure(p)
         if cmd == M.MAV_CMD_DO_SET_MISSION_CURRENT:

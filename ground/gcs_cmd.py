@@ -28,6 +28,7 @@ through the vehicle's HOME_POSITION in :meth:`ground.missions.Mission.to_items` 
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import math
 import os
@@ -36,6 +37,8 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, TextIO
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from ground.missions.schema import ItemSpec, MissionFileError, items_to_toml, load_mission
 from ground.vehicle import (
@@ -49,7 +52,10 @@ from ground.vehicle import (
     json_safe,
     mode_number,
 )
-from smcpilot.errors import ConfigError
+from ground.vehicle.telemetry import mavlink_text
+from smcpilot.errors import ConfigError, LinkError
+from smcpilot.limits import HARD_LIMITS, takeoff_refusal, target_refusal
+from smcpilot.protocol import FC_GROUND_PORT
 
 DEFAULT_CONNECT = "udpin:127.0.0.1:14550"
 CONNECT_ENV = "SMCPILOT_CONNECT"
@@ -219,13 +225,34 @@ def main(args: argparse.Namespace) -> int:
     handler: Callable[[Vehicle, argparse.Namespace, TextIO], int] = args.gcs_handler
     _precheck(args)
     try:
-        with Vehicle(args.connect, system_id=args.sysid, connect_timeout_s=args.timeout) as vehicle:
+        with _open_vehicle(args) as vehicle:
             return handler(vehicle, args, sys.stdout)
     except UnknownModeError:
         raise  # a usage error: exit 2 through the CLI's handler
     except VehicleError as exc:
         print(f"smcpilot gcs: error: {exc}", file=sys.stderr)
         return EXIT_VEHICLE
+
+
+def _open_vehicle(args: argparse.Namespace) -> Vehicle:
+    """The vehicle link, opened. Watching and commanding at once: when the default listening
+    port is taken (``smcpilot gcs watch`` or another ground station holds it), talk to the FC's
+    own ground port instead (it answers every station that writes to it); with an explicit
+    ``--connect`` that is taken, a one-line error says what to do."""
+    url = args.connect
+    try:
+        return Vehicle(url, system_id=args.sysid, connect_timeout_s=args.timeout).open()
+    except LinkError as exc:
+        if not isinstance(exc.__cause__, OSError) or exc.__cause__.errno != errno.EADDRINUSE:
+            raise
+        fc_port = f"udpout:127.0.0.1:{FC_GROUND_PORT}"
+        if url != DEFAULT_CONNECT or CONNECT_ENV in os.environ:
+            raise ConfigError(
+                f"{url}: port taken (another ground station listens there, e.g. smcpilot gcs watch); use the FC's own"
+                f" ground port: --connect {fc_port} (or the gcs= address the FC prints)"
+            ) from None
+    print(f"smcpilot gcs: {url} is taken (smcpilot gcs watch?): talking to the FC's own ground port ({fc_port})", file=sys.stderr)
+    return Vehicle(fc_port, system_id=args.sysid, connect_timeout_s=args.timeout).open()
 
 
 def _precheck(args: argparse.Namespace) -> None:
@@ -236,11 +263,16 @@ def _precheck(args: argparse.Namespace) -> None:
         args.mission = load_mission(args.file)
     elif args.gcs_handler is _takeoff and not (math.isfinite(args.alt_m) and args.alt_m > 0):
         raise ConfigError(f"takeoff altitude must be > 0 m, got {args.alt_m}")
+    elif args.gcs_handler is _takeoff and (why := takeoff_refusal(args.alt_m, HARD_LIMITS)) is not None:
+        raise ConfigError(f"takeoff: {why}")  # the vehicle would refuse it whatever its fence
     elif args.gcs_handler is _goto:
         for name in ("north_m", "east_m", "down_m", "yaw"):
             v = getattr(args, name)
             if v is not None and not math.isfinite(v):
                 raise ConfigError(f"goto {name}: must be a finite number, got {v}")
+        why = target_refusal(args.north_m, args.east_m, -args.down_m, HARD_LIMITS)
+        if why is not None:  # the same rule as the vehicle's (smcpilot.limits); it adds its own fence
+            raise ConfigError(f"goto: {why}")
     elif args.gcs_handler is _param_set and not math.isfinite(args.value):
         raise ConfigError(f"parameter value must be finite, got {args.value}")
     elif args.gcs_handler is _watch and not (math.isfinite(args.rate_hz) and 0 < args.rate_hz <= 50):
@@ -269,11 +301,35 @@ def _status(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
     except VehicleError:
         pass
     t = vehicle.telemetry
+    why = _prearm_failure(vehicle) if t.prearm_ok is False and not t.armed else None
     if args.json:
-        out.write(json.dumps(t.as_dict(), allow_nan=False) + "\n")
+        d = t.as_dict()
+        d["prearm_failure"] = why
+        out.write(json.dumps(d, allow_nan=False) + "\n")
     else:
         out.write(render_status(t) + "\n")
+        if why is not None:
+            out.write(f"  prearm   {why}\n")
     return EXIT_OK
+
+
+def _prearm_failure(vehicle: Vehicle, wall_s: float = 2.0) -> str | None:
+    """Why the vehicle would refuse to arm: MAV_CMD_RUN_PREARM_CHECKS makes it say so in a
+    ``STATUSTEXT`` ("PreArm: ..."), as ArduPilot does; None if it said nothing in ``wall_s``."""
+    with vehicle.subscribe("STATUSTEXT") as sub:
+        try:
+            vehicle.commands.command_long(mavlink.MAV_CMD_RUN_PREARM_CHECKS)
+        except VehicleError:
+            return None
+        deadline = time.monotonic() + wall_s
+        while (remaining := deadline - time.monotonic()) > 0:
+            msg = sub.get(remaining)
+            if msg is None:
+                break
+            text = mavlink_text(msg.text)
+            if text.startswith("PreArm"):
+                return None if text == "PreArm: checks pass" else text
+    return None
 
 
 def _arm(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
@@ -298,8 +354,8 @@ def _takeoff(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
 
 
 def _goto(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
-    vehicle.goto_ned(args.north_m, args.east_m, args.down_m, args.yaw)
-    out.write(f"going to NED ({args.north_m:g}, {args.east_m:g}, {args.down_m:g}) m\n")
+    vehicle.goto_ned(args.north_m, args.east_m, args.down_m, args.yaw)  # waits for the vehicle's verdict
+    out.write(f"set-point taken: going to NED ({args.north_m:g}, {args.east_m:g}, {args.down_m:g}) m\n")
     if args.wait:
         t = vehicle.wait_position_ned(args.north_m, args.east_m, args.down_m, args.tol, args.timeout_sim)
         out.write(f"arrived (sim time {t.sim_time_s:.2f} s)\n")
