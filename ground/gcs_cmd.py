@@ -52,6 +52,7 @@ from ground.vehicle import (
     json_safe,
     mode_number,
 )
+from ground.vehicle.param_meta import param_meta
 from ground.vehicle.telemetry import mavlink_text
 from smcpilot.errors import ConfigError, LinkError
 from smcpilot.limits import HARD_LIMITS, takeoff_refusal, target_refusal
@@ -188,8 +189,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     s.add_argument("name", metavar="NAME", help="parameter name")
     s.add_argument("value", type=float, metavar="VALUE", help="new value")
     s.set_defaults(gcs_handler=_param_set)
-    s = psub.add_parser("list", help="print every parameter", description="PARAM_REQUEST_LIST: every parameter, NAME VALUE per line (.parm format).")
+    s = psub.add_parser("list", help="print every parameter with unit, range and description",
+                        description="PARAM_REQUEST_LIST: every parameter with its value, unit, range and description"
+                        " (from the shipped apm.pdef.xml metadata; docs/parameters.md has the same table).")  # fmt: skip
     s.add_argument("--json", action="store_true", help="print a JSON object name -> value")
+    s.add_argument("--parm", action="store_true", help="print NAME VALUE lines only (.parm format, loadable with --param-file)")
     s.set_defaults(gcs_handler=_param_list)
 
     mission = sub.add_parser("mission", help="upload, download, start or clear the mission", description="The mission protocol (item 0 is home and is handled by the client).")
@@ -400,9 +404,21 @@ def _param_list(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
     params = vehicle.list_params()
     if args.json:
         out.write(json.dumps(params) + "\n")
-    else:
+    elif args.parm:
         for name, value in params.items():
             out.write(f"{name} {_param_text(value)}\n")
+    else:
+        meta = param_meta()
+        width = max((len(n) for n in params), default=4)
+        out.write(f"{'NAME':{width}s}  {'VALUE':>12s}  {'UNIT':8s}  {'RANGE':>16s}  DESCRIPTION\n")
+        for name, value in params.items():
+            m = meta.get(name)
+            if m is None:
+                out.write(f"{name:{width}s}  {_param_text(value):>12s}\n")
+                continue
+            label = f" ({m.values[int(value)]})" if m.values and isinstance(value, int) and value in m.values else ""
+            desc = m.description.split(". Default ", 1)[0] + (" [restart]" if m.restart else "")
+            out.write(f"{name:{width}s}  {_param_text(value) + label:>12s}  {m.unit or '-':8s}  {m.range_text():>16s}  {desc}\n")
     return EXIT_OK
 
 

@@ -148,3 +148,16 @@ def test_out_of_the_box_watch_then_arm(tmp_path: Path) -> None:
             assert (r.returncode, r.stdout) == (0, "armed\n"), r.stderr
             assert "talking to the FC's own ground port (udpout:127.0.0.1:14551)" in r.stderr
             assert gcs("disarm").returncode == 0
+
+
+def test_param_list_prints_units_ranges_and_descriptions(fc_url: str) -> None:
+    r = gcs("param", "list", connect=fc_url)
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    assert lines[0].split() == ["NAME", "VALUE", "UNIT", "RANGE", "DESCRIPTION"]
+    fence = next(ln for ln in lines if ln.startswith("FENCE_RADIUS "))
+    assert fence.split()[1:6] == ["300", "m", "10", "..", "10000"], fence
+    assert "largest horizontal distance of a target from home" in fence
+    gcs_fs = next(ln for ln in lines if ln.startswith("FS_GCS_ENABLE "))
+    assert "0 (off)" in gcs_fs
+    assert "[restart]" in next(ln for ln in lines if ln.startswith("FC_RATE_HZ "))
