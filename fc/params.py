@@ -444,7 +444,10 @@ def render_param_file(config: FcConfig, options: FcOptions) -> str:
 
 
 def _render_pair(content: object) -> str:
-    config, options = content  # type: ignore[misc]
+    """The writer thread's renderer: ``content`` is the (config, options) pair :meth:`ParamStore.save` hands over."""
+    assert isinstance(content, tuple) and len(content) == 2
+    config: FcConfig = content[0]
+    options: FcOptions = content[1]
     return render_param_file(config, options)
 
 
