@@ -83,6 +83,8 @@ def _f32(v: float) -> float:
 _ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
 _ZEROS12 = [0.0] * 12
 _yield = getattr(os, "sched_yield", lambda: None)
+#: real time: ground datagrams handled per poll (the rest wait for the next one, moments later).
+REALTIME_GCS_BATCH = 8
 #: a SIM_* forward unanswered this long (wall seconds) gets one STATUSTEXT warning.
 SIM_PARAM_ANSWER_S = 1.0
 
@@ -304,7 +306,12 @@ class FlightControllerApp:
             summary["links"] = {"sim": self.sim.counters.as_dict(), "gcs": self.gcs.counters.as_dict() if self.gcs else None}
             summary["gcs_rejected"] = dict(self.gcs_handler.rejected)
             summary["tlog"] = str(self.tlog.path) if self.tlog is not None else None
-            self.close()
+            self.close()  # flushes the parameter writer: its figures are final below
+            w = self.params.writer
+            summary["param_file"] = None if self.params.path is None else {
+                "path": str(self.params.path), "changes": w.submissions if w else 0, "writes": w.writes if w else 0,
+                "write_errors": w.errors if w else 0,
+            }  # fmt: skip
             self.say("FC_SUMMARY " + json.dumps(summary, sort_keys=True))
         return self._exit_code
 
@@ -377,7 +384,9 @@ class FlightControllerApp:
                     if sim_fd in readable:
                         self._poll_sim()
                     if len(readable) > 1 or readable[0] != sim_fd:
-                        self._poll_gcs()
+                        # a few datagrams at a time: a burst (72 PARAM_SET) is spread over the
+                        # time before the deadline and the next ticks, never one long stall
+                        self._poll_gcs(REALTIME_GCS_BATCH)
                 continue
             late = -wait
             lateness.append(late)
@@ -497,10 +506,10 @@ class FlightControllerApp:
         if self.gcs is not None:
             self.gcs.send_many(telemetry.statustexts(self.gcs.mav, int(msg.severity), text))
 
-    def _poll_gcs(self) -> None:
+    def _poll_gcs(self, max_datagrams: int = 256) -> None:
         if self.gcs is None:
             return
-        for msg, addr in self.gcs.recv(0.0):
+        for msg, addr in self.gcs.recv(0.0, max_datagrams=max_datagrams):
             self.gcs_handler.handle(msg, addr)
 
     # -- the tick ------------------------------------------------------------------------------

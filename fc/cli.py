@@ -148,11 +148,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not 0 <= gcs_port <= 65535:
             raise SmcpilotError(f"--gcs-port must be a UDP port 0..65535, got {gcs_port}")
         tlog.parent.mkdir(parents=True, exist_ok=True)
-        print(param_file_line(param_file, kept=kept, loaded=loaded, from_file=from_file, differences=params.differences()),
-              flush=True)  # fmt: skip
-        if not kept:
-            params.save()  # the run's own file says from the start what flew
-        params.start_writer()
         app = FlightControllerApp(
             params.config,
             vehicle,
@@ -168,8 +163,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             sim_system_id=args.sysid if args.sysid is not None else 1,
             gcs_port=gcs_port,
         )
+        if not kept:
+            params.save()  # the run's own file says from the start what flew
     except (SmcpilotError, OSError) as exc:
         print(f"fc: error: {exc}", file=sys.stderr)
         return EXIT_CONFIG
+    print(param_file_line(param_file, kept=kept, loaded=loaded, from_file=from_file, differences=params.differences()),
+          flush=True)  # fmt: skip
+    params.start_writer()
     install_signal_handlers(app)
     return app.run()
