@@ -128,13 +128,16 @@ def test_named_file_is_loaded_and_reported(tmp_path: Path) -> None:
 
 
 # -- SIGKILL during a burst of PARAM_SET ------------------------------------------------------------
-def _burst(sock: socket.socket, addr: tuple[str, int], mav: mavlink.MAVLink, rng: random.Random, n: int) -> list[float]:
+def _burst_until(sock: socket.socket, addr: tuple[str, int], mav: mavlink.MAVLink, rng: random.Random, kill_at: float) -> list[float]:
+    """PARAM_SET pairs every millisecond or so until ``kill_at`` (monotonic): the writer thread is
+    busy writing when the kill comes."""
     sent = []
-    for _ in range(n):
+    while time.monotonic() < kill_at:
         v = round(rng.uniform(0.5, 20.0), 3)
         sent.append(v)
         sock.sendto(mav.param_set_encode(1, 1, b"SMC_Z_KP", v, mavlink.MAV_PARAM_TYPE_REAL32).pack(mav), addr)
         sock.sendto(mav.param_set_encode(1, 1, b"PSC_SPD_XY", 1.0 + v / 10, mavlink.MAV_PARAM_TYPE_REAL32).pack(mav), addr)
+        time.sleep(0.001)
     return sent
 
 
@@ -146,7 +149,7 @@ def test_sigkill_during_param_burst_never_tears_the_file(tmp_path: Path) -> None
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.bind((LOOPBACK, 0))
     mav = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
-    trials = 12
+    trials = 20
     all_sent: set[float] = set()
     leftovers_seen = 0
     try:
@@ -158,8 +161,7 @@ def test_sigkill_during_param_burst_never_tears_the_file(tmp_path: Path) -> None
                     assert "loaded" in line, line
                 fields = fc.listening()
                 host, port = fields["gcs"].rsplit(":", 1)
-                all_sent.update(_burst(sock, (host, int(port)), mav, rng, 40))
-                time.sleep(rng.uniform(0.0, 0.25))
+                all_sent.update(_burst_until(sock, (host, int(port)), mav, rng, time.monotonic() + rng.uniform(0.01, 0.3)))
             finally:
                 fc.kill()  # SIGKILL: no clean-up of any kind
             leftovers_seen += len(list(tmp_path.glob("kept.parm.*.tmp")))
