@@ -76,3 +76,17 @@ def test_the_chunk_id_counts_per_encoder_so_logs_stay_reproducible() -> None:
         mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
         runs.append([bytes(m.pack(mav)) for t in texts for m in statustexts(mav, 4, t)])
     assert runs[0] == runs[1]
+
+
+def test_the_log_reader_joins_chunks(tmp_path) -> None:
+    from ground.logs.load import load_log
+    from smcpilot.tlog import TlogWriter
+
+    mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    long_text = "Set-point refused: 1e+06 m from home is outside fence FENCE_RADIUS 300 m"
+    path = tmp_path / "t.tlog"
+    with TlogWriter(path) as w:
+        w.write(1_000_000, mav.heartbeat_encode(2, 3, 0, 0, 0).pack(mav))
+        for m in statustexts(mav, mavlink.MAV_SEVERITY_WARNING, long_text) + statustexts(mav, 6, "Armed"):
+            w.write(2_000_000, m.pack(mav))
+    assert [e.text for e in load_log(path).events] == [long_text, "Armed"]
