@@ -12,7 +12,9 @@
 
 ``--connect`` takes :mod:`smcpilot.link` URLs: ``udpin:HOST:PORT`` listens where the FC sends its
 telemetry (default ``udpin:127.0.0.1:14550``, where ``smcpilot sitl`` sends it; or set
-``SMCPILOT_CONNECT``), ``udpout:HOST:PORT`` writes to the FC's own ground port.
+``SMCPILOT_CONNECT``), ``udpout:HOST:PORT`` writes to the FC's own ground port. Watching and
+commanding at once: when the default port is taken (``gcs watch`` holds it), the CLI talks to the
+FC's own ground port ``udpout:127.0.0.1:14551`` instead (the FC serves it with its default link).
 
 Exit codes: 0 done; 1 the vehicle refused or did not answer in time (denied, timeout); 2 usage or
 configuration error (bad option, unreadable mission file). Errors are one line on stderr.
@@ -130,7 +132,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="URL",
         default=os.environ.get(CONNECT_ENV, DEFAULT_CONNECT),
         help=f"where the vehicle is: udpin:HOST:PORT listens where the FC sends telemetry, udpout:HOST:PORT writes"
-        f" to the FC's ground port (default ${CONNECT_ENV} or {DEFAULT_CONNECT})",
+        f" to the FC's ground port (default ${CONNECT_ENV} or {DEFAULT_CONNECT}; when that port is taken, e.g. by"
+        f" `smcpilot gcs watch`, the FC's own ground port udpout:127.0.0.1:{FC_GROUND_PORT})",
     )
     p.add_argument("--timeout", type=float, default=15.0, metavar="S", help="wall seconds to wait for the vehicle's heartbeat (default 15)")
     p.add_argument("--sysid", type=int, metavar="N", help="talk to this MAVLink system id only (default: the first vehicle heard)")
@@ -156,7 +159,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     s.add_argument("--timeout-sim", type=float, default=60.0, metavar="S", help="--wait limit, simulated seconds (default 60)")
     s.set_defaults(gcs_handler=_takeoff)
 
-    s = sub.add_parser("goto", help="fly to a local NED point (m from home; D negative is up)", description="SET_POSITION_TARGET_LOCAL_NED in GUIDED (switches to GUIDED first).")
+    s = sub.add_parser("goto", help="fly to a local NED point (m from home; D negative is up)", description="SET_POSITION_TARGET_LOCAL_NED in GUIDED (switches to GUIDED first), then waits for the"
+                       " vehicle's verdict: the target echoed in POSITION_TARGET_LOCAL_NED, or its refusal (exit 1 with the"
+                       " reason). Targets must be finite, not below ground and inside the vehicle's geofence (FENCE_*).")
     s.add_argument("north_m", type=float, metavar="N", help="north of home, m")
     s.add_argument("east_m", type=float, metavar="E", help="east of home, m")
     s.add_argument("down_m", type=float, metavar="D", help="down from home, m (-3 = 3 m up)")
