@@ -54,7 +54,7 @@ from fc.gcs import GcsHandler
 from fc.params import ParamStore, param_messages
 from fc.streams import StreamScheduler
 from smcpilot.clock import SimClock, WallClock
-from smcpilot.errors import RateMismatchError, TlogError, WatchdogError
+from smcpilot.errors import LinkError, RateMismatchError, TlogError, WatchdogError
 from smcpilot.fastcodec import encode_debug_float_array, encode_hil_actuator_controls
 from smcpilot.faults import SIM_PARAM_INDEX
 from smcpilot.frames import body_rates_to_euler_rates, euler_frd_to_flu, ned_to_nwu, rates_frd_to_flu
@@ -83,6 +83,8 @@ def _f32(v: float) -> float:
 _ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
 _ZEROS12 = [0.0] * 12
 _yield = getattr(os, "sched_yield", lambda: None)
+#: real time: ground datagrams handled per poll (the rest wait for the next one, moments later).
+REALTIME_GCS_BATCH = 8
 #: a SIM_* forward unanswered this long (wall seconds) gets one STATUSTEXT warning.
 SIM_PARAM_ANSWER_S = 1.0
 
@@ -179,6 +181,7 @@ class FlightControllerApp:
         sim_system_id: int | None = None,
         out: TextIO = sys.stdout,
         monotonic: Callable[[], float] = time.monotonic,
+        gcs_port: int = 0,
     ) -> None:
         self.params = params if params is not None else ParamStore(config)
         config = self.params.config
@@ -208,11 +211,7 @@ class FlightControllerApp:
                 sim_url, source_system=sim_sysid, source_component=FC_COMPONENT, accept_system=sim_sysid,
                 tlog=self.tlog, clock_us=clock_us,
             )  # fmt: skip
-            self.gcs = (
-                MavlinkUdp(gcs_url, source_system=sysid, source_component=FC_COMPONENT, tlog=self.tlog, clock_us=clock_us)
-                if gcs_url
-                else None
-            )
+            self.gcs = self._open_gcs(gcs_url, gcs_port, sysid, clock_us) if gcs_url else None
         except Exception:
             if self.tlog is not None:  # a configuration error must not leave an empty log behind
                 self.tlog.close()
@@ -248,6 +247,18 @@ class FlightControllerApp:
         self._stop = False
         self._exit_code = EXIT_OK
 
+    def _open_gcs(self, url: str, port: int, sysid: int, clock_us: Callable[[], int]) -> MavlinkUdp:
+        """The ground link; with ``port``, sending from that port of ours (a second ground
+        station writes to it while the first listens where we send); a port already taken
+        (another FC) falls back to a free one, said on stdout."""
+        try:
+            return MavlinkUdp(url, source_system=sysid, source_component=FC_COMPONENT, tlog=self.tlog, clock_us=clock_us, bind_port=port)
+        except LinkError as exc:
+            if not port:
+                raise
+            self.say(f"fc: ground port {port} not available ({exc}); using a free port (see FC_LISTENING gcs=)")
+        return MavlinkUdp(url, source_system=sysid, source_component=FC_COMPONENT, tlog=self.tlog, clock_us=clock_us)
+
     def telemetry_snapshot(self) -> telemetry.TelemetrySnapshot:
         """What ground-station telemetry reads, now (the GCS handler's snapshot provider)."""
         return telemetry.snapshot(  # the core's estimate: never a NaN of a sensor dropout
@@ -267,6 +278,7 @@ class FlightControllerApp:
                 link.close()
         if self.tlog is not None:
             self.tlog.close()
+        self.params.close()  # the last parameter change on disk before we exit
 
     def run(self) -> int:
         sim_addr = "{}:{}".format(*self.sim.local_address)
@@ -301,7 +313,12 @@ class FlightControllerApp:
                     self.tlog.write(now_us, count.pack(lm))
                 except TlogError as exc:  # the log must still be closed below
                     self.say(f"fc: warning: {exc}")
-            self.close()
+            self.close()  # flushes the parameter writer: its figures are final below
+            w = self.params.writer
+            summary["param_file"] = None if self.params.path is None else {
+                "path": str(self.params.path), "changes": w.submissions if w else 0, "writes": w.writes if w else 0,
+                "write_errors": w.errors if w else 0,
+            }  # fmt: skip
             self.say("FC_SUMMARY " + json.dumps(summary, sort_keys=True))
         return self._exit_code
 
@@ -374,7 +391,9 @@ class FlightControllerApp:
                     if sim_fd in readable:
                         self._poll_sim()
                     if len(readable) > 1 or readable[0] != sim_fd:
-                        self._poll_gcs()
+                        # a few datagrams at a time: a burst (72 PARAM_SET) is spread over the
+                        # time before the deadline and the next ticks, never one long stall
+                        self._poll_gcs(REALTIME_GCS_BATCH)
                 continue
             late = -wait
             lateness.append(late)
@@ -492,12 +511,12 @@ class FlightControllerApp:
         self.stats.sim_statustexts += 1
         self.say(f"fc: {text}")
         if self.gcs is not None:
-            self.gcs.send(telemetry.statustext(self.gcs.mav, int(msg.severity), text))
+            self.gcs.send_many(telemetry.statustexts(self.gcs.mav, int(msg.severity), text))
 
-    def _poll_gcs(self) -> None:
+    def _poll_gcs(self, max_datagrams: int = 256) -> None:
         if self.gcs is None:
             return
-        for msg, addr in self.gcs.recv(0.0):
+        for msg, addr in self.gcs.recv(0.0, max_datagrams=max_datagrams):
             self.gcs_handler.handle(msg, addr)
 
     # -- the tick ------------------------------------------------------------------------------
@@ -539,9 +558,10 @@ class FlightControllerApp:
         """A STATUSTEXT to ground stations (and the log), and a line on stdout."""
         self.say(f"fc: {text}")
         if self.gcs is not None:
-            self.gcs.send(telemetry.statustext(self.gcs.mav, severity, text))
+            self.gcs.send_many(telemetry.statustexts(self.gcs.mav, severity, text))
         elif self.tlog is not None:
-            self.tlog.write(self.clock.now_us(), telemetry.statustext(self._logmav, severity, text).pack(self._logmav))
+            lm = self._logmav
+            self.tlog.write_many(self.clock.now_us(), [m.pack(lm) for m in telemetry.statustexts(lm, severity, text)])
 
 
 def install_signal_handlers(app: FlightControllerApp) -> None:

@@ -103,6 +103,7 @@ class GcsHandler:
         self._forward_sim = forward_sim
         #: reason -> count of dropped or refused messages
         self.rejected: Counter[str] = Counter()
+        mission.on_reject = lambda reason, text: self._refuse(reason, text)
         self.gcs_heartbeats = 0
         self._last_reject_text_s: dict[tuple[str, Address | None], float] = {}
         self._handlers: dict[int, Callable[[mavlink.MAVLink_message, Address], None]] = {
@@ -253,6 +254,10 @@ class GcsHandler:
         if cmd == M.MAV_CMD_GET_HOME_POSITION:
             self._send_to(self.build(M.MAVLINK_MSG_ID_HOME_POSITION)[0], addr)
             return None
+        if cmd == M.MAV_CMD_RUN_PREARM_CHECKS:  # ArduPilot's answer: ACCEPTED, the failure said
+            why = c.prearm_failure()
+            self._event(M.MAV_SEVERITY_WARNING if why else M.MAV_SEVERITY_INFO, why or "PreArm: checks pass")
+            return None
         if cmd == M.MAV_CMD_INJECT_FAILURE:
             return self._inject_failure(p)
         if cmd == M.MAV_CMD_DO_SET_MISSION_CURRENT:
@@ -270,7 +275,17 @@ class GcsHandler:
             refusal = self.commander.set_mode(m.custom_mode)
         self._ack(addr, m, M.MAVLINK_MSG_ID_SET_MODE, refusal)
 
+    def _target_component_ok(self, m: mavlink.MAVLink_message, addr: Address) -> bool:
+        """A set-point addressed to another component of this system is not flown (counted,
+        and the sender told once a second)."""
+        if m.target_component in (0, 1):
+            return True
+        self._refuse("other_component", f"Set-point for component {m.target_component} not flown (this FC is component 1)", addr)
+        return False
+
     def _target_local(self, m: mavlink.MAVLink_message, addr: Address) -> None:
+        if not self._target_component_ok(m, addr):
+            return
         if m.coordinate_frame != M.MAV_FRAME_LOCAL_NED:
             self._refuse("unsupported_frame", f"Set-point: frame {m.coordinate_frame} not supported (use LOCAL_NED)", addr)
             return
@@ -286,6 +301,11 @@ class GcsHandler:
             self._refuse("setpoint_refused", refusal.reason or "Set-point refused", addr)
 
     def _target_global(self, m: mavlink.MAVLink_message, addr: Address) -> None:
+        if not self._target_component_ok(m, addr):
+            return
+        if not (-90 * 10**7 <= m.lat_int <= 90 * 10**7 and -180 * 10**7 <= m.lon_int <= 180 * 10**7):
+            self._refuse("setpoint_refused", "Set-point refused: latitude/longitude out of range", addr)
+            return
         if m.coordinate_frame not in _GLOBAL_FRAMES:
             self._refuse("unsupported_frame", f"Set-point: frame {m.coordinate_frame} not supported", addr)
             return
@@ -513,6 +533,10 @@ class GcsHandler:
         """Per control tick: mission-protocol timeouts (wall clock) and the telemetry streams."""
         now = self.wall_s()
         self.mission.tick(now)
+        if self.params.write_errors:  # the writer thread could not save the parameter file
+            exc = self.params.write_errors.pop()
+            self.params.write_errors.clear()
+            self._event(M.MAV_SEVERITY_ERROR, f"Param file not written: {exc.strerror or exc}")
         self.stream(t_us)
 
 

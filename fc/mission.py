@@ -21,7 +21,8 @@ from dataclasses import dataclass, replace
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from smcpilot.geo import Home
+from smcpilot.geo import Home, global_to_ned
+from smcpilot.limits import DEFAULT_FENCE, Fence, takeoff_refusal, target_refusal
 
 Address = tuple[str, int]
 
@@ -114,6 +115,28 @@ def validate(item: MissionItem) -> int:
     return mavlink.MAV_MISSION_ACCEPTED
 
 
+def fence_refusal(item: MissionItem, home: Home, fence: Fence) -> str | None:
+    """Why ``item`` (valid by :func:`validate`) flies to a target outside ``fence`` or below
+    ground, or None: the rule every target passes (:mod:`smcpilot.limits`). Item 0 (home), and
+    items with no target (speed, RTL) pass; a take-off is checked for its altitude, a loiter or
+    land at latitude/longitude 0/0 ("here") for its altitude only."""
+    if item.seq == 0 or item.command not in NAV_WITH_POSITION:
+        return None
+    alt = item.z if item.frame in RELATIVE_FRAMES else item.z - home.alt_m
+    if item.command == CMD_TAKEOFF:
+        return takeoff_refusal(alt, fence)
+    if item.command != CMD_WAYPOINT and item.x == 0 and item.y == 0:
+        if item.command == CMD_LAND or item.z <= 0:
+            return None
+        return target_refusal(0.0, 0.0, alt, fence)
+    n, e, _ = global_to_ned(home, item.lat_deg, item.lon_deg, home.alt_m)
+    if item.command == CMD_LAND:
+        alt = max(alt, 0.0)  # a landing comes down to the ground wherever it is given
+    return target_refusal(n, e, alt, fence)
+
+
+_RESULT_NAMES = {v: e.name for v, e in mavlink.enums["MAV_MISSION_RESULT"].items()}
+
 SendTo = Callable[[mavlink.MAVLink_message, Address], None]
 
 
@@ -127,11 +150,16 @@ class MissionProtocol:
         on_change: Callable[[], None],
         on_set_current: Callable[[int], None],
         home: Callable[[], Home] | None = None,
+        fence: Callable[[], Fence] | None = None,
     ) -> None:
         """``home``: the home position now, sent as item 0 while no mission is stored (None: no
-        item 0 then)."""
+        item 0 then). ``fence``: the geofence now; an uploaded item outside it ends the upload
+        (:func:`fence_refusal`; None: the default fence)."""
         self.mav = mav
         self._home = home
+        self._fence = fence if fence is not None else (lambda: DEFAULT_FENCE)
+        #: hears (reason, text) of a refused item: the GCS handler counts it and says why.
+        self.on_reject: Callable[[str, str], None] = lambda reason, text: None
         #: stations (addresses) that used the float protocol (MISSION_ITEM / MISSION_REQUEST).
         self.legacy_stations: set[Address] = set()
         self._send_to = send_to
@@ -231,8 +259,17 @@ class MissionProtocol:
             return
         item = MissionItem.from_msg(m)
         result = validate(item)
+        why = None
+        if result == mavlink.MAV_MISSION_ACCEPTED and self._home is not None:
+            why = fence_refusal(item, self._home(), self._fence())
+            if why is not None:
+                result = mavlink.MAV_MISSION_INVALID_PARAM7 if "altitude" in why else mavlink.MAV_MISSION_INVALID_PARAM5_X
         if result != mavlink.MAV_MISSION_ACCEPTED:
             self.uploads_failed += 1
+            if why is not None:
+                self.on_reject("mission_fence", f"Mission item {item.seq} refused: {why}")
+            else:
+                self.on_reject("mission_item_invalid", f"Mission item {item.seq} refused ({_RESULT_NAMES.get(result, result)})")
             self._ack(addr, self._partner_sys, self._partner_comp, result)
             self._end_upload()
             return

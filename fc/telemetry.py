@@ -22,6 +22,7 @@ the law's internals at full rate; :data:`smcpilot.protocol.SMC_FIELDS` names its
 from __future__ import annotations
 
 import math
+import weakref
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, NamedTuple
 
@@ -132,8 +133,31 @@ def named_values(mav: mavlink.MAVLink, time_boot_ms: int, out: PipelineOutput | 
     ]
 
 
+#: characters of text one STATUSTEXT carries.
+STATUSTEXT_CHUNK = 50
+_text_ids: weakref.WeakKeyDictionary[mavlink.MAVLink, int] = weakref.WeakKeyDictionary()
+
+
 def statustext(mav: mavlink.MAVLink, severity: int, text: str) -> mavlink.MAVLink_message:
-    return mav.statustext_encode(severity, text[:50].encode("ascii", "replace"))
+    """One STATUSTEXT of at most 50 characters (longer text is cut: use :func:`statustexts`)."""
+    return mav.statustext_encode(severity, text[:STATUSTEXT_CHUNK].encode("ascii", "replace"))
+
+
+def statustexts(mav: mavlink.MAVLink, severity: int, text: str) -> list[mavlink.MAVLink_message]:
+    """``text`` as STATUSTEXT, in MAVLink 2 chunks when longer than 50 characters: every chunk
+    has the same non-zero ``id`` (one counter per encoder, so a log stays reproducible) and
+    ``chunk_seq`` 0, 1, ...; the last chunk is shorter than 50 characters (an empty one follows a
+    text of a multiple of 50), which tells the receiver the text is complete. A text of up to 50
+    characters is one message with ``id`` 0, as before."""
+    data = text.encode("ascii", "replace")
+    if len(data) <= STATUSTEXT_CHUNK:
+        return [mav.statustext_encode(severity, data)]
+    text_id = _text_ids.get(mav, 0) % 65535 + 1
+    _text_ids[mav] = text_id
+    chunks = [data[i : i + STATUSTEXT_CHUNK] for i in range(0, len(data), STATUSTEXT_CHUNK)]
+    if len(chunks[-1]) == STATUSTEXT_CHUNK:
+        chunks.append(b"")
+    return [mav.statustext_encode(severity, c, text_id, k) for k, c in enumerate(chunks[:256])]
 
 
 def smc_data(out: PipelineOutput, target: Sequence[float], yaw_target: float, flags: int = 0, mode: int = 0) -> list[float]:

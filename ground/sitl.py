@@ -60,7 +60,8 @@ class SitlOptions:
     gcs: str | None = "udp:127.0.0.1:14550"
     log_dir: Path = Path("logs")
     tlog: Path | None = None
-    #: FC parameter file (default: fc-params.parm in log_dir).
+    #: a parameter file to keep across runs (loaded, and saved to on PARAM_SET); None: the run
+    #: starts from defaults and writes a file of its own beside the tlog.
     param_file: Path | None = None
     watchdog_s: float = 5.0
     #: extra arguments for the FC / the bridge (advanced use, tests).
@@ -257,8 +258,8 @@ class Sitl:
                    "--tlog", str(tlog), "--watchdog-s", f"{o.watchdog_s:g}"]  # fmt: skip
         if o.lockstep:
             fc_args.append("--lockstep")
-        param_file = o.param_file if o.param_file is not None else tlog.parent / "fc-params.parm"
-        fc_args += ["--param-file", str(param_file)]
+        if o.param_file is not None:  # else the FC starts from defaults with a file of its own (NAME.parm)
+            fc_args += ["--param-file", str(o.param_file)]
         if o.lockstep:
             fc_args += timed
         fc_args += list(o.fc_args)

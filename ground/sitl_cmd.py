@@ -57,6 +57,10 @@ def add_sitl_arguments(p: argparse.ArgumentParser) -> None:
                    help="ground link of the FC: udp:HOST:PORT sends telemetry there (default udp:127.0.0.1:14550,"
                    " where QGroundControl and MAVProxy listen), udpin:HOST:PORT listens, none: no ground link")  # fmt: skip
     p.add_argument("--plan", type=Path, metavar="FILE", help="timed set-point plan (TOML) the FC flies in simulated time")
+    p.add_argument("--param-file", type=Path, metavar="FILE",
+                   help="a parameter file to keep across runs: loaded at start if it exists, saved to after every"
+                   " PARAM_SET (default: none loaded; the run starts from the defaults and writes its own NAME.parm"
+                   " beside its tlog)")  # fmt: skip
     p.add_argument("--paper-disturbance", action="store_true", default=None, help="add the paper's disturbances fs1..fs4")
     p.add_argument("--scenario", type=Path, metavar="FILE",
                    help="fly this scenario (TOML, see `smcpilot run`): its vehicle, environment, seed, controller,"
@@ -209,6 +213,7 @@ def sitl_main(args: argparse.Namespace) -> int:
         gcs=None if args.gcs == "none" else args.gcs,
         plan=args.plan,
         paper_disturbance=args.paper_disturbance,
+        param_file=args.param_file,
     )
 
     def started(sitl: Sitl) -> None:

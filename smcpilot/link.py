@@ -220,8 +220,12 @@ class MavlinkUdp:
         max_datagram_bytes: int = DEFAULT_MAX_DATAGRAM_BYTES,
         fast_codec: bool = True,
         monotonic_s: Callable[[], float] = time.monotonic,
+        bind_port: int = 0,
     ) -> None:
         """Open the socket.
+
+        ``bind_port``: for an ``out`` endpoint, the local port to send from (0: any free port), so
+        that others can write to a known port of ours as well (the FC's second ground port).
 
         ``source_system``/``source_component`` go into every packet we send; with
         ``accept_system`` set, packets from any other system id are dropped. ``tlog`` (owned by
@@ -268,6 +272,7 @@ class MavlinkUdp:
         self._next_prune_s = math.inf
         self._closed = True
 
+        self._bind_port = int(bind_port)
         sock = self._open_socket(endpoint)
         self._sock = sock
         self._fd = sock.fileno()
@@ -288,7 +293,7 @@ class MavlinkUdp:
                 sock.bind(address)
             else:
                 loopback = ipaddress.ip_address(address[0]).is_loopback
-                sock.bind(("127.0.0.1" if loopback else "0.0.0.0", 0))
+                sock.bind(("127.0.0.1" if loopback else "0.0.0.0", self._bind_port))
                 self._initial_destination = address
             sock.setblocking(False)
         except OSError as exc:

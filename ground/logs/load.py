@@ -40,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+from ground.vehicle.telemetry import StatusTextAssembler
 from smcpilot.errors import SmcpilotError, TlogError, TlogFormatError
 from smcpilot.frames import euler_flu_to_frd, nwu_to_ned
 from smcpilot.protocol import CHI_NAMES, SIG_NAMES, SIM_COMPONENT_ID, SMC_ARRAY_ID, SMC_FIELDS
@@ -264,6 +265,8 @@ def load_log(path: str | os.PathLike[str]) -> FlightLog:
     named_f: dict[str, list[tuple[int, float]]] = {}
     named_i: dict[str, list[tuple[int, int]]] = {}
     events: list[tuple[int, int, str]] = []
+    log_s = [0.0]  # STATUSTEXT chunks (texts over 50 characters) are joined on the log's own clock
+    texts = StatusTextAssembler(clock_s=lambda: log_s[0])
     first_us: int | None = None
     last_us = 0
     sim_state_us = 0
@@ -307,7 +310,8 @@ def load_log(path: str | os.PathLike[str]) -> FlightLog:
                 # The simulator announces a fault right after the first state it acts on; a lockstep
                 # FC logs the whole datagram batch before its clock reaches that state's time.
                 t_ev = max(time_us, sim_state_us) if msg.get_srcComponent() == SIM_COMPONENT_ID else time_us
-                events.append((t_ev, msg.severity, msg.text))
+                log_s[0] = time_us * 1e-6
+                events.extend((t_ev, whole.severity, whole.text) for whole in texts.feed(msg))
     except TlogFormatError as exc:
         reason = str(exc)
         prefix = f"{p}: "

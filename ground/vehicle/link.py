@@ -27,7 +27,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from ground.vehicle.errors import ConnectTimeout, VehicleTimeout
 from ground.vehicle.modes import mode_name, mode_number
 from ground.vehicle.subscription import Subscription
-from ground.vehicle.telemetry import StatusText, Telemetry, TelemetryParser
+from ground.vehicle.telemetry import StatusText, StatusTextAssembler, Telemetry, TelemetryParser
 from smcpilot.errors import ConfigError, LinkClosedError
 from smcpilot.link import Address, MavlinkUdp
 
@@ -38,6 +38,7 @@ log = logging.getLogger(__name__)
 #: Our MAVLink identity: a ground station (MAV_COMP_ID_MISSIONPLANNER).
 GCS_SYSTEM_ID = 255
 GCS_COMPONENT_ID = mavlink.MAV_COMP_ID_MISSIONPLANNER  # 190
+_STATUSTEXT = mavlink.MAVLink_statustext_message
 
 
 class Link:
@@ -74,6 +75,7 @@ class Link:
         self._tx_lock = threading.Lock()
         self._cond = threading.Condition()
         self._parser = TelemetryParser(system_id, statustext_history)
+        self._texts = StatusTextAssembler()
         self._subs: tuple[Subscription, ...] = ()
         self._subs_lock = threading.Lock()
         self._stop = threading.Event()
@@ -219,9 +221,12 @@ class Link:
                 continue
             accepted: list[mavlink.MAVLink_message] = []
             with self._cond:
-                for msg, addr in batch:
-                    if self._parser.ingest(msg, addr):
-                        accepted.append(msg)
+                for raw, addr in batch:
+                    # STATUSTEXT chunks are joined first: everyone downstream sees whole texts
+                    # (type(), not .id: STATUSTEXT's own field "id" hides the message id)
+                    for msg in self._texts.feed(raw) if type(raw) is _STATUSTEXT else (raw,):
+                        if self._parser.ingest(msg, addr):
+                            accepted.append(msg)
                 self._cond.notify_all()
             subs = self._subs
             if subs and accepted:

@@ -23,7 +23,8 @@ from ground.vehicle.modes import mode_name
 from ground.vehicle.names import enum_name
 from smcpilot.link import Address
 
-__all__ = ["TIMED_MESSAGES", "HomePosition", "StatusText", "Telemetry", "TelemetryParser", "json_safe", "mavlink_text"]
+__all__ = ["TIMED_MESSAGES", "HomePosition", "StatusText", "StatusTextAssembler", "Telemetry", "TelemetryParser", "json_safe",
+           "mavlink_text"]
 
 #: Messages whose time_boot_ms is the vehicle's (simulated) clock.
 TIMED_MESSAGES = frozenset(
@@ -206,6 +207,59 @@ def mavlink_text(raw: str | bytes) -> str:
     if isinstance(raw, bytes):
         raw = raw.decode("utf-8", "replace")
     return raw.split("\0", 1)[0]
+
+
+class StatusTextAssembler:
+    """Joins MAVLink 2 STATUSTEXT chunks (same non-zero ``id``, ``chunk_seq`` 0, 1, ...; the last
+    one shorter than 50 characters) into one message with the whole text.
+
+    :meth:`feed` returns the message to deliver: a single STATUSTEXT (``id`` 0) as it is, the
+    last chunk of a text carrying the joined text, or None while chunks are outstanding. A chunk
+    lost on the way leaves ``[...]`` in its place; a text whose last chunk never comes is
+    delivered as it stands after ``timeout_s`` wall seconds (at the next message fed).
+    """
+
+    def __init__(self, timeout_s: float = 2.0, clock_s: Any = time.monotonic) -> None:
+        self.timeout_s = timeout_s
+        self._clock_s = clock_s
+        #: (system, component, id) -> (first arrival, {chunk_seq: text}, latest chunk message)
+        self._open: dict[tuple[int, int, int], tuple[float, dict[int, str], mavlink.MAVLink_message]] = {}
+
+    def feed(self, msg: mavlink.MAVLink_message) -> list[mavlink.MAVLink_message]:
+        """The messages complete now (see the class doc), oldest first."""
+        now = self._clock_s()
+        out = self._expire(now)
+        text_id = int(getattr(msg, "id", 0) or 0)
+        if text_id == 0:
+            out.append(msg)
+            return out
+        key = (msg.get_srcSystem(), msg.get_srcComponent(), text_id)
+        piece = mavlink_text(msg.text)
+        first, chunks, _ = self._open.get(key, (now, {}, msg))
+        chunks[int(msg.chunk_seq)] = piece
+        if len(piece) < 50:  # the last chunk: the text is complete
+            self._open.pop(key, None)
+            out.append(self._joined(msg, chunks))
+        else:
+            if len(self._open) >= 64:  # a flood of unfinished texts: deliver the oldest
+                oldest = min(self._open, key=lambda k: self._open[k][0])
+                _, c, m = self._open.pop(oldest)
+                out.append(self._joined(m, c))
+            self._open[key] = (first, chunks, msg)
+        return out
+
+    def _expire(self, now: float) -> list[mavlink.MAVLink_message]:
+        out = []
+        for key in [k for k, (t0, _, _) in self._open.items() if now - t0 > self.timeout_s]:
+            _, chunks, msg = self._open.pop(key)
+            out.append(self._joined(msg, chunks))
+        return out
+
+    @staticmethod
+    def _joined(msg: mavlink.MAVLink_message, chunks: dict[int, str]) -> mavlink.MAVLink_message:
+        last = max(chunks)
+        msg.text = "".join(chunks.get(i, "[...]") for i in range(last + 1))
+        return msg
 
 
 class TelemetryParser:

@@ -157,9 +157,10 @@ class Vehicle(Link):
         """Take off to ``alt_m`` metres above home (see :meth:`Commands.takeoff`)."""
         self.commands.takeoff(alt_m)
 
-    def goto_ned(self, north_m: float, east_m: float, down_m: float, yaw_deg: float | None = None) -> None:
-        """Fly to a local NED point, metres from home (see :meth:`Commands.goto_ned`)."""
-        self.commands.goto_ned(north_m, east_m, down_m, yaw_deg)
+    def goto_ned(self, north_m: float, east_m: float, down_m: float, yaw_deg: float | None = None, *, verify: bool = True) -> None:
+        """Fly to a local NED point, metres from home; waits for the vehicle's verdict unless
+        ``verify`` is False (see :meth:`Commands.goto_ned`)."""
+        self.commands.goto_ned(north_m, east_m, down_m, yaw_deg, verify=verify)
 
     def goto_global(self, lat_deg: float, lon_deg: float, alt_rel_m: float, yaw_deg: float | None = None) -> None:
         """Fly to a global point, altitude above home (see :meth:`Commands.goto_global`)."""
