@@ -322,6 +322,11 @@ class FlightControllerApp:
             summary["gcs_rejected"] = dict(self.gcs_handler.rejected)
             summary["rx_rejected"] = self.rejected_summary()
             summary["tlog"] = str(self.tlog.path) if self.tlog is not None else None
+            if self.tlog is not None:  # the final counters, for `smcpilot log summary` (with or without a GCS)
+                lm = self._logmav
+                snap = self.telemetry_snapshot()
+                final = telemetry.build(mavlink.MAVLINK_MSG_ID_SYS_STATUS, snap, lm)
+                self.tlog.write_many(self.clock.now_us(), [m.pack(lm) for m in final])
             self.close()
             self.say("FC_SUMMARY " + json.dumps(summary, sort_keys=True))
         return self._exit_code

@@ -63,6 +63,9 @@ class SitlOptions:
     #: FC parameter file (default: fc-params.parm in log_dir).
     param_file: Path | None = None
     watchdog_s: float = 5.0
+    #: MAVLink 2 signing of the FC's ground link: a key file (64 hex digits or a passphrase);
+    #: None: unsigned. The signing timestamp is kept beside the log (``signing-timestamp``).
+    signing_key: Path | None = None
     #: extra arguments for the FC / the bridge (advanced use, tests).
     fc_args: tuple[str, ...] = ()
     sim_args: tuple[str, ...] = ()
@@ -258,7 +261,9 @@ class Sitl:
         if o.lockstep:
             fc_args.append("--lockstep")
         param_file = o.param_file if o.param_file is not None else tlog.parent / "fc-params.parm"
-        fc_args += ["--param-file", str(param_file)]
+        fc_args += ["--param-file", str(param_file), "--signing-timestamps", str(tlog.parent / "signing-timestamp")]
+        if o.signing_key is not None:
+            fc_args += ["--signing-key", str(o.signing_key)]
         if o.lockstep:
             fc_args += timed
         fc_args += list(o.fc_args)

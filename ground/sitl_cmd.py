@@ -17,6 +17,7 @@ from ground.sitl import Sitl, SitlError, SitlOptions, print_connect_help
 from smcpilot.errors import ConfigError
 from smcpilot.protocol import FC_CONTROLLERS
 from smcpilot.scenario import Scenario
+from smcpilot.signing import load_key
 
 
 def _ned_triple(text: str) -> tuple[float, float, float]:
@@ -52,6 +53,9 @@ def add_sitl_arguments(p: argparse.ArgumentParser) -> None:
                    help="ground link of the FC: udp:HOST:PORT sends telemetry there (default udp:127.0.0.1:14550,"
                    " where QGroundControl and MAVProxy listen), udpin:HOST:PORT listens, none: no ground link")  # fmt: skip
     p.add_argument("--plan", type=Path, metavar="FILE", help="timed set-point plan (TOML) the FC flies in simulated time")
+    p.add_argument("--signing-key", type=Path, metavar="FILE",
+                   help="MAVLink 2 signing on the ground link: FILE holds 64 hex digits (the key) or a passphrase"
+                   " (key = its SHA-256, as MAVProxy's 'signing setup'); see docs/security.md")  # fmt: skip
     p.add_argument("--paper-disturbance", action="store_true", default=None, help="add the paper's disturbances fs1..fs4")
     p.add_argument("--scenario", type=Path, metavar="FILE",
                    help="fly this scenario (TOML, see `smcpilot run`): its vehicle, environment, seed, controller,"
@@ -121,6 +125,8 @@ def _launch_and_wait(
 def sitl_main(args: argparse.Namespace) -> int:
     if args.plan is not None and not args.plan.is_file():
         raise ConfigError(f"plan file not found: {args.plan}")
+    if args.signing_key is not None:
+        load_key(args.signing_key)  # a bad key file: one line, exit 2, before anything starts
     opts = _options(
         args,
         lockstep=args.lockstep,
@@ -128,6 +134,7 @@ def sitl_main(args: argparse.Namespace) -> int:
         gcs=None if args.gcs == "none" else args.gcs,
         plan=args.plan,
         paper_disturbance=args.paper_disturbance,
+        signing_key=args.signing_key,
     )
 
     def started(sitl: Sitl) -> None:
@@ -143,7 +150,17 @@ def sitl_main(args: argparse.Namespace) -> int:
         f"SITL ended: {sim_s if sim_s is not None else float('nan'):.2f} simulated s in {wall:.2f} wall s,"
         f" {fcs.get('ticks', 0)} control ticks, {fcs.get('overruns', 0)} overruns; log {sitl.tlog}"
     )
+    print(rejected_line(fcs.get("rx_rejected") or {}))
     return 0
+
+
+def rejected_line(rejected: dict[str, int]) -> str:
+    """The FC's rejected packets by reason (its exit summary), one line."""
+    total = rejected.get("total", 0)
+    if not total:
+        return "  rejected packets: none"
+    parts = ", ".join(f"{k} {v}" for k, v in sorted(rejected.items(), key=lambda kv: -kv[1]) if k != "total")
+    return f"  rejected packets: {total} ({parts})"
 
 
 # -- demo ---------------------------------------------------------------------------------------
