@@ -346,6 +346,10 @@ class FlightControllerApp:
         for reason, v in self.gcs_handler.rejected.items():
             if v:
                 out[f"gcs.{reason}"] = v
+        mission = self.core.commander.mission
+        for reason, v in (("mission_refused", mission.refused), ("mission_ignored", mission.ignored)):
+            if v:
+                out[f"gcs.{reason}"] = v
         out["total"] = sum(out.values())
         return out
 

@@ -130,6 +130,7 @@ class GcsHandler:
         #: drop-rate window: (wall start, rejected, good) at its start; the last window's rate.
         self._drop_window: tuple[float, int, int] = (-math.inf, 0, 0)
         self._drop_rate = 0
+        self._refusal_counted = False
         self._handlers: dict[int, Callable[[mavlink.MAVLink_message, Address], None]] = {
             M.MAVLINK_MSG_ID_HEARTBEAT: self._heartbeat,
             M.MAVLINK_MSG_ID_COMMAND_LONG: self._command_long,
@@ -232,8 +233,8 @@ class GcsHandler:
 
     @property
     def rejected_total(self) -> int:
-        """Every message this handler dropped or refused."""
-        return sum(self.rejected.values())
+        """Every message this handler dropped or refused (the mission protocol's included)."""
+        return sum(self.rejected.values()) + self.mission.refused + self.mission.ignored
 
     def handle(self, msg: mavlink.MAVLink_message, addr: Address) -> None:
         # get_msgId(), not .id: STATUSTEXT has a field named "id" that hides the message id
@@ -268,6 +269,9 @@ class GcsHandler:
             code = M.MAV_RESULT_ACCEPTED
         else:
             code = refusal.code
+            if refusal is not _UNSUPPORTED and not self._refusal_counted:  # (those are counted where they arise)
+                self.rejected["command_refused"] += 1
+            self._refusal_counted = False
             if refusal.reason:
                 self._refusal_text(refusal.reason, refusal.reason)
         self._send_to(self.mav.command_ack_encode(command, code, 0, 0, m.get_srcSystem(), m.get_srcComponent()), addr)
@@ -320,6 +324,7 @@ class GcsHandler:
             why = interval_refusal(int(p[0]), p[1])
             if why is not None:
                 self.rejected["bad_interval"] += 1
+                self._refusal_counted = True
                 return Refusal(why)
             self.streams.set_interval(int(p[0]), p[1])
             return None
@@ -328,6 +333,7 @@ class GcsHandler:
                 return Refusal("Request message: id is not a number")
             msgs = self.build(int(p[0]))
             if not msgs:
+                self.rejected["unsupported_message"] += 1
                 return _UNSUPPORTED
             for msg in msgs:
                 self._send_to(msg, addr)
@@ -493,6 +499,7 @@ class GcsHandler:
         result = inject.injection(p[0], p[1], p[2], self.params.sim)
         if isinstance(result, Refusal):
             self.rejected["inject_refused"] += 1
+            self._refusal_counted = True
             return result
         if self._forward_sim is None:
             return Refusal("Inject: no simulator link", M.MAV_RESULT_UNSUPPORTED)

@@ -145,6 +145,10 @@ class MissionProtocol:
         # Upload in progress
         self._partner: Address | None = None
         self._partner_heard_s = -math.inf
+        #: MISSION_ACKs with an error sent (refused counts, items, uploads cancelled), and
+        #: items ignored (no upload with that station, or out of sequence): rejected packets.
+        self.refused = 0
+        self.ignored = 0
         self._partner_sys = 0
         self._partner_comp = 0
         self._count = 0
@@ -160,6 +164,8 @@ class MissionProtocol:
 
     # -- helpers --------------------------------------------------------------------------------
     def _ack(self, addr: Address, sysid: int, compid: int, result: int) -> None:
+        if result != mavlink.MAV_MISSION_ACCEPTED:
+            self.refused += 1
         self._send_to(self.mav.mission_ack_encode(sysid, compid, result, mavlink.MAV_MISSION_TYPE_MISSION), addr)
 
     def note_legacy(self, addr: Address) -> None:
@@ -229,12 +235,14 @@ class MissionProtocol:
         else:
             self.legacy_stations.discard(addr)
         if self._partner is None or addr != self._partner:
+            self.ignored += 1
             return  # not in an upload with this station: ignore, as ArduPilot does
         if getattr(m, "mission_type", 0) != mavlink.MAV_MISSION_TYPE_MISSION:
             return
         self._partner_heard_s = now_s
         expected = len(self._incoming)
         if m.seq != expected:
+            self.ignored += 1
             if m.seq < expected:  # a late duplicate: ask for the one we need
                 self._request()
                 self._deadline = now_s + REQUEST_TIMEOUT_S
