@@ -181,9 +181,7 @@ class Fuzzer:
         return self.pack(e.command_long_encode(FOREIGN_SYSID, 1, M.MAV_CMD_NAV_LAND, 0, 0, 0, 0, 0, 0, 0, 0))
 
     def valid_sim_state(self, enc: M.MAVLink) -> bytes:
-        return enc.attitude_encode(1000, 0.5, 0.5, 0.5, 0, 0, 0).pack(enc) + enc.local_position_ned_encode(
-            1000, 9, 9, -9, 0, 0, 0
-        ).pack(enc)
+        return enc.attitude_encode(1000, 0.5, 0.5, 0.5, 0, 0, 0).pack(enc) + enc.local_position_ned_encode(1000, 9, 9, -9, 0, 0, 0).pack(enc)
 
     def datagram(self, target: str) -> bytes:
         """One hostile datagram for ``target`` ("gcs", "fc_sim", "sim"), counted by class."""
@@ -426,9 +424,7 @@ def test_every_rejected_packet_is_counted(flights) -> None:
     assert logged["errors_count4"] == min(65535, sim["rx_bad"] + sim["rx_unknown"] + sim["rx_foreign_system"])
     # the clean flight counts nothing
     assert clean.fc_summary["rx_rejected"] == {"total": 0}
-    assert summarize(load_log(clean.tlog))["comm_errors"] == dict.fromkeys(
-        ("errors_comm", "drop_rate_comm", "errors_count1", "errors_count2", "errors_count3", "errors_count4"), 0
-    )
+    assert summarize(load_log(clean.tlog))["comm_errors"] == dict.fromkeys(("errors_comm", "drop_rate_comm", "errors_count1", "errors_count2", "errors_count3", "errors_count4"), 0)
 
 
 def test_a_station_that_commanded_keeps_its_telemetry_through_the_heartbeat_flood(flights) -> None:
@@ -446,8 +442,7 @@ def test_huge_finite_targets_and_other_components_are_not_flown(tmp_path: Path) 
     enc = M.MAVLink(None, srcSystem=250, srcComponent=190)
     packets = [
         enc.set_position_target_local_ned_encode(0, FC_SYSID, 1, M.MAV_FRAME_LOCAL_NED, 0xDF8, 1e30, 0, -2, 0, 0, 0, 0, 0, 0, 0, 0),
-        enc.set_position_target_global_int_encode(0, FC_SYSID, 1, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, 0xDF8, 2**31 - 1, 0, 2,
-                                                  0, 0, 0, 0, 0, 0, 0, 0),  # fmt: skip
+        enc.set_position_target_global_int_encode(0, FC_SYSID, 1, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, 0xDF8, 2**31 - 1, 0, 2, 0, 0, 0, 0, 0, 0, 0, 0),  # fmt: skip
         enc.set_position_target_local_ned_encode(0, FC_SYSID, 99, M.MAV_FRAME_LOCAL_NED, 0xDF8, 3, 3, -3, 0, 0, 0, 0, 0, 0, 0, 0),
         enc.command_long_encode(FC_SYSID, 1, M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 0, 1e30),
         enc.command_long_encode(FC_SYSID, 1, M.MAV_CMD_DO_REPOSITION, 0, -1, 0, 0, 0, 89.0, 179.0, 1e30),
