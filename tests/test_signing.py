@@ -388,3 +388,36 @@ def test_vehicle_client_and_gcs_cli_talk_to_a_signed_fc(tmp_path: Path) -> None:
             assert comm["errors_count2"] >= 1 and comm["errors_comm"] >= comm["errors_count2"], comm
     finally:
         gcs.close()
+
+
+# -- listening only where it should ----------------------------------------------------------------
+@pytest.mark.parametrize("signed", [False, True])
+def test_a_non_loopback_ground_bind_warns_unless_signing_is_on(tmp_path: Path, signed: bool) -> None:
+    from sitl_helpers import FcProcess
+
+    key_file = tmp_path / "k"
+    key_file.write_text(KEY.hex(), encoding="utf-8")
+    args = ["--sim", "udpin:127.0.0.1:0", "--gcs", "udpin:0.0.0.0:0", "--startup-timeout-s", "0.5", "--tlog", str(tmp_path / "fc.tlog")]
+    fc = FcProcess(args + (["--signing-key", str(key_file)] if signed else []), cwd=tmp_path)
+    try:
+        fields = fc.listening()
+        assert fields["sim"].startswith("127.0.0.1:")  # the sim link: loopback by default
+        fc.wait()
+    finally:
+        fc.stop()
+    warnings = [line for line in fc.all_lines if "not loopback" in line]
+    if signed:
+        assert not warnings, warnings
+    else:
+        assert len(warnings) == 1 and "without signing" in warnings[0] and "0.0.0.0" in warnings[0], fc.all_lines
+        assert KEY.hex() not in "\n".join(fc.all_lines)
+
+
+def test_a_bad_key_file_is_a_one_line_error_with_exit_2(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.key"
+    bad.write_text("a\nb\n", encoding="utf-8")
+    for argv in (["-m", "fc", "--signing-key", str(bad), "--gcs", "none"], ["-m", "lab.cli", "sitl", "--signing-key", str(bad)]):
+        out = subprocess.run([sys.executable, *argv], capture_output=True, text=True, timeout=60, cwd=tmp_path)
+        assert out.returncode == 2, (argv, out.stdout, out.stderr)
+        lines = out.stderr.strip().splitlines()
+        assert len(lines) == 1 and "bad.key" in lines[0] and "2 non-empty lines" in lines[0], out.stderr
