@@ -377,6 +377,9 @@ def print_connect_help(sitl: Sitl, out: TextIO = sys.stdout) -> None:
               f" MAVProxy: mavproxy.py --master=udpin:{target})", file=out)  # fmt: skip
     if sitl.gcs_address and sitl.gcs_address != "-":
         print(f"  the FC answers on {sitl.gcs_address} (any GCS may also connect there: --master=udpout:{sitl.gcs_address})", file=out)
+    if o.signing_key is not None:
+        print("  the ground link is signed: sign with the same key (MAVProxy: module load signing; signing key"
+              " PASSPHRASE; pymavlink: setup_signing; docs/security.md)", file=out)  # fmt: skip
     if o.lockstep and o.speed is None and o.gcs:
         print("  note: lockstep runs as fast as possible; a ground station needs --speed 1", file=out)
     out.flush()

@@ -511,3 +511,109 @@ def test_real_time_loop_under_fuzz_keeps_flying_and_counts_everything(realtime_f
     gcs = fuzzed.fc_summary["links"]["gcs"]
     assert gcs["rx_bad"] + gcs["rx_unknown"] >= sum(fuzzer.sent[("gcs", k)] for k in framing)
     assert clean.fc_summary["rx_rejected"] == {"total": 0}
+
+
+# -- the defences one by one, in process (the ground protocol handler with a fake link) ------------
+def _handler_with_clock():
+    from test_modes import _core, _handler
+
+    core = _core()
+    h, link, events, _ = _handler(core)
+    now = [100.0]
+    h.wall_s = lambda: now[0]
+    return core, h, link, events, now
+
+
+def _cmd(h, command: int, *params: float, src: tuple[int, int] = (255, 190), addr=("127.0.0.1", 14550)) -> None:
+    p = list(params) + [0.0] * (7 - len(params))
+    msg = M.MAVLink_command_long_message(1, 1, command, 0, *p)
+    msg._header = M.MAVLink_header(msg.id, srcSystem=src[0], srcComponent=src[1])
+    h.handle(msg, addr)
+
+
+def test_message_intervals_are_bounded() -> None:
+    from fc.streams import MAX_INTERVAL_US, MIN_INTERVAL_US
+
+    _core, h, link, events, _now = _handler_with_clock()
+    hb = M.MAVLINK_MSG_ID_HEARTBEAT
+    for interval in (1e30, 5e6, -1.0):  # the heartbeat: never slower than 1 Hz, never off
+        _cmd(h, M.MAV_CMD_SET_MESSAGE_INTERVAL, hb, interval)
+        assert link.to[-1][0].result == M.MAV_RESULT_DENIED
+    assert h.streams.interval_us[hb] == 1_000_000
+    _cmd(h, M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_ATTITUDE, MAX_INTERVAL_US * 2)
+    assert link.to[-1][0].result == M.MAV_RESULT_DENIED
+    _cmd(h, M.MAV_CMD_SET_MESSAGE_INTERVAL, M.MAVLINK_MSG_ID_ATTITUDE, 1)  # faster than we stream: the fastest
+    assert link.to[-1][0].result == M.MAV_RESULT_ACCEPTED and h.streams.interval_us[M.MAVLINK_MSG_ID_ATTITUDE] == MIN_INTERVAL_US
+    rds = M.MAVLink_request_data_stream_message(1, 1, M.MAV_DATA_STREAM_ALL, 65535, 1)
+    rds._header = M.MAVLink_header(rds.id, srcSystem=255, srcComponent=190)
+    h.handle(rds, ("127.0.0.1", 14550))
+    assert min(v for v in h.streams.interval_us.values() if v > 0) == MIN_INTERVAL_US
+    assert h.rejected["bad_interval"] == 3 + 1
+
+
+def test_refusal_texts_are_rate_limited_per_reason_whoever_asks() -> None:
+    _core, h, link, events, now = _handler_with_clock()
+    n0 = len(events)
+    for i in range(400):  # 400 bad requests in a second, from 400 stations
+        _cmd(h, M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 3.0, addr=("127.0.0.1", 20000 + i))
+        _cmd(h, M.MAV_CMD_DO_SET_MODE, 1, 12345 + i, addr=("127.0.0.1", 20000 + i))  # distinct reasons
+    texts = events[n0:]
+    assert len(texts) <= 8, texts  # REFUSAL_TEXT_BURST per second in all
+    assert sum("Takeoff" in t for _, t in texts) == 1
+    assert len([m for m, _ in link.to if m.get_type() == "COMMAND_ACK"]) == 800  # every request still answered
+    assert h.rejected["command_refused"] == 800 and h.texts_suppressed == 800 - len(texts)
+    now[0] += 1.0
+    _cmd(h, M.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, 0, 0, 0, 3.0)
+    assert events[-1][1] == "Takeoff: arm first"  # a second later: said again
+
+
+def test_an_abandoned_mission_upload_does_not_block_another_station() -> None:
+    from fc.mission import ABANDONED_UPLOAD_S
+
+    _core, h, _link, _events, now = _handler_with_clock()
+    link = _link
+    h.mission._send_to = lambda msg, addr: link.to.append((msg, addr))
+    a, b = ("127.0.0.1", 1111), ("127.0.0.1", 2222)
+
+    def count(addr, n: int) -> None:
+        msg = M.MAVLink_mission_count_message(1, 1, n, 0)
+        msg._header = M.MAVLink_header(msg.id, srcSystem=255, srcComponent=190)
+        h.handle(msg, addr)
+
+    count(a, 3)  # station a starts an upload and goes away
+    count(b, 2)
+    assert link.to[-1][0].get_type() == "MISSION_ACK" and link.to[-1][0].type == M.MAV_MISSION_DENIED  # a is busy
+    now[0] += ABANDONED_UPLOAD_S + 0.1
+    count(b, 2)
+    acks = [(m, addr) for m, addr in link.to if m.get_type() == "MISSION_ACK"]
+    assert acks[-1][1] == a and acks[-1][0].type == M.MAV_MISSION_OPERATION_CANCELLED
+    req, to = link.to[-1]
+    assert req.get_type() in ("MISSION_REQUEST_INT", "MISSION_REQUEST") and req.seq == 0 and to == b
+    assert h.mission.refused == 2  # the denial and the cancellation
+
+
+def test_setup_signing_is_refused_while_armed_and_from_untrusted_unsigned_senders() -> None:
+    from smcpilot.signing import Signing
+
+    core, h, _link, events, _now = _handler_with_clock()
+    h.signing = Signing(None)
+    key = list(range(1, 33))
+
+    def setup(k: list[int], signed: bool = False) -> None:
+        msg = M.MAVLink_setup_signing_message(1, 1, k, 0)
+        msg._header = M.MAVLink_header(msg.id, srcSystem=255, srcComponent=190)
+        msg._signed = signed
+        h.handle(msg, ("127.0.0.1", 14550))
+
+    _cmd(h, M.MAV_CMD_COMPONENT_ARM_DISARM, 1.0, 21196)
+    assert core.flight.armed
+    setup(key)
+    assert not h.signing.enabled and h.rejected["signing_armed"] == 1
+    _cmd(h, M.MAV_CMD_COMPONENT_ARM_DISARM, 0.0, 21196)
+    setup(key)
+    assert h.signing.enabled and events[-1][1] == "Signing enabled"
+    setup([9] * 32)  # unsigned, with a key set, on an untrusted link: refused
+    assert h.rejected["signing_untrusted"] == 1
+    setup([0] * 32, signed=True)  # signed with the current key: the zero key turns signing off
+    assert not h.signing.enabled and events[-1][1] == "Signing disabled"
+    assert not any(str(bytes(key)) in t or "1, 2, 3" in t for _, t in events)
