@@ -235,6 +235,10 @@ class Run:
     friend_heartbeats: int
     friend_wall_s: float
     listener_heartbeats: int
+    #: FC heartbeats heard by a station that only sends heartbeats (never a command).
+    watcher_heartbeats: int
+    #: the highest SYS_STATUS drop_rate_comm (c%) the configured destination saw.
+    max_drop_rate: int
 
 
 def flight_records(tlog: Path) -> list[tuple[int, int, bytes]]:
@@ -248,10 +252,15 @@ def flight_records(tlog: Path) -> list[tuple[int, int, bytes]]:
         if mid in (M.MAVLINK_MSG_ID_ATTITUDE, M.MAVLINK_MSG_ID_LOCAL_POSITION_NED, M.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS,
                    M.MAVLINK_MSG_ID_DEBUG_FLOAT_ARRAY):  # fmt: skip
             out.append((t_us, mid, bytes(msg.get_msgbuf()[10:-2])))
-    return out
+    # a state the simulator sent again (its answer was late: a loaded machine) and the FC's
+    # repeated answer are the same records at the same time: counted once
+    return list(dict.fromkeys(out))
 
 
-def fly(tmp_path: Path, name: str, fuzz: Callable[[Sitl, threading.Event], None] | None, *, lockstep: bool = True) -> Run:
+Fuzz = Callable[[Sitl, threading.Event, Callable[[], float]], None]
+
+
+def fly(tmp_path: Path, name: str, fuzz: Fuzz | None, *, lockstep: bool = True) -> Run:
     run_dir = tmp_path / name
     run_dir.mkdir()
     plan = write_plan(run_dir / "plan.toml", PLAN)
@@ -260,6 +269,7 @@ def fly(tmp_path: Path, name: str, fuzz: Callable[[Sitl, threading.Event], None]
                           tlog=run_dir / "fc.tlog", param_file=run_dir / "fc.parm", log_dir=run_dir, watchdog_s=10.0)  # fmt: skip
     stop = threading.Event()
     friend: Gcs | None = None
+    watcher: Gcs | None = None
     try:
         t0 = time.monotonic()
         with Sitl(opts, echo=lambda line: None) as sitl:
@@ -268,12 +278,17 @@ def fly(tmp_path: Path, name: str, fuzz: Callable[[Sitl, threading.Event], None]
             friend = Gcs(f"udpout:{host}:{port}", sysid=254)
             friend.send_heartbeat()
             friend.send_command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
-            worker = threading.Thread(target=fuzz, args=(sitl, stop), daemon=True) if fuzz is not None else None
+            # and one that only sends its 1 Hz heartbeat (it keeps its place by writing)
+            watcher = Gcs(f"udpout:{host}:{port}", sysid=253)
+            watcher.send_heartbeat()
+            sim_s = lambda: listener.sim_ms / 1000.0  # noqa: E731 - the vehicle's clock, as the listener hears it
+            worker = threading.Thread(target=fuzz, args=(sitl, stop, sim_s), daemon=True) if fuzz is not None else None
             if worker is not None:
                 worker.start()
             f0 = time.monotonic()
             while sitl.poll() == (None, None):
                 friend.pump(0.05)
+                watcher.pump(0.0)
                 listener.pump(0.0)
             friend_wall = time.monotonic() - f0
             stop.set()
@@ -285,22 +300,25 @@ def fly(tmp_path: Path, name: str, fuzz: Callable[[Sitl, threading.Event], None]
                 listener.pump(0.02)
         fc_hb = [r for r in friend.log if r.msg.get_type() == "HEARTBEAT" and r.msg.get_srcSystem() == FC_SYSID]
         lis_hb = [r for r in listener.log if r.msg.get_type() == "HEARTBEAT" and r.msg.get_srcSystem() == FC_SYSID]
+        wat_hb = [r for r in watcher.log if r.msg.get_type() == "HEARTBEAT" and r.msg.get_srcSystem() == FC_SYSID]
+        drop = max((r.msg.drop_rate_comm for r in listener.log if r.msg.get_type() == "SYS_STATUS"), default=0)
         return Run(opts.tlog, sitl.fc_summary or {}, sitl.sim_summary or {}, wall, listener.last.get("SYS_STATUS"),
-                   len(fc_hb), friend_wall, len(lis_hb))  # type: ignore[arg-type]  # fmt: skip
+                   len(fc_hb), friend_wall, len(lis_hb), len(wat_hb), drop)  # type: ignore[arg-type]  # fmt: skip
     finally:
         stop.set()
         listener.close()
-        if friend is not None:
-            friend.close()
+        for g in (friend, watcher):
+            if g is not None:
+                g.close()
 
 
-def fuzz_all(fuzzer: Fuzzer, rate_hz: float = 400.0) -> Callable[[Sitl, threading.Event], None]:
+def fuzz_all(fuzzer: Fuzzer, rate_hz: float = 400.0) -> Fuzz:
     """The fuzzing thread: hostile datagrams to the FC's ground and sim ports and the simulator's
     port at ``rate_hz`` in all, plus the heartbeat flood; it ends 1.5 simulated seconds before the
     flight does, so that everything sent arrives while every socket is open and the FC's last
     SYS_STATUS has counted it."""
 
-    def run(sitl: Sitl, stop: threading.Event) -> None:
+    def run(sitl: Sitl, stop: threading.Event, sim_s: Callable[[], float]) -> None:
         assert sitl.gcs_address is not None and sitl.sim is not None
         gcs_host, gcs_port = sitl.gcs_address.rsplit(":", 1)
         targets = {"gcs": (gcs_host, int(gcs_port)), "fc_sim": (LOOPBACK, sitl.sim_port)}
@@ -319,8 +337,8 @@ def fuzz_all(fuzzer: Fuzzer, rate_hz: float = 400.0) -> Callable[[Sitl, threadin
             next_flood = time.monotonic()
             order = ("gcs", "gcs", "gcs", "fc_sim", "sim")
             n = 0
-            end = time.monotonic() + (DURATION_S - 1.5) / SPEED
-            while not stop.is_set() and time.monotonic() < end:
+            end = time.monotonic() + (DURATION_S - 1.5) / SPEED  # (real time: the clock is the wall's)
+            while not stop.is_set() and time.monotonic() < end and sim_s() < DURATION_S - 1.5:
                 target = order[n % len(order)]
                 n += 1
                 with contextlib.suppress(OSError):
@@ -381,7 +399,8 @@ def print_report(clean: Run, fuzzed: Run, fuzzer: Fuzzer) -> None:
         print(f"fuzz: loop {label:6s}: {ticks} ticks in {r.wall_s:.2f} wall s (lockstep x{SPEED:g} cap),"
               f" {1e6 * r.wall_s / max(ticks, 1):.0f} wall us per tick incl. start-up, overruns {r.fc_summary.get('overruns')},"
               f" FC heartbeats heard by a commanding station {r.friend_heartbeats} in {r.friend_wall_s:.1f} s,"
-              f" by the configured destination {r.listener_heartbeats}")  # fmt: skip
+              f" by a heartbeat-only station {r.watcher_heartbeats}, by the configured destination {r.listener_heartbeats};"
+              f" highest SYS_STATUS drop_rate_comm {r.max_drop_rate / 100:.2f} %")  # fmt: skip
 
 
 # -- the checks -----------------------------------------------------------------------------------------
@@ -446,10 +465,18 @@ def test_every_rejected_packet_is_counted(flights) -> None:
 def test_a_station_that_commanded_keeps_its_telemetry_through_the_heartbeat_flood(flights) -> None:
     clean, fuzzed, fuzzer = flights
     assert fuzzer.sent[("gcs", "heartbeat_flood")] >= FLOOD_SYSTEMS * FLOOD_RATE_HZ * DURATION_S * 0.5
-    # the FC's heartbeat is 1 Hz: the station hears (nearly) all of them, as in the clean flight
-    assert fuzzed.friend_heartbeats >= fuzzed.friend_wall_s - 2.0, (fuzzed.friend_heartbeats, fuzzed.friend_wall_s)
+    # the FC's heartbeat is 1 Hz of simulated time: the station hears (nearly) all of them, as in
+    # the clean flight (a station that only sends heartbeats keeps its place while the FC keeps up
+    # with the flood; under overload its heartbeats can be lost in the socket buffer: printed only)
+    assert fuzzed.friend_heartbeats >= DURATION_S - 2.0, (fuzzed.friend_heartbeats, fuzzed.friend_wall_s)
     assert fuzzed.friend_heartbeats >= clean.friend_heartbeats - 2
     assert fuzzed.fc_summary["links"]["gcs"]["peers_rejected"] > 0  # the flood was refused places
+
+
+def test_drop_rate_is_reported_while_the_fuzz_lasts(flights) -> None:
+    clean, fuzzed, _ = flights
+    assert clean.max_drop_rate == 0
+    assert 0 < fuzzed.max_drop_rate <= 10000
 
 
 # -- what other branches deliver -----------------------------------------------------------------------
@@ -464,7 +491,7 @@ def test_huge_finite_targets_and_other_components_are_not_flown(tmp_path: Path) 
         enc.command_long_encode(FC_SYSID, 1, M.MAV_CMD_DO_REPOSITION, 0, -1, 0, 0, 0, 89.0, 179.0, 1e30),
     ]
 
-    def send(sitl: Sitl, stop: threading.Event) -> None:
+    def send(sitl: Sitl, stop: threading.Event, sim_s: Callable[[], float]) -> None:
         assert sitl.gcs_address is not None
         host, port = sitl.gcs_address.rsplit(":", 1)
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
@@ -482,7 +509,7 @@ def test_huge_finite_targets_and_other_components_are_not_flown(tmp_path: Path) 
 def test_valid_states_forged_from_another_address_are_not_flown(tmp_path: Path) -> None:
     forged = M.MAVLink(None, srcSystem=FC_SYSID, srcComponent=SIM_COMPONENT_ID)
 
-    def send(sitl: Sitl, stop: threading.Event) -> None:
+    def send(sitl: Sitl, stop: threading.Event, sim_s: Callable[[], float]) -> None:
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
             t_ms = 0
             while not stop.is_set():
