@@ -40,10 +40,12 @@ _FTP_NAK = 129
 _FTP_FILE_NOT_FOUND = 10
 #: a command we do not implement: MAV_RESULT_UNSUPPORTED, no STATUSTEXT.
 _UNSUPPORTED = Refusal("", M.MAV_RESULT_UNSUPPORTED)
-#: Refusal STATUSTEXTs: at most one per REFUSAL_TEXT_PERIOD_S per reason (whoever asked), and
-#: at most REFUSAL_TEXT_BURST in all within REFUSAL_TEXT_PERIOD_S (a flood of distinct reasons).
+#: Refusal STATUSTEXTs: at most one per REFUSAL_TEXT_PERIOD_S per reason (whoever asked), and in
+#: all a bucket of REFUSAL_TEXT_BURST texts refilled at REFUSAL_TEXT_RATE_HZ (a flood of distinct
+#: reasons gets 20 texts, then 5 a second).
 REFUSAL_TEXT_PERIOD_S = 1.0
-REFUSAL_TEXT_BURST = 8
+REFUSAL_TEXT_BURST = 20
+REFUSAL_TEXT_RATE_HZ = 5.0
 #: Messages whose sender is a station that matters: it keeps its place in the peer table.
 _PIN_MSG_IDS = frozenset({
     M.MAVLINK_MSG_ID_COMMAND_LONG, M.MAVLINK_MSG_ID_COMMAND_INT, M.MAVLINK_MSG_ID_SET_MODE, M.MAVLINK_MSG_ID_PARAM_SET,
@@ -122,7 +124,8 @@ class GcsHandler:
         self.rejected: Counter[str] = Counter()
         self.gcs_heartbeats = 0
         self._last_reject_text_s: dict[str, float] = {}
-        self._reject_texts_window: list[float] = []
+        #: the refusal-text bucket: (tokens, wall time of the last update).
+        self._text_bucket: tuple[float, float] = (float(REFUSAL_TEXT_BURST), -math.inf)
         #: refusal STATUSTEXTs not sent because of the rate limit.
         self.texts_suppressed = 0
         self.signing = signing
@@ -180,20 +183,20 @@ class GcsHandler:
 
     def _refusal_text(self, key: str, text: str, severity: int = M.MAV_SEVERITY_WARNING) -> None:
         """A refusal's STATUSTEXT (and stdout line): at most one per ``REFUSAL_TEXT_PERIOD_S``
-        per ``key`` whoever asked, and ``REFUSAL_TEXT_BURST`` in all per period, so a flood of
-        bad requests from any number of stations cannot flood the ground link or the console."""
+        per ``key`` whoever asked, and in all no more than the bucket allows
+        (``REFUSAL_TEXT_BURST``, refilled at ``REFUSAL_TEXT_RATE_HZ``), so a flood of bad
+        requests from any number of stations cannot flood the ground link or the console."""
         now = self.wall_s()
-        period = REFUSAL_TEXT_PERIOD_S
-        if now - self._last_reject_text_s.get(key, -math.inf) < period:
+        if now - self._last_reject_text_s.get(key, -math.inf) < REFUSAL_TEXT_PERIOD_S:
             self.texts_suppressed += 1
             return
-        window = self._reject_texts_window
-        while window and now - window[0] >= period:
-            window.pop(0)
-        if len(window) >= REFUSAL_TEXT_BURST:
+        tokens, then = self._text_bucket
+        tokens = min(float(REFUSAL_TEXT_BURST), tokens + max(0.0, now - then) * REFUSAL_TEXT_RATE_HZ)
+        if tokens < 1.0:
+            self._text_bucket = (tokens, now)
             self.texts_suppressed += 1
             return
-        window.append(now)
+        self._text_bucket = (tokens - 1.0, now)
         if len(self._last_reject_text_s) > 256:
             self._last_reject_text_s.clear()
         self._last_reject_text_s[key] = now
