@@ -324,9 +324,11 @@ class FlightControllerApp:
             summary["tlog"] = str(self.tlog.path) if self.tlog is not None else None
             if self.tlog is not None:  # the final counters, for `smcpilot log summary` (with or without a GCS)
                 lm = self._logmav
-                snap = self.telemetry_snapshot()
-                final = telemetry.build(mavlink.MAVLINK_MSG_ID_SYS_STATUS, snap, lm)
-                self.tlog.write_many(self.clock.now_us(), [m.pack(lm) for m in final])
+                try:
+                    final = telemetry.build(mavlink.MAVLINK_MSG_ID_SYS_STATUS, self.telemetry_snapshot(), lm)
+                    self.tlog.write_many(self.clock.now_us(), [m.pack(lm) for m in final])
+                except Exception as exc:  # never hide the error that ended the run, never lose the log
+                    self.say(f"fc: warning: final SYS_STATUS not logged: {type(exc).__name__}: {exc}")
             self.close()
             self.say("FC_SUMMARY " + json.dumps(summary, sort_keys=True))
         return self._exit_code

@@ -45,6 +45,8 @@ from smcpilot.signing import (
 )
 from smcpilot.tlog import TlogWriter, read_tlog
 
+pytest_plugins = ("pytester",)
+
 KEY = hashlib.sha256(b"correct horse battery staple").digest()
 OTHER_KEY = hashlib.sha256(b"not the key").digest()
 NOW_UNIX_S = 1_750_000_000.0  # a fixed wall clock for the unit tests
@@ -421,3 +423,24 @@ def test_a_bad_key_file_is_a_one_line_error_with_exit_2(tmp_path: Path) -> None:
         assert out.returncode == 2, (argv, out.stdout, out.stderr)
         lines = out.stderr.strip().splitlines()
         assert len(lines) == 1 and "bad.key" in lines[0] and "2 non-empty lines" in lines[0], out.stderr
+
+
+def test_the_pytest_fixture_signs_with_the_option_or_the_marker(pytester: pytest.Pytester, tmp_path: Path) -> None:
+    key_file = tmp_path / "fixture.key"
+    key_file.write_text("fixture passphrase\n", encoding="utf-8")
+    pytester.makepyfile(
+        test_signed=f"""
+import pytest
+
+def test_signed(sitl, sitl_process):
+    assert sitl_process.options.signing_key is not None and sitl.signing.enabled
+    assert sitl.params.get("SYSID_THISMAV") == 1.0      # a signed request, a signed answer
+    assert sitl.link_counters.rx_signing_rejected == 0
+
+@pytest.mark.sitl_options(signing_key={str(key_file)!r})
+def test_marker(sitl, sitl_process):
+    assert sitl.signing.enabled and sitl.params.get("SYSID_THISMAV") == 1.0
+"""
+    )
+    result = pytester.runpytest_subprocess("--sitl-signing-key", str(key_file), "-p", "no:cacheprovider")
+    result.assert_outcomes(passed=2)
