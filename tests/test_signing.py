@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 import socket
 import subprocess
 import sys
@@ -388,6 +389,13 @@ def test_vehicle_client_and_gcs_cli_talk_to_a_signed_fc(tmp_path: Path) -> None:
             assert out.returncode == 0, out.stderr
             comm = json.loads(out.stdout)["comm_errors"]
             assert comm["errors_count2"] >= 1 and comm["errors_comm"] >= comm["errors_count2"], comm
+            text = subprocess.run(
+                [sys.executable, "-m", "lab.cli", "gcs", "--connect", f"udpout:{host}:{port}", "--signing-key", str(key_file), "status"],
+                capture_output=True, text=True, timeout=60,
+            )  # fmt: skip
+            line = next(line for line in text.stdout.splitlines() if line.strip().startswith("rejected"))
+            signing_count = re.search(r"(\d+) signing", line)
+            assert signing_count is not None and int(signing_count.group(1)) >= comm["errors_count2"], line  # counts only grow
     finally:
         gcs.close()
 
