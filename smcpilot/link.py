@@ -679,7 +679,8 @@ class MavlinkUdp:
     def _add_peer(self, addr: Address, now_s: float, *, pin: bool = False) -> None:
         seen = self._peer_seen_s
         if len(seen) >= self._max_peers:
-            self._prune_peers()
+            if self._next_prune_s <= now_s:  # (a flood calls this per datagram: prune only when due)
+                self._prune_peers()
             if len(seen) >= self._max_peers:
                 # Full. Pinned peers (signed packets, commands) are never evicted by a newcomer;
                 # of the others, one silent for PEER_QUIET_S (it missed its 1 Hz heartbeat: gone
