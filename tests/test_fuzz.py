@@ -648,6 +648,10 @@ def test_setup_signing_is_refused_while_armed_and_from_untrusted_unsigned_sender
     assert h.signing.enabled and events[-1][1] == "Signing enabled"
     setup([9] * 32)  # unsigned, with a key set, on an untrusted link: refused
     assert h.rejected["signing_untrusted"] == 1
+    h.trusted = True  # a link declared trusted (--gcs-trusted): unsigned is accepted
+    setup([9] * 32)
+    assert h.signing.enabled and h.rejected["signing_untrusted"] == 1
+    h.trusted = False
     setup([0] * 32, signed=True)  # signed with the current key: the zero key turns signing off
     assert not h.signing.enabled and events[-1][1] == "Signing disabled"
     assert not any(str(bytes(key)) in t or "1, 2, 3" in t for _, t in events)

@@ -452,3 +452,19 @@ def test_marker(sitl, sitl_process):
     )
     result = pytester.runpytest_subprocess("--sitl-signing-key", str(key_file), "-p", "no:cacheprovider")
     result.assert_outcomes(passed=2)
+
+
+def test_a_trusted_link_takes_setup_signing_unsigned_and_nothing_else() -> None:
+    ours = signing(now_s=[time.time()])
+    trusted = ACCEPT_UNSIGNED | {M.MAVLINK_MSG_ID_SETUP_SIGNING}
+    with (
+        MavlinkUdp("udpin:127.0.0.1:0", source_system=1, source_component=1, signing=ours, accept_unsigned=trusted) as fc,
+        socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as gcs,
+    ):
+        plain = M.MAVLink(None, srcSystem=255, srcComponent=190)
+        gcs.sendto(plain.setup_signing_encode(1, 1, list(OTHER_KEY), 0).pack(plain) + command(plain), fc.local_address)
+        got: list = []
+        deadline = time.monotonic() + 5
+        while not got and time.monotonic() < deadline:
+            got += fc.recv(0.2)
+        assert [m.get_type() for m, _ in got] == ["SETUP_SIGNING"] and fc.counters.rx_unsigned == 1
