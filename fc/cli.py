@@ -18,6 +18,7 @@ from smcpilot.geo import Home
 from smcpilot.plan import load_plan
 from smcpilot.protocol import DEFAULT_GCS_URL, FC_CONTROLLERS, FC_GROUND_PORT
 from smcpilot.scenario import Scenario
+from smcpilot.signing import Signing, TimestampStore, load_key
 from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
 
 
@@ -65,6 +66,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="set a parameter for this run, over the parameter file and the scenario (repeatable)")
     p.add_argument("--sysid", type=int, default=None, metavar="N",
                    help=f"MAVLink system id (default {d.system_id}, or SYSID_THISMAV from the parameter file)")
+    p.add_argument("--signing-key", type=Path, metavar="FILE",
+                   help="sign the ground link (MAVLink 2 signing): FILE holds 64 hex digits (the key) or a passphrase"
+                   " (key = its SHA-256, as MAVProxy's 'signing setup'); unsigned packets other than HEARTBEAT and"
+                   " RADIO_STATUS are then dropped and counted (docs/security.md)")
+    p.add_argument("--signing-timestamps", type=Path, metavar="PATH",
+                   help="where the signing timestamp is kept across restarts (default: signing-timestamp in --log-dir)")
+    p.add_argument("--gcs-trusted", action="store_true",
+                   help="declare the ground link trusted: it accepts SETUP_SIGNING unsigned even while a key is set")
     return p
 
 
@@ -148,6 +157,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not 0 <= gcs_port <= 65535:
             raise SmcpilotError(f"--gcs-port must be a UDP port 0..65535, got {gcs_port}")
         tlog.parent.mkdir(parents=True, exist_ok=True)
+        signing_store = TimestampStore(
+            args.signing_timestamps if args.signing_timestamps is not None else tlog.parent / "signing-timestamp"
+        )
+        signing = Signing(load_key(args.signing_key) if args.signing_key is not None else None, store=signing_store)
         app = FlightControllerApp(
             params.config,
             vehicle,
@@ -162,6 +175,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             startup_timeout_s=args.startup_timeout_s,
             sim_system_id=args.sysid if args.sysid is not None else 1,
             gcs_port=gcs_port,
+            signing=signing,
+            gcs_trusted=args.gcs_trusted,
         )
         if not kept:
             params.save()  # the run's own file says from the start what flew

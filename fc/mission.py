@@ -28,6 +28,9 @@ Address = tuple[str, int]
 
 REQUEST_TIMEOUT_S = 1.0
 MAX_RETRIES = 5
+#: An upload whose station has sent nothing for this long (wall seconds) is abandoned: another
+#: station's MISSION_COUNT takes over (the old station gets OPERATION_CANCELLED).
+ABANDONED_UPLOAD_S = 2.0
 MAX_ITEMS = 500
 #: at most this many stations remembered as speaking the float (non-INT) mission protocol.
 MAX_LEGACY_STATIONS = 64
@@ -169,6 +172,11 @@ class MissionProtocol:
         self.current = 0
         # Upload in progress
         self._partner: Address | None = None
+        self._partner_heard_s = -math.inf
+        #: MISSION_ACKs with an error sent (refused counts, items, uploads cancelled), and
+        #: items ignored (no upload with that station, or out of sequence): rejected packets.
+        self.refused = 0
+        self.ignored = 0
         self._partner_sys = 0
         self._partner_comp = 0
         self._count = 0
@@ -184,6 +192,8 @@ class MissionProtocol:
 
     # -- helpers --------------------------------------------------------------------------------
     def _ack(self, addr: Address, sysid: int, compid: int, result: int) -> None:
+        if result != mavlink.MAV_MISSION_ACCEPTED:
+            self.refused += 1
         self._send_to(self.mav.mission_ack_encode(sysid, compid, result, mavlink.MAV_MISSION_TYPE_MISSION), addr)
 
     def note_legacy(self, addr: Address) -> None:
@@ -221,8 +231,12 @@ class MissionProtocol:
             self._ack(addr, m.get_srcSystem(), m.get_srcComponent(), mavlink.MAV_MISSION_UNSUPPORTED)
             return
         if self._partner is not None and self._partner != addr:
-            self._ack(addr, m.get_srcSystem(), m.get_srcComponent(), mavlink.MAV_MISSION_DENIED)
-            return
+            if now_s - self._partner_heard_s < ABANDONED_UPLOAD_S:
+                self._ack(addr, m.get_srcSystem(), m.get_srcComponent(), mavlink.MAV_MISSION_DENIED)
+                return
+            self.uploads_failed += 1  # abandoned: the new station takes over
+            self._ack(self._partner, self._partner_sys, self._partner_comp, mavlink.MAV_MISSION_OPERATION_CANCELLED)
+            self._end_upload()
         if m.count > MAX_ITEMS:
             self._ack(addr, m.get_srcSystem(), m.get_srcComponent(), mavlink.MAV_MISSION_NO_SPACE)
             return
@@ -234,6 +248,7 @@ class MissionProtocol:
             self._ack(addr, m.get_srcSystem(), m.get_srcComponent(), mavlink.MAV_MISSION_ACCEPTED)
             return
         self._partner = addr
+        self._partner_heard_s = now_s
         self._partner_sys = m.get_srcSystem()
         self._partner_comp = m.get_srcComponent()
         self._count = m.count
@@ -248,11 +263,14 @@ class MissionProtocol:
         else:
             self.legacy_stations.discard(addr)
         if self._partner is None or addr != self._partner:
+            self.ignored += 1
             return  # not in an upload with this station: ignore, as ArduPilot does
         if getattr(m, "mission_type", 0) != mavlink.MAV_MISSION_TYPE_MISSION:
             return
+        self._partner_heard_s = now_s
         expected = len(self._incoming)
         if m.seq != expected:
+            self.ignored += 1
             if m.seq < expected:  # a late duplicate: ask for the one we need
                 self._request()
                 self._deadline = now_s + REQUEST_TIMEOUT_S

@@ -37,7 +37,7 @@ import os
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -116,12 +116,23 @@ def render_line(t: Telemetry) -> str:
     )
 
 
+def render_comm(c: Mapping[str, int]) -> str:
+    """The FC's rejected-packet counters (SYS_STATUS) as one ``status`` line."""
+    if not c:
+        return "  rejected -  (no SYS_STATUS yet)"
+    return (
+        f"  rejected {c['errors_comm']} packets: {c['errors_count1']} bad frames, {c['errors_count2']} signing,"
+        f" {c['errors_count3']} refused, {c['errors_count4']} on the sim link; drop rate {c['drop_rate_comm'] / 100:.2f} %"
+    )
+
+
 def render_status(t: Telemetry) -> str:
     """Human-readable ``status``."""
     lines = render_frame(t)[1:]
     if t.home is not None:
         h = t.home
         lines.append(f"  home     {h.lat_deg:.7f} {h.lon_deg:.7f} {h.alt_amsl_m:.2f} m AMSL")
+    lines.append(render_comm(t.comm_errors))
     return "\n".join(line.strip() if i == 0 else line for i, line in enumerate(lines))
 
 
@@ -138,6 +149,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--timeout", type=float, default=15.0, metavar="S", help="wall seconds to wait for the vehicle's heartbeat (default 15)")
     p.add_argument("--sysid", type=int, metavar="N", help="talk to this MAVLink system id only (default: the first vehicle heard)")
+    p.add_argument("--signing-key", type=Path, metavar="FILE",
+                   help="sign what we send and check what we get (MAVLink 2 signing): FILE holds 64 hex digits or a"
+                   " passphrase, as the FC's --signing-key (docs/security.md)")  # fmt: skip
     sub = p.add_subparsers(dest="gcs_command", metavar="ACTION")
     sub.required = True
 
@@ -308,8 +322,9 @@ def _open_vehicle(args: argparse.Namespace) -> Vehicle:
     own ground port instead (it answers every station that writes to it); with an explicit
     ``--connect`` that is taken, a one-line error says what to do."""
     url = args.connect
+    key = getattr(args, "signing_key", None)
     try:
-        return Vehicle(url, system_id=args.sysid, connect_timeout_s=args.timeout).open()
+        return Vehicle(url, system_id=args.sysid, connect_timeout_s=args.timeout, signing_key=key).open()
     except LinkError as exc:
         if not isinstance(exc.__cause__, OSError) or exc.__cause__.errno != errno.EADDRINUSE:
             raise
@@ -320,7 +335,7 @@ def _open_vehicle(args: argparse.Namespace) -> Vehicle:
                 f" ground port: --connect {fc_port} (or the gcs= address the FC prints)"
             ) from None
     print(f"smcpilot gcs: {url} is taken (smcpilot gcs watch?): talking to the FC's own ground port ({fc_port})", file=sys.stderr)
-    return Vehicle(fc_port, system_id=args.sysid, connect_timeout_s=args.timeout).open()
+    return Vehicle(fc_port, system_id=args.sysid, connect_timeout_s=args.timeout, signing_key=key).open()
 
 
 def _precheck(args: argparse.Namespace) -> None:
@@ -364,6 +379,9 @@ def _settle(vehicle: Vehicle, wall_s: float = 2.0) -> Telemetry:
 
 def _status(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
     _settle(vehicle)
+    deadline = time.monotonic() + 1.5  # SYS_STATUS (the counters) comes at 1 Hz
+    while not vehicle.telemetry.comm_errors and time.monotonic() < deadline:
+        time.sleep(0.02)
     try:
         vehicle.get_home(timeout_s=1.0)
     except VehicleError:

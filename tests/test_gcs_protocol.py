@@ -751,7 +751,7 @@ def test_several_ground_stations(fc):
         b.close()
 
 
-def test_the_sixteen_most_recently_heard_stations_get_telemetry(fc):
+def test_sixteen_live_stations_keep_their_telemetry_and_a_newcomer_waits_for_a_quiet_one(fc):
     run = fc()
     a = run.gcs
     a.heartbeats = False  # the FC's own destination: always served, and now the least recently heard
@@ -783,13 +783,16 @@ def test_the_sixteen_most_recently_heard_stations_get_telemetry(fc):
         mark = a.mark()
         a.run_sim(1.0)
         reached = [telemetry_reaches(s) for s in socks]
-        assert reached == [False] + [True] * 16, f"telemetry reached stations {[i for i, r in enumerate(reached) if r]}"
+        # A full table keeps the stations it has while they are live: the 17th is not served
+        # (a flood of new addresses cannot evict known stations), its messages still handled.
+        assert reached == [True] * 16 + [False], f"telemetry reached stations {[i for i, r in enumerate(reached) if r]}"
         assert a.since(mark, "ATTITUDE"), "the FC's configured destination lost its telemetry"
-        socks[0].sendto(hb, run.fc_address)  # the forgotten one writes again: served again
+        a.run_wall(3.0)  # every station quiet for longer than PEER_QUIET_S
+        socks[16].sendto(hb, run.fc_address)  # now it takes the place of the quietest
         a.run_sim(0.5)
-        telemetry_reaches(socks[0])
+        telemetry_reaches(socks[16])
         a.run_sim(1.0)
-        assert telemetry_reaches(socks[0])
+        assert telemetry_reaches(socks[16])
     finally:
         for s in socks:
             s.close()

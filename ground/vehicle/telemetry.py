@@ -83,6 +83,10 @@ class HomePosition:
     down_m: float = 0.0
 
 
+#: SYS_STATUS fields of :attr:`Telemetry.comm_errors`.
+COMM_ERROR_FIELDS = ("errors_comm", "drop_rate_comm", "errors_count1", "errors_count2", "errors_count3", "errors_count4")
+
+
 @dataclass(frozen=True)
 class Telemetry:
     """A snapshot of the latest telemetry. ``None`` means "not received yet".
@@ -128,6 +132,10 @@ class Telemetry:
     setpoint_ned_m: tuple[float, float, float] | None = None
     #: the last STATUSTEXTs (oldest first).
     statustexts: tuple[StatusText, ...] = ()
+    #: SYS_STATUS's communication counters, named as in MAVLink (errors_comm, drop_rate_comm
+    #: in c%, errors_count1..4; docs/security.md says what the FC counts in each); empty
+    #: before the first SYS_STATUS.
+    comm_errors: Mapping[str, int] = field(default_factory=dict)
 
     @property
     def mode_name(self) -> str | None:
@@ -188,6 +196,7 @@ class Telemetry:
             "overruns": self.overruns,
             "setpoint_ned_m": list(self.setpoint_ned_m) if self.setpoint_ned_m else None,
             "last_statustext": self.last_statustext.text if self.last_statustext else None,
+            "comm_errors": dict(self.comm_errors),
         })
 
 
@@ -322,6 +331,7 @@ class TelemetryParser:
             bit = mavlink.MAV_SYS_STATUS_PREARM_CHECK
             if msg.onboard_control_sensors_present & bit:
                 upd["prearm_ok"] = bool(msg.onboard_control_sensors_health & bit)
+            upd["comm_errors"] = {name: int(getattr(msg, name)) for name in COMM_ERROR_FIELDS}
         elif t == "MISSION_CURRENT":
             upd["mission_current"] = msg.seq
             total = getattr(msg, "total", 0)
