@@ -480,7 +480,6 @@ def test_drop_rate_is_reported_while_the_fuzz_lasts(flights) -> None:
 
 
 # -- what other branches deliver -----------------------------------------------------------------------
-@pytest.mark.xfail(strict=False, reason="needs the target validation / geofence (FENCE_*) and component addressing of set-points")
 def test_huge_finite_targets_and_other_components_are_not_flown(tmp_path: Path) -> None:
     enc = M.MAVLink(None, srcSystem=250, srcComponent=190)
     packets = [
