@@ -31,6 +31,7 @@ lockstep, so the log is reproducible bit for bit), plus the law's internals ever
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import math
 import os
@@ -54,7 +55,7 @@ from fc.gcs import GcsHandler
 from fc.params import ParamStore, param_messages
 from fc.streams import StreamScheduler
 from smcpilot.clock import SimClock, WallClock
-from smcpilot.errors import RateMismatchError, TlogError, WatchdogError
+from smcpilot.errors import LinkError, RateMismatchError, TlogError, WatchdogError
 from smcpilot.fastcodec import encode_debug_float_array, encode_hil_actuator_controls
 from smcpilot.faults import SIM_PARAM_INDEX
 from smcpilot.frames import body_rates_to_euler_rates, euler_frd_to_flu, ned_to_nwu, rates_frd_to_flu
@@ -62,6 +63,7 @@ from smcpilot.geo import Home
 from smcpilot.link import MavlinkUdp
 from smcpilot.plan import PlanStep
 from smcpilot.protocol import ACTUATOR_FLAG_LOCKSTEP, FC_COMPONENT_ID, OVERRUN_NAME, SIM_COMPONENT_ID, SMC_ARRAY_ID, SMC_ARRAY_NAME
+from smcpilot.signing import Signing
 from smcpilot.tlog import TlogWriter
 from smcpilot.vehicle import VehicleParams
 
@@ -83,8 +85,19 @@ def _f32(v: float) -> float:
 _ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
 _ZEROS12 = [0.0] * 12
 _yield = getattr(os, "sched_yield", lambda: None)
+#: real time: ground datagrams handled per poll (the rest wait for the next one, moments later).
+REALTIME_GCS_BATCH = 8
 #: a SIM_* forward unanswered this long (wall seconds) gets one STATUSTEXT warning.
 SIM_PARAM_ANSWER_S = 1.0
+#: the link id the ground link's signed packets carry.
+GCS_LINK_ID = 0
+
+
+def _is_loopback(host: str) -> bool:
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
 
 
 
@@ -179,7 +192,12 @@ class FlightControllerApp:
         sim_system_id: int | None = None,
         out: TextIO = sys.stdout,
         monotonic: Callable[[], float] = time.monotonic,
+        gcs_port: int = 0,
+        signing: Signing | None = None,
+        gcs_trusted: bool = False,
     ) -> None:
+        #: MAVLink 2 signing of the ground link (key None: off until a SETUP_SIGNING sets one).
+        self.signing = signing if signing is not None else Signing(None)
         self.params = params if params is not None else ParamStore(config)
         config = self.params.config
         self.cfg = config
@@ -208,11 +226,7 @@ class FlightControllerApp:
                 sim_url, source_system=sim_sysid, source_component=FC_COMPONENT, accept_system=sim_sysid,
                 tlog=self.tlog, clock_us=clock_us,
             )  # fmt: skip
-            self.gcs = (
-                MavlinkUdp(gcs_url, source_system=sysid, source_component=FC_COMPONENT, tlog=self.tlog, clock_us=clock_us)
-                if gcs_url
-                else None
-            )
+            self.gcs = self._open_gcs(gcs_url, gcs_port, sysid, clock_us, gcs_trusted) if gcs_url else None
         except Exception:
             if self.tlog is not None:  # a configuration error must not leave an empty log behind
                 self.tlog.close()
@@ -236,7 +250,13 @@ class FlightControllerApp:
             core=self.core, mission=self.core.commander.mission, params=self.params, streams=self.streams,
             link=gcs, event=self.event, log=self.say, snapshot=self.telemetry_snapshot,
             apply_config=self.apply_config, wall_s=monotonic, forward_sim=self.forward_sim_param,
+            signing=self.signing, trusted=gcs_trusted,
         )  # fmt: skip
+        if self.gcs is not None and not self.signing.enabled and not _is_loopback(self.gcs.local_address[0]):
+            self.say(
+                f"fc: warning: the ground link listens on {self.gcs.local_address[0]}:{self.gcs.local_address[1]}"
+                " (not loopback) without signing: anyone who can reach it can command the vehicle (--signing-key)"
+            )
         self._att: mavlink.MAVLink_attitude_message | None = None
         self.state: VehicleState | None = None
         self.body_rates: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -248,10 +268,29 @@ class FlightControllerApp:
         self._stop = False
         self._exit_code = EXIT_OK
 
+    def _open_gcs(self, url: str, port: int, sysid: int, clock_us: Callable[[], int], trusted: bool) -> MavlinkUdp:
+        """The ground link; with ``port``, sending from that port of ours (a second ground
+        station writes to it while the first listens where we send); a port already taken
+        (another FC) falls back to a free one, said on stdout."""
+        unsigned_ok = self.signing.accept_unsigned | {mavlink.MAVLINK_MSG_ID_SETUP_SIGNING} if trusted else None
+
+        def open_link(bind_port: int) -> MavlinkUdp:
+            return MavlinkUdp(url, source_system=sysid, source_component=FC_COMPONENT, tlog=self.tlog, clock_us=clock_us,
+                              bind_port=bind_port, signing=self.signing, link_id=GCS_LINK_ID, accept_unsigned=unsigned_ok)  # fmt: skip
+
+        try:
+            return open_link(port)
+        except LinkError as exc:
+            if not port:
+                raise
+            self.say(f"fc: ground port {port} not available ({exc}); using a free port (see FC_LISTENING gcs=)")
+        return open_link(0)
+
     def telemetry_snapshot(self) -> telemetry.TelemetrySnapshot:
         """What ground-station telemetry reads, now (the GCS handler's snapshot provider)."""
         return telemetry.snapshot(  # the core's estimate: never a NaN of a sensor dropout
-            self.core, time_us=self.clock.now_us(), state=self.core.state, body_rates=self.body_rates, overruns=self.stats.overruns
+            self.core, time_us=self.clock.now_us(), state=self.core.state, body_rates=self.body_rates, overruns=self.stats.overruns,
+            comm_errors=self.gcs_handler.comm_errors(self.sim.counters),
         )
 
     # -- lifecycle -----------------------------------------------------------------------------
@@ -262,11 +301,13 @@ class FlightControllerApp:
         self._stop = True
 
     def close(self) -> None:
+        self.signing.close()
         for link in (self.sim, self.gcs):
             if link is not None:
                 link.close()
         if self.tlog is not None:
             self.tlog.close()
+        self.params.close()  # the last parameter change on disk before we exit
 
     def run(self) -> int:
         sim_addr = "{}:{}".format(*self.sim.local_address)
@@ -293,6 +334,7 @@ class FlightControllerApp:
             summary["sim_time_s"] = self.clock.now_s()
             summary["links"] = {"sim": self.sim.counters.as_dict(), "gcs": self.gcs.counters.as_dict() if self.gcs else None}
             summary["gcs_rejected"] = dict(self.gcs_handler.rejected)
+            summary["rx_rejected"] = self.rejected_summary()
             summary["tlog"] = str(self.tlog.path) if self.tlog is not None else None
             if self.tlog is not None and not self.tlog.closed:  # the run's own overrun count, for the log's readers
                 lm, now_us = self._logmav, self.clock.now_us()
@@ -301,9 +343,43 @@ class FlightControllerApp:
                     self.tlog.write(now_us, count.pack(lm))
                 except TlogError as exc:  # the log must still be closed below
                     self.say(f"fc: warning: {exc}")
-            self.close()
+            if self.tlog is not None:  # the final counters, for `smcpilot log summary` (with or without a GCS)
+                lm = self._logmav
+                try:
+                    final = telemetry.build(mavlink.MAVLINK_MSG_ID_SYS_STATUS, self.telemetry_snapshot(), lm)
+                    self.tlog.write_many(self.clock.now_us(), [m.pack(lm) for m in final])
+                except Exception as exc:  # never hide the error that ended the run, never lose the log
+                    self.say(f"fc: warning: final SYS_STATUS not logged: {type(exc).__name__}: {exc}")
+            self.close()  # flushes the parameter writer: its figures are final below
+            w = self.params.writer
+            summary["param_file"] = None if self.params.path is None else {
+                "path": str(self.params.path), "changes": w.submissions if w else 0, "writes": w.writes if w else 0,
+                "write_errors": w.errors if w else 0,
+            }  # fmt: skip
             self.say("FC_SUMMARY " + json.dumps(summary, sort_keys=True))
         return self._exit_code
+
+    def rejected_summary(self) -> dict[str, int]:
+        """Every rejected packet by reason (the links' counters and the ground protocol's), 0s left out."""
+        out: dict[str, int] = {}
+        for name, link in (("sim", self.sim), ("gcs", self.gcs)):
+            if link is None:
+                continue
+            c = link.counters
+            for field_name in ("rx_bad", "rx_unknown", "rx_foreign_system", "rx_unsigned", "rx_bad_signature",
+                               "rx_old_timestamp", "rx_stream_window"):  # fmt: skip
+                v = getattr(c, field_name)
+                if v:
+                    out[f"{name}.{field_name}"] = v
+        for reason, v in self.gcs_handler.rejected.items():
+            if v:
+                out[f"gcs.{reason}"] = v
+        mission = self.core.commander.mission
+        for reason, v in (("mission_refused", mission.refused), ("mission_ignored", mission.ignored)):
+            if v:
+                out[f"gcs.{reason}"] = v
+        out["total"] = sum(out.values())
+        return out
 
     # -- loops ---------------------------------------------------------------------------------
     def _fds(self) -> list[int]:
@@ -374,7 +450,9 @@ class FlightControllerApp:
                     if sim_fd in readable:
                         self._poll_sim()
                     if len(readable) > 1 or readable[0] != sim_fd:
-                        self._poll_gcs()
+                        # a few datagrams at a time: a burst (72 PARAM_SET) is spread over the
+                        # time before the deadline and the next ticks, never one long stall
+                        self._poll_gcs(REALTIME_GCS_BATCH)
                 continue
             late = -wait
             lateness.append(late)
@@ -492,12 +570,12 @@ class FlightControllerApp:
         self.stats.sim_statustexts += 1
         self.say(f"fc: {text}")
         if self.gcs is not None:
-            self.gcs.send(telemetry.statustext(self.gcs.mav, int(msg.severity), text))
+            self.gcs.send_many(telemetry.statustexts(self.gcs.mav, int(msg.severity), text))
 
-    def _poll_gcs(self) -> None:
+    def _poll_gcs(self, max_datagrams: int = 256) -> None:
         if self.gcs is None:
             return
-        for msg, addr in self.gcs.recv(0.0):
+        for msg, addr in self.gcs.recv(0.0, max_datagrams=max_datagrams):
             self.gcs_handler.handle(msg, addr)
 
     # -- the tick ------------------------------------------------------------------------------
@@ -539,9 +617,10 @@ class FlightControllerApp:
         """A STATUSTEXT to ground stations (and the log), and a line on stdout."""
         self.say(f"fc: {text}")
         if self.gcs is not None:
-            self.gcs.send(telemetry.statustext(self.gcs.mav, severity, text))
+            self.gcs.send_many(telemetry.statustexts(self.gcs.mav, severity, text))
         elif self.tlog is not None:
-            self.tlog.write(self.clock.now_us(), telemetry.statustext(self._logmav, severity, text).pack(self._logmav))
+            lm = self._logmav
+            self.tlog.write_many(self.clock.now_us(), [m.pack(lm) for m in telemetry.statustexts(lm, severity, text)])
 
 
 def install_signal_handlers(app: FlightControllerApp) -> None:

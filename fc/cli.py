@@ -16,8 +16,9 @@ from fc.params import ParamStore, apply_scenario
 from smcpilot.errors import SmcpilotError
 from smcpilot.geo import Home
 from smcpilot.plan import load_plan
-from smcpilot.protocol import FC_CONTROLLERS
+from smcpilot.protocol import DEFAULT_GCS_URL, FC_CONTROLLERS, FC_GROUND_PORT
 from smcpilot.scenario import Scenario
+from smcpilot.signing import Signing, TimestampStore, load_key
 from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
 
 
@@ -30,9 +31,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--sim", default="udpin:127.0.0.1:14560", metavar="URL",
                    help="simulator link (default udpin:127.0.0.1:14560; udpin:HOST:0 picks a free port)")
-    p.add_argument("--gcs", default="udp:127.0.0.1:14550", metavar="URL",
+    p.add_argument("--gcs", default=DEFAULT_GCS_URL, metavar="URL",
                    help="ground link: udp:HOST:PORT sends telemetry there and answers whoever writes to our"
                    " port; udpin:HOST:PORT listens there (default udp:127.0.0.1:14550; 'none' for no ground link)")
+    p.add_argument("--gcs-port", type=int, default=None, metavar="PORT",
+                   help=f"with a udp:HOST:PORT ground link, send from this port of ours, so that other ground stations"
+                   f" can write to it (default {FC_GROUND_PORT} with the default --gcs, else any free port; 0: any free port)")
     p.add_argument("--controller", choices=FC_CONTROLLERS, default=None,
                    help=f"control law (default {d.controller}, or FC_CONTROLLER from the parameter file)")
     p.add_argument("--rate-hz", type=float, default=None, metavar="HZ",
@@ -50,8 +54,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--startup-timeout-s", type=float, default=30.0, metavar="S",
                    help="exit if no simulator state arrives within this many wall seconds (default 30)")
     p.add_argument("--param-file", type=Path, metavar="PATH",
-                   help="parameter file (NAME VALUE lines), loaded at start and rewritten atomically on every"
-                   " PARAM_SET (default: fc-params.parm in --log-dir)")
+                   help="a parameter file to keep across runs (NAME VALUE lines): loaded at start if it exists,"
+                   " rewritten atomically after every PARAM_SET. Default: none is loaded; the run starts from the"
+                   " defaults and writes its parameters to a file of its own beside the tlog (NAME.parm)")
     p.add_argument("--home", default=None, metavar="LAT,LON,ALT",
                    help="home position for global coordinates (default -35.363261,149.165230,584: ArduPilot's SITL field)")
     p.add_argument("--scenario", type=Path, metavar="FILE",
@@ -61,16 +66,49 @@ def build_parser() -> argparse.ArgumentParser:
                    help="set a parameter for this run, over the parameter file and the scenario (repeatable)")
     p.add_argument("--sysid", type=int, default=None, metavar="N",
                    help=f"MAVLink system id (default {d.system_id}, or SYSID_THISMAV from the parameter file)")
+    p.add_argument("--signing-key", type=Path, metavar="FILE",
+                   help="sign the ground link (MAVLink 2 signing): FILE holds 64 hex digits (the key) or a passphrase"
+                   " (key = its SHA-256, as MAVProxy's 'signing setup'); unsigned packets other than HEARTBEAT and"
+                   " RADIO_STATUS are then dropped and counted (docs/security.md)")
+    p.add_argument("--signing-timestamps", type=Path, metavar="PATH",
+                   help="where the signing timestamp is kept across restarts (default: signing-timestamp in --log-dir)")
+    p.add_argument("--gcs-trusted", action="store_true",
+                   help="declare the ground link trusted: it accepts SETUP_SIGNING unsigned even while a key is set")
     return p
+
+
+def param_file_line(path: Path, *, kept: bool, loaded: bool, from_file: int, differences: list[tuple[str, float, float]]) -> str:
+    """The line every run prints about its parameters: which file it loaded (or none), where it
+    writes them, and how many values differ from the defaults (the first few named)."""
+    if loaded:
+        head = f"fc: parameters: loaded {path} ({from_file} differ from defaults); changes are saved to it"
+    elif kept:
+        head = f"fc: parameters: {path} does not exist yet: defaults, changes are saved to it"
+    else:
+        head = f"fc: parameters: defaults, no file loaded (--param-file FILE keeps one across runs); this run's file: {path}"
+    n = len(differences)
+    shown = ", ".join(f"{name}={value:g}" for name, value, _ in differences[:6]) + (", ..." if n > 6 else "")
+    return head + f"; {n} value{'s' if n != 1 else ''} differ{'s' if n == 1 else ''} from defaults" + (f": {shown}" if n else "")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        param_file = args.param_file if args.param_file is not None else args.log_dir / "fc-params.parm"
+        tlog = args.tlog
+        if tlog is None:
+            tlog = args.log_dir / time.strftime("fc-%Y%m%d-%H%M%S.tlog")
+        # The parameter-file rule: no hidden state between runs. A file is loaded only when
+        # --param-file names it; otherwise the run has a file of its own beside its tlog.
+        kept = args.param_file is not None
+        param_file = args.param_file if kept else tlog.with_name(tlog.stem + ".parm")
         params = ParamStore(FcConfig(), param_file)
-        for warning in params.load():
-            print(f"fc: warning: {warning}", file=sys.stderr)
+        for leftover in params.clean_leftovers():
+            print(f"fc: removed {leftover.name} (an interrupted write of {param_file.name})", file=sys.stderr)
+        loaded = kept and param_file.exists()
+        if loaded:
+            for warning in params.load():
+                print(f"fc: warning: {warning}", file=sys.stderr)
+        from_file = len(params.differences())
         scenario = Scenario.from_toml(args.scenario) if args.scenario is not None else None
         if scenario is not None:
             apply_scenario(params, scenario)
@@ -115,12 +153,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             plan = scenario.plan if scenario is not None else ()
         if args.duration is not None and not args.duration > 0:
             raise SmcpilotError(f"--duration must be > 0 simulated seconds, got {args.duration}")
-        tlog = args.tlog
-        if tlog is None:
-            args.log_dir.mkdir(parents=True, exist_ok=True)
-            tlog = args.log_dir / time.strftime("fc-%Y%m%d-%H%M%S.tlog")
-        else:
-            tlog.parent.mkdir(parents=True, exist_ok=True)
+        gcs_port = args.gcs_port if args.gcs_port is not None else (FC_GROUND_PORT if args.gcs == DEFAULT_GCS_URL else 0)
+        if not 0 <= gcs_port <= 65535:
+            raise SmcpilotError(f"--gcs-port must be a UDP port 0..65535, got {gcs_port}")
+        tlog.parent.mkdir(parents=True, exist_ok=True)
+        signing_store = TimestampStore(
+            args.signing_timestamps if args.signing_timestamps is not None else tlog.parent / "signing-timestamp"
+        )
+        signing = Signing(load_key(args.signing_key) if args.signing_key is not None else None, store=signing_store)
         app = FlightControllerApp(
             params.config,
             vehicle,
@@ -134,9 +174,17 @@ def main(argv: Sequence[str] | None = None) -> int:
             duration_s=args.duration,
             startup_timeout_s=args.startup_timeout_s,
             sim_system_id=args.sysid if args.sysid is not None else 1,
+            gcs_port=gcs_port,
+            signing=signing,
+            gcs_trusted=args.gcs_trusted,
         )
+        if not kept:
+            params.save()  # the run's own file says from the start what flew
     except (SmcpilotError, OSError) as exc:
         print(f"fc: error: {exc}", file=sys.stderr)
         return EXIT_CONFIG
+    print(param_file_line(param_file, kept=kept, loaded=loaded, from_file=from_file, differences=params.differences()),
+          flush=True)  # fmt: skip
+    params.start_writer()
     install_signal_handlers(app)
     return app.run()

@@ -27,6 +27,7 @@ from fc.flight import FlightControl, VehicleState
 from fc.mission import MissionProtocol
 from fc.modes import AutoMode, FlightMode, Refusal, build_modes
 from smcpilot.geo import Home
+from smcpilot.limits import takeoff_refusal, target_refusal
 from smcpilot.plan import PlanStep
 from smcpilot.protocol import Mode, mode_name
 
@@ -55,7 +56,7 @@ class Commander:
         self._broadcast = broadcast
         self.mission = MissionProtocol(
             self._mav, send_to if send_to is not None else (lambda m, a: None), self.on_mission_changed, self.on_set_current,
-            home=lambda: self.home,
+            home=lambda: self.home, fence=lambda: self.config.fence,
         )
         self.state: VehicleState | None = None
         self.state_fresh = False
@@ -207,8 +208,9 @@ class Commander:
 
     # -- commands -------------------------------------------------------------------------------
     def takeoff(self, alt_m: float) -> Refusal | None:
-        if not math.isfinite(alt_m) or not 0.5 <= alt_m <= 100.0:
-            return Refusal(f"Takeoff: altitude must lie in [0.5, 100] m, got {alt_m:g}")
+        why = takeoff_refusal(alt_m, self.config.fence)
+        if why is not None:
+            return Refusal(f"Takeoff refused: {why}")
         if self.mode != Mode.GUIDED:
             return Refusal(f"Takeoff: needs GUIDED, in {self.mode.name}")
         f = self.flight
@@ -227,16 +229,23 @@ class Commander:
 
     def goto_local(self, x: float, y: float, z: float, yaw_rad: float | None) -> Refusal | None:
         """GUIDED set-point in the paper frame (z up above home; FLU yaw, None: keep)."""
-        if not all(math.isfinite(v) for v in (x, y, z)) or (yaw_rad is not None and not math.isfinite(yaw_rad)):
-            return Refusal("Set-point: non-finite value")
+        why = self.target_refusal(x, y, z, yaw_rad)
+        if why is not None:
+            return Refusal(f"Set-point refused: {why}")
         if self.mode != Mode.GUIDED:
             return Refusal(f"Set-point: needs GUIDED, in {self.mode.name}")
         if not self.flight.armed:
-            return Refusal("Set-point: not armed")
-        if z < 0.0 or z > 500.0:
-            return Refusal(f"Set-point: altitude {z:.1f} m out of [0, 500]")
+            return Refusal("Set-point refused: not armed (arm and take off first)")
         self.flight.set_target(x, y, z, yaw_rad)
         return None
+
+    def target_refusal(self, x: float, y: float, z: float, yaw_rad: float | None = None) -> str | None:
+        """Why a paper-frame target (x north, y west, z up above home; FLU yaw) may not be flown,
+        or None: the one validation of every target source (:func:`smcpilot.limits.target_refusal`
+        with this vehicle's fence)."""
+        if yaw_rad is not None and not math.isfinite(yaw_rad):
+            return "yaw is not a finite number"
+        return target_refusal(x, -y, z, self.config.fence)
 
     def goto(self, target: inbound.Target) -> Refusal | None:
         """:meth:`goto_local` of a target from :mod:`fc.inbound`."""
@@ -251,9 +260,13 @@ class Commander:
             return Refusal("Reposition: latitude/longitude out of range")
         if not self.flight.armed:
             return Refusal("Reposition: not armed")
+        target = inbound.reposition_target(self.home, lat_deg, lon_deg, alt_m, relative, yaw_deg)
+        why = self.target_refusal(target.x_m, target.y_m, target.z_m, target.yaw_rad)
+        if why is not None:
+            return Refusal(f"Reposition refused: {why}")
         if self.mode != Mode.GUIDED:
             self._enter(Mode.GUIDED)
-        return self.goto(inbound.reposition_target(self.home, lat_deg, lon_deg, alt_m, relative, yaw_deg))
+        return self.goto(target)
 
     def land(self) -> Refusal | None:
         self._enter(Mode.LAND)

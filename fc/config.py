@@ -16,6 +16,7 @@ from fc.control.gains import PAPER_GAINS, Gains4, gains_with_overrides
 from fc.control.pid_smc import DISTURBANCE_ESTIMATES, AdaptationBounds
 from fc.position import PositionGains
 from smcpilot.errors import ConfigError
+from smcpilot.limits import DEFAULT_FENCE, Fence
 from smcpilot.protocol import FC_CONTROLLERS
 
 #: the flight controller's default gains: the paper's (spec §5) with Theta = 1 on roll, pitch and yaw
@@ -113,6 +114,15 @@ class FcConfig:
     fs_gcs_enable: int = 0
     #: GCS-loss failsafe: no GCS heartbeat for this long (wall clock), s.
     fs_gcs_timeout_s: float = 5.0
+    #: geofence (smcpilot.limits): targets outside it are refused; a cylinder around home.
+    fence_enable: bool = DEFAULT_FENCE.enabled
+    fence_radius_m: float = DEFAULT_FENCE.radius_m
+    fence_alt_max_m: float = DEFAULT_FENCE.alt_max_m
+
+    @property
+    def fence(self) -> Fence:
+        """The geofence every target is checked against (:func:`smcpilot.limits.target_refusal`)."""
+        return Fence(self.fence_enable, self.fence_radius_m, self.fence_alt_max_m)
 
     def __post_init__(self) -> None:
         if self.disturbance_estimate not in DISTURBANCE_ESTIMATES:

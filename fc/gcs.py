@@ -26,10 +26,12 @@ from fc.core import EventSink, FlightCore
 from fc.mission import GLOBAL_FRAMES, RELATIVE_FRAMES, MissionItem, MissionProtocol
 from fc.modes import Refusal
 from fc.params import PARAM_COUNT, PARAM_INDEX, PARAMS, SIM_PARAM_OFFSET, ParamError, ParamStore, is_sim_param
-from fc.streams import StreamScheduler
+from fc.streams import StreamScheduler, interval_refusal
 from fc.telemetry import CAPABILITIES, IGNORE_POS, IGNORE_YAW, TelemetrySnapshot
 from smcpilot.faults import SIM_PARAM_INDEX, SIM_PARAMS
+from smcpilot.link import LinkCounters
 from smcpilot.protocol import FORCE_ARM_MAGIC, Mode
+from smcpilot.signing import Signing
 
 M = mavlink
 Address = tuple[str, int]
@@ -38,6 +40,18 @@ _FTP_NAK = 129
 _FTP_FILE_NOT_FOUND = 10
 #: a command we do not implement: MAV_RESULT_UNSUPPORTED, no STATUSTEXT.
 _UNSUPPORTED = Refusal("", M.MAV_RESULT_UNSUPPORTED)
+#: Refusal STATUSTEXTs: at most one per REFUSAL_TEXT_PERIOD_S per reason (whoever asked), and in
+#: all a bucket of REFUSAL_TEXT_BURST texts refilled at REFUSAL_TEXT_RATE_HZ (a flood of distinct
+#: reasons gets 20 texts, then 5 a second).
+REFUSAL_TEXT_PERIOD_S = 1.0
+REFUSAL_TEXT_BURST = 20
+REFUSAL_TEXT_RATE_HZ = 5.0
+#: Messages whose sender is a station that matters: it keeps its place in the peer table.
+_PIN_MSG_IDS = frozenset({
+    M.MAVLINK_MSG_ID_COMMAND_LONG, M.MAVLINK_MSG_ID_COMMAND_INT, M.MAVLINK_MSG_ID_SET_MODE, M.MAVLINK_MSG_ID_PARAM_SET,
+    M.MAVLINK_MSG_ID_MISSION_COUNT, M.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED,
+    M.MAVLINK_MSG_ID_SET_POSITION_TARGET_GLOBAL_INT, M.MAVLINK_MSG_ID_PARAM_REQUEST_LIST,
+})  # fmt: skip
 _GLOBAL_FRAMES = (M.MAV_FRAME_GLOBAL, M.MAV_FRAME_GLOBAL_INT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
 
 
@@ -70,7 +84,10 @@ class GcsHandler:
       ``log``: a line on stdout only;
     - ``wall_s``: the real-time clock for protocol timeouts and the GCS-loss failsafe;
     - ``forward_sim``: sends one ``SIM_*`` parameter value to the simulator (``PARAM_SET`` over
-      the sim link; None: no simulator link, and SIM_* changes are refused).
+      the sim link; None: no simulator link, and SIM_* changes are refused);
+    - ``signing``: the ground link's signing state, which ``SETUP_SIGNING`` changes (None: the
+      message is ignored); ``trusted``: the ground link is declared trusted (``SETUP_SIGNING``
+      accepted from it even while a key is set, unsigned).
     """
 
     def __init__(
@@ -87,6 +104,8 @@ class GcsHandler:
         apply_config: Callable[[FcConfig], None],
         wall_s: Callable[[], float] = time.monotonic,
         forward_sim: Callable[[str, float], None] | None = None,
+        signing: Signing | None = None,
+        trusted: bool = False,
     ) -> None:
         self.core = core
         self.commander = core.commander
@@ -103,8 +122,19 @@ class GcsHandler:
         self._forward_sim = forward_sim
         #: reason -> count of dropped or refused messages
         self.rejected: Counter[str] = Counter()
+        mission.on_reject = lambda reason, text: self._refuse(reason, text)
         self.gcs_heartbeats = 0
-        self._last_reject_text_s: dict[tuple[str, Address | None], float] = {}
+        self._last_reject_text_s: dict[str, float] = {}
+        #: the refusal-text bucket: (tokens, wall time of the last update).
+        self._text_bucket: tuple[float, float] = (float(REFUSAL_TEXT_BURST), -math.inf)
+        #: refusal STATUSTEXTs not sent because of the rate limit.
+        self.texts_suppressed = 0
+        self.signing = signing
+        self.trusted = trusted
+        #: drop-rate window: (wall start, rejected, good) at its start; the last window's rate.
+        self._drop_window: tuple[float, int, int] = (-math.inf, 0, 0)
+        self._drop_rate = 0
+        self._refusal_counted = False
         self._handlers: dict[int, Callable[[mavlink.MAVLink_message, Address], None]] = {
             M.MAVLINK_MSG_ID_HEARTBEAT: self._heartbeat,
             M.MAVLINK_MSG_ID_COMMAND_LONG: self._command_long,
@@ -126,6 +156,7 @@ class GcsHandler:
             M.MAVLINK_MSG_ID_MISSION_ACK: lambda m, a: None,
             M.MAVLINK_MSG_ID_REQUEST_DATA_STREAM: self._request_data_stream,
             M.MAVLINK_MSG_ID_FILE_TRANSFER_PROTOCOL: self._ftp,
+            M.MAVLINK_MSG_ID_SETUP_SIGNING: self._setup_signing,
         }
 
     # -- plumbing -------------------------------------------------------------------------------
@@ -147,16 +178,67 @@ class GcsHandler:
         return True
 
     def _refuse(self, reason: str, text: str, addr: Address | None = None) -> None:
-        """Count a refused message and say why (at most one STATUSTEXT a second per reason and
-        requester, so a flood of bad set-points cannot flood the ground link)."""
+        """Count a refused message and say why (rate-limited: :meth:`_refusal_text`)."""
         self.rejected[reason] += 1
+        self._refusal_text(reason, text)
+
+    def _refusal_text(self, key: str, text: str, severity: int = M.MAV_SEVERITY_WARNING) -> None:
+        """A refusal's STATUSTEXT (and stdout line): at most one per ``REFUSAL_TEXT_PERIOD_S``
+        per ``key`` whoever asked, and in all no more than the bucket allows
+        (``REFUSAL_TEXT_BURST``, refilled at ``REFUSAL_TEXT_RATE_HZ``), so a flood of bad
+        requests from any number of stations cannot flood the ground link or the console."""
         now = self.wall_s()
-        key = (reason, addr)
-        if now - self._last_reject_text_s.get(key, -math.inf) >= 1.0:
-            if len(self._last_reject_text_s) > 256:
-                self._last_reject_text_s.clear()
-            self._last_reject_text_s[key] = now
-            self._event(M.MAV_SEVERITY_WARNING, text)
+        if now - self._last_reject_text_s.get(key, -math.inf) < REFUSAL_TEXT_PERIOD_S:
+            self.texts_suppressed += 1
+            return
+        tokens, then = self._text_bucket
+        tokens = min(float(REFUSAL_TEXT_BURST), tokens + max(0.0, now - then) * REFUSAL_TEXT_RATE_HZ)
+        if tokens < 1.0:
+            self._text_bucket = (tokens, now)
+            self.texts_suppressed += 1
+            return
+        self._text_bucket = (tokens - 1.0, now)
+        if len(self._last_reject_text_s) > 256:
+            self._last_reject_text_s.clear()
+        self._last_reject_text_s[key] = now
+        self._event(severity, text)
+
+    def comm_errors(self, sim: LinkCounters | None = None) -> tuple[int, int, int, int, int, int]:
+        """SYS_STATUS's communication counters, totals since start (uint16 on the wire):
+
+        - ``errors_comm``: every packet rejected on the ground link (bad bytes, unknown ids,
+          foreign systems, signing) plus every message this handler dropped or refused;
+        - ``drop_rate_comm``: the ground link's rejected share of the packets of the last wall
+          second or so, in c% (0..10000);
+        - ``errors_count1``: ground-link bad frames (garbage, truncated, bad CRC, unknown id,
+          foreign system); ``errors_count2``: ground-link signing rejections (unsigned, bad
+          signature, old timestamp, stream out of window); ``errors_count3``: protocol
+          refusals and drops of this handler; ``errors_count4``: sim-link packets rejected.
+        """
+        c: LinkCounters | None = getattr(self.link, "counters", None)
+        protocol = self.rejected_total
+        if c is None:
+            bad = signing = 0
+            rejected = good = 0
+        else:
+            signing = c.rx_signing_rejected
+            rejected = c.rx_rejected
+            bad = rejected - signing
+            good = c.rx_messages
+        now = self.wall_s()
+        w = self._drop_window
+        if now - w[0] >= 1.0:
+            # a new window: the rate of the one that just ended
+            d_rej, d_all = rejected - w[1], (rejected - w[1]) + (good - w[2])
+            self._drop_rate = int(round(10000 * d_rej / d_all)) if d_all > 0 else 0
+            self._drop_window = (now, rejected, good)
+        sim_rejected = sim.rx_rejected if sim is not None else 0
+        return (rejected + protocol, self._drop_rate, bad, signing, protocol, sim_rejected)
+
+    @property
+    def rejected_total(self) -> int:
+        """Every message this handler dropped or refused (the mission protocol's included)."""
+        return sum(self.rejected.values()) + self.mission.refused + self.mission.ignored
 
     def handle(self, msg: mavlink.MAVLink_message, addr: Address) -> None:
         # get_msgId(), not .id: STATUSTEXT has a field named "id" that hides the message id
@@ -168,6 +250,10 @@ class GcsHandler:
         ts = getattr(msg, "target_system", None)
         if ts is not None and mid != M.MAVLINK_MSG_ID_HEARTBEAT and not self._for_us(ts):
             return
+        if mid in _PIN_MSG_IDS:
+            pin = getattr(self.link, "pin_peer", None)
+            if pin is not None:
+                pin(addr)
         try:
             handler(msg, addr)
         except Exception as exc:  # a hostile packet must never stop the loop
@@ -187,8 +273,11 @@ class GcsHandler:
             code = M.MAV_RESULT_ACCEPTED
         else:
             code = refusal.code
+            if refusal is not _UNSUPPORTED and not self._refusal_counted:  # (those are counted where they arise)
+                self.rejected["command_refused"] += 1
+            self._refusal_counted = False
             if refusal.reason:
-                self._event(M.MAV_SEVERITY_WARNING, refusal.reason)
+                self._refusal_text(refusal.reason, refusal.reason)
         self._send_to(self.mav.command_ack_encode(command, code, 0, 0, m.get_srcSystem(), m.get_srcComponent()), addr)
 
     def _command_long(self, m: mavlink.MAVLink_message, addr: Address) -> None:
@@ -236,13 +325,19 @@ class GcsHandler:
         if cmd == M.MAV_CMD_SET_MESSAGE_INTERVAL:
             if not (math.isfinite(p[0]) and math.isfinite(p[1])):
                 return Refusal("Message interval: non-finite parameter")
-            ok = self.streams.set_interval(int(p[0]), p[1])
-            return None if ok else Refusal(f"Message interval: message {int(p[0])} not streamed")
+            why = interval_refusal(int(p[0]), p[1])
+            if why is not None:
+                self.rejected["bad_interval"] += 1
+                self._refusal_counted = True
+                return Refusal(why)
+            self.streams.set_interval(int(p[0]), p[1])
+            return None
         if cmd == M.MAV_CMD_REQUEST_MESSAGE:
             if not math.isfinite(p[0]):
                 return Refusal("Request message: id is not a number")
             msgs = self.build(int(p[0]))
             if not msgs:
+                self.rejected["unsupported_message"] += 1
                 return _UNSUPPORTED
             for msg in msgs:
                 self._send_to(msg, addr)
@@ -252,6 +347,10 @@ class GcsHandler:
             return None
         if cmd == M.MAV_CMD_GET_HOME_POSITION:
             self._send_to(self.build(M.MAVLINK_MSG_ID_HOME_POSITION)[0], addr)
+            return None
+        if cmd == M.MAV_CMD_RUN_PREARM_CHECKS:  # ArduPilot's answer: ACCEPTED, the failure said
+            why = c.prearm_failure()
+            self._event(M.MAV_SEVERITY_WARNING if why else M.MAV_SEVERITY_INFO, why or "PreArm: checks pass")
             return None
         if cmd == M.MAV_CMD_INJECT_FAILURE:
             return self._inject_failure(p)
@@ -270,7 +369,17 @@ class GcsHandler:
             refusal = self.commander.set_mode(m.custom_mode)
         self._ack(addr, m, M.MAVLINK_MSG_ID_SET_MODE, refusal)
 
+    def _target_component_ok(self, m: mavlink.MAVLink_message, addr: Address) -> bool:
+        """A set-point addressed to another component of this system is not flown (counted,
+        and the sender told once a second)."""
+        if m.target_component in (0, 1):
+            return True
+        self._refuse("other_component", f"Set-point for component {m.target_component} not flown (this FC is component 1)", addr)
+        return False
+
     def _target_local(self, m: mavlink.MAVLink_message, addr: Address) -> None:
+        if not self._target_component_ok(m, addr):
+            return
         if m.coordinate_frame != M.MAV_FRAME_LOCAL_NED:
             self._refuse("unsupported_frame", f"Set-point: frame {m.coordinate_frame} not supported (use LOCAL_NED)", addr)
             return
@@ -286,6 +395,11 @@ class GcsHandler:
             self._refuse("setpoint_refused", refusal.reason or "Set-point refused", addr)
 
     def _target_global(self, m: mavlink.MAVLink_message, addr: Address) -> None:
+        if not self._target_component_ok(m, addr):
+            return
+        if not (-90 * 10**7 <= m.lat_int <= 90 * 10**7 and -180 * 10**7 <= m.lon_int <= 180 * 10**7):
+            self._refuse("setpoint_refused", "Set-point refused: latitude/longitude out of range", addr)
+            return
         if m.coordinate_frame not in _GLOBAL_FRAMES:
             self._refuse("unsupported_frame", f"Set-point: frame {m.coordinate_frame} not supported", addr)
             return
@@ -365,7 +479,7 @@ class GcsHandler:
             cfg = self.params.set(name, float(m.param_value))
         except ParamError as exc:
             self.rejected["param_refused"] += 1
-            self._event(M.MAV_SEVERITY_WARNING, str(exc))
+            self._refusal_text(str(exc), str(exc))
             self._send_to(self._param_msg(index), addr)  # the value in force, unchanged
             return
         except OSError as exc:
@@ -387,7 +501,7 @@ class GcsHandler:
             v = self.params.check_sim(name, value)
         except ParamError as exc:
             self.rejected["param_refused"] += 1
-            self._event(M.MAV_SEVERITY_WARNING, str(exc))
+            self._refusal_text(str(exc), str(exc))
             self._send_to(self._param_msg(index), addr)
             return
         self._set_sim(name, v)
@@ -408,6 +522,7 @@ class GcsHandler:
         result = inject.injection(p[0], p[1], p[2], self.params.sim)
         if isinstance(result, Refusal):
             self.rejected["inject_refused"] += 1
+            self._refusal_counted = True
             return result
         if self._forward_sim is None:
             return Refusal("Inject: no simulator link", M.MAV_RESULT_UNSUPPORTED)
@@ -471,7 +586,28 @@ class GcsHandler:
         self._broadcast(self.build(M.MAVLINK_MSG_ID_MISSION_CURRENT)[0])
 
     def _request_data_stream(self, m: mavlink.MAVLink_message, addr: Address) -> None:
-        self.streams.request_stream(m.req_stream_id, m.req_message_rate, bool(m.start_stop))
+        if not self._for_us(m.target_system, m.target_component):
+            return
+        refusal = self.streams.request_stream(m.req_stream_id, m.req_message_rate, bool(m.start_stop))
+        if refusal is not None:
+            self._refuse("bad_stream_request", refusal, addr)
+
+    def _setup_signing(self, m: mavlink.MAVLink_message, addr: Address) -> None:
+        """``SETUP_SIGNING``: a new key (all zeros: signing off), accepted from a trusted link,
+        while no key is set, or signed with the current key; refused while armed. The key is
+        never printed or logged (the link zeroes it in the tlog)."""
+        signing = self.signing
+        if signing is None or not self._for_us(m.target_system, m.target_component):
+            return
+        if signing.enabled and not self.trusted and not getattr(m, "_signed", False):
+            self._refuse("signing_untrusted", "Signing: SETUP_SIGNING refused (not signed, link not trusted)", addr)
+            return
+        if self.core.flight.armed:
+            self._refuse("signing_armed", "Signing: SETUP_SIGNING refused while armed", addr)
+            return
+        key = bytes(m.secret_key)
+        signing.set_key(key, int(m.initial_timestamp))
+        self._event(M.MAV_SEVERITY_INFO, "Signing enabled" if signing.enabled else "Signing disabled")
 
     def _ftp(self, m: mavlink.MAVLink_message, addr: Address) -> None:
         """NAK every MAVLink-FTP request (FileNotFound): MAVProxy then uses the parameter protocol."""
@@ -513,6 +649,10 @@ class GcsHandler:
         """Per control tick: mission-protocol timeouts (wall clock) and the telemetry streams."""
         now = self.wall_s()
         self.mission.tick(now)
+        if self.params.write_errors:  # the writer thread could not save the parameter file
+            exc = self.params.write_errors.pop()
+            self.params.write_errors.clear()
+            self._event(M.MAV_SEVERITY_ERROR, f"Param file not written: {exc.strerror or exc}")
         self.stream(t_us)
 
 

@@ -21,12 +21,16 @@ from dataclasses import dataclass, replace
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from smcpilot.geo import Home
+from smcpilot.geo import Home, global_to_ned
+from smcpilot.limits import DEFAULT_FENCE, Fence, takeoff_refusal, target_refusal
 
 Address = tuple[str, int]
 
 REQUEST_TIMEOUT_S = 1.0
 MAX_RETRIES = 5
+#: An upload whose station has sent nothing for this long (wall seconds) is abandoned: another
+#: station's MISSION_COUNT takes over (the old station gets OPERATION_CANCELLED).
+ABANDONED_UPLOAD_S = 2.0
 MAX_ITEMS = 500
 #: at most this many stations remembered as speaking the float (non-INT) mission protocol.
 MAX_LEGACY_STATIONS = 64
@@ -114,6 +118,28 @@ def validate(item: MissionItem) -> int:
     return mavlink.MAV_MISSION_ACCEPTED
 
 
+def fence_refusal(item: MissionItem, home: Home, fence: Fence) -> str | None:
+    """Why ``item`` (valid by :func:`validate`) flies to a target outside ``fence`` or below
+    ground, or None: the rule every target passes (:mod:`smcpilot.limits`). Item 0 (home), and
+    items with no target (speed, RTL) pass; a take-off is checked for its altitude, a loiter or
+    land at latitude/longitude 0/0 ("here") for its altitude only."""
+    if item.seq == 0 or item.command not in NAV_WITH_POSITION:
+        return None
+    alt = item.z if item.frame in RELATIVE_FRAMES else item.z - home.alt_m
+    if item.command == CMD_TAKEOFF:
+        return takeoff_refusal(alt, fence)
+    if item.command != CMD_WAYPOINT and item.x == 0 and item.y == 0:
+        if item.command == CMD_LAND or item.z <= 0:
+            return None
+        return target_refusal(0.0, 0.0, alt, fence)
+    n, e, _ = global_to_ned(home, item.lat_deg, item.lon_deg, home.alt_m)
+    if item.command == CMD_LAND:
+        alt = max(alt, 0.0)  # a landing comes down to the ground wherever it is given
+    return target_refusal(n, e, alt, fence)
+
+
+_RESULT_NAMES = {v: e.name for v, e in mavlink.enums["MAV_MISSION_RESULT"].items()}
+
 SendTo = Callable[[mavlink.MAVLink_message, Address], None]
 
 
@@ -127,11 +153,16 @@ class MissionProtocol:
         on_change: Callable[[], None],
         on_set_current: Callable[[int], None],
         home: Callable[[], Home] | None = None,
+        fence: Callable[[], Fence] | None = None,
     ) -> None:
         """``home``: the home position now, sent as item 0 while no mission is stored (None: no
-        item 0 then)."""
+        item 0 then). ``fence``: the geofence now; an uploaded item outside it ends the upload
+        (:func:`fence_refusal`; None: the default fence)."""
         self.mav = mav
         self._home = home
+        self._fence = fence if fence is not None else (lambda: DEFAULT_FENCE)
+        #: hears (reason, text) of a refused item: the GCS handler counts it and says why.
+        self.on_reject: Callable[[str, str], None] = lambda reason, text: None
         #: stations (addresses) that used the float protocol (MISSION_ITEM / MISSION_REQUEST).
         self.legacy_stations: set[Address] = set()
         self._send_to = send_to
@@ -141,6 +172,11 @@ class MissionProtocol:
         self.current = 0
         # Upload in progress
         self._partner: Address | None = None
+        self._partner_heard_s = -math.inf
+        #: MISSION_ACKs with an error sent (refused counts, items, uploads cancelled), and
+        #: items ignored (no upload with that station, or out of sequence): rejected packets.
+        self.refused = 0
+        self.ignored = 0
         self._partner_sys = 0
         self._partner_comp = 0
         self._count = 0
@@ -156,6 +192,8 @@ class MissionProtocol:
 
     # -- helpers --------------------------------------------------------------------------------
     def _ack(self, addr: Address, sysid: int, compid: int, result: int) -> None:
+        if result != mavlink.MAV_MISSION_ACCEPTED:
+            self.refused += 1
         self._send_to(self.mav.mission_ack_encode(sysid, compid, result, mavlink.MAV_MISSION_TYPE_MISSION), addr)
 
     def note_legacy(self, addr: Address) -> None:
@@ -193,8 +231,12 @@ class MissionProtocol:
             self._ack(addr, m.get_srcSystem(), m.get_srcComponent(), mavlink.MAV_MISSION_UNSUPPORTED)
             return
         if self._partner is not None and self._partner != addr:
-            self._ack(addr, m.get_srcSystem(), m.get_srcComponent(), mavlink.MAV_MISSION_DENIED)
-            return
+            if now_s - self._partner_heard_s < ABANDONED_UPLOAD_S:
+                self._ack(addr, m.get_srcSystem(), m.get_srcComponent(), mavlink.MAV_MISSION_DENIED)
+                return
+            self.uploads_failed += 1  # abandoned: the new station takes over
+            self._ack(self._partner, self._partner_sys, self._partner_comp, mavlink.MAV_MISSION_OPERATION_CANCELLED)
+            self._end_upload()
         if m.count > MAX_ITEMS:
             self._ack(addr, m.get_srcSystem(), m.get_srcComponent(), mavlink.MAV_MISSION_NO_SPACE)
             return
@@ -206,6 +248,7 @@ class MissionProtocol:
             self._ack(addr, m.get_srcSystem(), m.get_srcComponent(), mavlink.MAV_MISSION_ACCEPTED)
             return
         self._partner = addr
+        self._partner_heard_s = now_s
         self._partner_sys = m.get_srcSystem()
         self._partner_comp = m.get_srcComponent()
         self._count = m.count
@@ -220,19 +263,31 @@ class MissionProtocol:
         else:
             self.legacy_stations.discard(addr)
         if self._partner is None or addr != self._partner:
+            self.ignored += 1
             return  # not in an upload with this station: ignore, as ArduPilot does
         if getattr(m, "mission_type", 0) != mavlink.MAV_MISSION_TYPE_MISSION:
             return
+        self._partner_heard_s = now_s
         expected = len(self._incoming)
         if m.seq != expected:
+            self.ignored += 1
             if m.seq < expected:  # a late duplicate: ask for the one we need
                 self._request()
                 self._deadline = now_s + REQUEST_TIMEOUT_S
             return
         item = MissionItem.from_msg(m)
         result = validate(item)
+        why = None
+        if result == mavlink.MAV_MISSION_ACCEPTED and self._home is not None:
+            why = fence_refusal(item, self._home(), self._fence())
+            if why is not None:
+                result = mavlink.MAV_MISSION_INVALID_PARAM7 if "altitude" in why else mavlink.MAV_MISSION_INVALID_PARAM5_X
         if result != mavlink.MAV_MISSION_ACCEPTED:
             self.uploads_failed += 1
+            if why is not None:
+                self.on_reject("mission_fence", f"Mission item {item.seq} refused: {why}")
+            else:
+                self.on_reject("mission_item_invalid", f"Mission item {item.seq} refused ({_RESULT_NAMES.get(result, result)})")
             self._ack(addr, self._partner_sys, self._partner_comp, result)
             self._end_upload()
             return

@@ -16,8 +16,6 @@ that persist like the others; and the simulator's ``SIM_*`` parameters
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from dataclasses import field as _field
@@ -27,6 +25,7 @@ from typing import Any
 from fc.config import FcConfig
 from fc.control.pid_smc import DISTURBANCE_ESTIMATES
 from fc.estimate import EstimatorConfig
+from fc.param_store import BackgroundWriter, atomic_write_text, clean_leftovers
 from smcpilot.errors import ConfigError, InvalidGainError, ParamError
 from smcpilot.faults import (
     MAX_DELAY_S,
@@ -37,6 +36,7 @@ from smcpilot.faults import (
     check_sim_param,
     sensor_fault_from_params,
 )
+from smcpilot.limits import FENCE_ALT_MAX_RANGE_M, FENCE_RADIUS_RANGE_M
 from smcpilot.protocol import FC_CONTROLLERS
 from smcpilot.scenario import Scenario, ScenarioError
 
@@ -211,6 +211,10 @@ def _build() -> tuple[ParamSpec, ...]:
                   "control law: " + ", ".join(f"{i} {n}" for i, n in enumerate(FC_CONTROLLERS)),
                   _controller_get, _controller_set, is_int=True, restart=True)  # fmt: skip
     )
+    add("FENCE_ENABLE", "fence_enable", 0.0, 1.0, "", "1: targets outside the geofence (FENCE_RADIUS, FENCE_ALT_MAX) are refused;"
+        " 0: only the absolute limits hold (10 km, 500 m)", is_int=True, cast=bool)  # fmt: skip
+    add("FENCE_RADIUS", "fence_radius_m", *FENCE_RADIUS_RANGE_M, "m", "geofence: largest horizontal distance of a target from home")
+    add("FENCE_ALT_MAX", "fence_alt_max_m", *FENCE_ALT_MAX_RANGE_M, "m", "geofence: largest target altitude above home (take-off too)")
     add("SYSID_THISMAV", "system_id", 1.0, 255.0, "", "MAVLink system id", is_int=True, restart=True, cast=int)
     names = [s.name for s in specs]
     assert len(set(names)) == len(names) and all(len(n) <= 16 for n in names), names
@@ -286,6 +290,37 @@ class ParamStore:
         self.options = options if options is not None else FcOptions()
         #: the simulator's SIM_* values as the FC last set or heard them (volatile: defaults at start).
         self.sim: dict[str, float] = {p.name: p.default for p in SIM_PARAMS}
+        #: writes the file off the control loop once :meth:`start_writer` ran (None: synchronous).
+        self.writer: BackgroundWriter | None = None
+        #: a background write failed (the FC says so once; cleared by a later good write).
+        self.write_errors: list[OSError] = []
+
+    def start_writer(self) -> None:
+        """From now on, :meth:`set` applies at once and the file is written on a thread of its own
+        (coalesced, atomic): the control loop never waits for the disk. :meth:`close` flushes."""
+        if self.path is not None and self.writer is None:
+            self.writer = BackgroundWriter(self.path, _render_pair, self.write_errors.append)
+
+    def close(self) -> None:
+        """Write what is pending and stop the writer thread (idempotent)."""
+        if self.writer is not None:
+            self.writer.close()
+
+    def clean_leftovers(self) -> list[Path]:
+        """Remove temporary files of interrupted writes of the parameter file; return them."""
+        return clean_leftovers(self.path) if self.path is not None else []
+
+    def differences(self) -> list[tuple[str, float, float]]:
+        """(name, value, default) of every FC parameter that differs from its default, as the next
+        start would run them (``pending``)."""
+        d, o = FcConfig(), FcOptions()
+        out = []
+        for p in PARAMS:
+            v = p.get(self.options if p.options else self.pending)
+            dv = p.get(o if p.options else d)
+            if v != dv:
+                out.append((p.name, v, dv))
+        return out
 
     def value(self, name: str) -> float:
         """Current value (for restart parameters: the value the next start will use)."""
@@ -353,27 +388,13 @@ class ParamStore:
         return self.config
 
     def save(self) -> None:
-        """Write every parameter to the file atomically (temporary file, fsync, rename)."""
+        """Write every parameter to the file atomically (temporary file, fsync, rename): handed
+        to the writer thread if :meth:`start_writer` ran (returns at once), else here."""
         assert self.path is not None
-        path = self.path
-        path.parent.mkdir(parents=True, exist_ok=True)
-        lines = ["# smcpilot flight-controller parameters (NAME VALUE); written by the FC on every change"]
-        for p in PARAMS:  # the simulator's SIM_* are volatile: never written
-            v = p.get(self.options if p.options else self.pending)
-            lines.append(f"{p.name} {int(v) if p.is_int else repr(float(v))}")
-        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=str(path.parent))
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8") as f:
-                f.write("\n".join(lines) + "\n")
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
-            raise
+        if self.writer is not None:
+            self.writer.submit((self.pending, self.options))  # frozen values: safe to share
+            return
+        atomic_write_text(self.path, render_param_file(self.pending, self.options))
 
     def load(self) -> list[str]:
         """Apply the file's values (no save); return warnings (unknown names). Errors name the line."""
@@ -410,6 +431,24 @@ class ParamStore:
         # Restart parameters from the file apply now: this is the start.
         self.config = self.pending
         return warnings
+
+
+def render_param_file(config: FcConfig, options: FcOptions) -> str:
+    """The ``.parm`` text of ``config`` and ``options`` (``NAME VALUE`` per line; the simulator's
+    SIM_* are volatile and never written)."""
+    lines = ["# smcpilot flight-controller parameters (NAME VALUE); written by the FC on every change"]
+    for p in PARAMS:
+        v = p.get(options if p.options else config)
+        lines.append(f"{p.name} {int(v) if p.is_int else repr(float(v))}")
+    return "\n".join(lines) + "\n"
+
+
+def _render_pair(content: object) -> str:
+    """The writer thread's renderer: ``content`` is the (config, options) pair :meth:`ParamStore.save` hands over."""
+    assert isinstance(content, tuple) and len(content) == 2
+    config: FcConfig = content[0]
+    options: FcOptions = content[1]
+    return render_param_file(config, options)
 
 
 def defaults_table() -> list[dict[str, object]]:

@@ -2,6 +2,12 @@
 
 Defaults follow docs/gcs-protocol.md; ``SET_MESSAGE_INTERVAL`` and ``REQUEST_DATA_STREAM`` change
 them. Scheduling is pure: :meth:`StreamScheduler.due` returns the message ids due at a time.
+
+Bounds (hostile or mistaken requests): an interval shorter than :data:`MIN_INTERVAL_US` gets
+that one (the fastest we stream), one longer than :data:`MAX_INTERVAL_US` is refused, and the
+heartbeat is never slower than :data:`MAX_HEARTBEAT_INTERVAL_US` nor off (ground stations take
+a vehicle silent for a few seconds as lost). :func:`interval_refusal` says why a request is
+refused.
 """
 
 from __future__ import annotations
@@ -9,6 +15,12 @@ from __future__ import annotations
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 M = mavlink
+#: the shortest interval streamed, µs (200 Hz); shorter requests get this one.
+MIN_INTERVAL_US = 5_000
+#: the longest interval accepted, µs (one minute); longer requests are refused.
+MAX_INTERVAL_US = 60_000_000
+#: the heartbeat's longest interval, µs (1 Hz, the MAVLink heartbeat rate).
+MAX_HEARTBEAT_INTERVAL_US = 1_000_000
 #: message id -> default rate in Hz (None: follows the telemetry rate parameter)
 DEFAULT_RATES_HZ: dict[int, float | None] = {
     M.MAVLINK_MSG_ID_HEARTBEAT: 1.0,
@@ -47,6 +59,19 @@ STREAM_GROUPS: dict[int, tuple[int, ...]] = {
 }
 
 
+def interval_refusal(msg_id: int, interval_us: float) -> str | None:
+    """Why ``SET_MESSAGE_INTERVAL(msg_id, interval_us)`` is refused, or None if it is fine."""
+    if interval_us != interval_us or interval_us in (float("inf"), float("-inf")):
+        return "Message interval: not a number"
+    if msg_id not in DEFAULT_RATES_HZ:
+        return f"Message interval: message {msg_id} not streamed"
+    if msg_id == M.MAVLINK_MSG_ID_HEARTBEAT and (interval_us < 0 or interval_us > MAX_HEARTBEAT_INTERVAL_US):
+        return f"Message interval: heartbeat stays at {MAX_HEARTBEAT_INTERVAL_US // 1000} ms or faster"
+    if interval_us > MAX_INTERVAL_US:
+        return f"Message interval: {interval_us:.3g} us over the {MAX_INTERVAL_US // 1_000_000} s limit"
+    return None
+
+
 class StreamScheduler:
     """Intervals in microseconds of simulated time; 0 means off."""
 
@@ -71,27 +96,33 @@ class StreamScheduler:
         self._earliest_us = 0
 
     def set_interval(self, msg_id: int, interval_us: float) -> bool:
-        """MAV_CMD_SET_MESSAGE_INTERVAL semantics: -1 off, 0 default, else µs. False if unknown id."""
-        if msg_id not in DEFAULT_RATES_HZ:
+        """MAV_CMD_SET_MESSAGE_INTERVAL semantics: -1 off, 0 default, else µs (at least
+        :data:`MIN_INTERVAL_US`). False if refused (:func:`interval_refusal`)."""
+        if interval_refusal(msg_id, interval_us) is not None:
             return False
         if interval_us == 0:
             self._override.pop(msg_id, None)
         elif interval_us < 0:
-            if msg_id == M.MAVLINK_MSG_ID_HEARTBEAT:
-                return False  # the heartbeat is never switched off
             self._override[msg_id] = 0
         else:
-            self._override[msg_id] = max(1000, int(interval_us))  # at most 1 kHz
+            self._override[msg_id] = max(MIN_INTERVAL_US, int(interval_us))
         self._recompute()
         self._next_us.pop(msg_id, None)
         self._earliest_us = 0
         return True
 
-    def request_stream(self, stream_id: int, rate_hz: int, start: bool) -> None:
-        """REQUEST_DATA_STREAM: set a group's rate (0 Hz or stop: off)."""
-        ids = [m for ids in STREAM_GROUPS.values() for m in ids] if stream_id == M.MAV_DATA_STREAM_ALL else STREAM_GROUPS.get(stream_id, ())
+    def request_stream(self, stream_id: int, rate_hz: int, start: bool) -> str | None:
+        """REQUEST_DATA_STREAM: set a group's rate (0 Hz or stop: off; faster than
+        1/:data:`MIN_INTERVAL_US`: that rate). Returns why it was refused (unknown group), or None."""
+        if stream_id == M.MAV_DATA_STREAM_ALL:
+            ids: tuple[int, ...] = tuple(m for ids in STREAM_GROUPS.values() for m in ids)
+        elif stream_id in STREAM_GROUPS:
+            ids = STREAM_GROUPS[stream_id]
+        else:
+            return f"Data stream: group {stream_id} unknown"
         for mid in ids:
-            self.set_interval(mid, int(1e6 / rate_hz) if start and rate_hz > 0 else -1)
+            self.set_interval(mid, max(MIN_INTERVAL_US, int(1e6 / rate_hz)) if start and rate_hz > 0 else -1)
+        return None
 
     def due(self, t_us: int) -> list[int]:
         if t_us < self._earliest_us:

@@ -22,6 +22,7 @@ the law's internals at full rate; :data:`smcpilot.protocol.SMC_FIELDS` names its
 from __future__ import annotations
 
 import math
+import weakref
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, NamedTuple
 
@@ -100,13 +101,24 @@ def heartbeat(mav: mavlink.MAVLink, armed: bool, custom_mode: int, system_status
     )
 
 
-def sys_status(mav: mavlink.MAVLink, load_permille: int, healthy: bool, prearm_ok: bool) -> mavlink.MAVLink_message:
+#: SYS_STATUS's communication counters: (errors_comm, drop_rate_comm c%, errors_count1..4);
+#: see :meth:`fc.gcs.GcsHandler.comm_errors` for what each counts.
+NO_COMM_ERRORS = (0, 0, 0, 0, 0, 0)
+
+
+def sys_status(
+    mav: mavlink.MAVLink, load_permille: int, healthy: bool, prearm_ok: bool, comm: Sequence[int] = NO_COMM_ERRORS
+) -> mavlink.MAVLink_message:
     """SYS_STATUS: every sensor present and enabled; all healthy unless ``healthy`` is False
-    (failsafe, no state); PREARM_CHECK healthy when arming would pass (or the vehicle is armed)."""
+    (failsafe, no state); PREARM_CHECK healthy when arming would pass (or the vehicle is armed);
+    ``comm`` the link counters (:data:`NO_COMM_ERRORS`), each clamped to uint16."""
     health = _SENSORS if healthy else _SENSORS & ~_CONTROL_BITS
     if not prearm_ok:
         health &= ~mavlink.MAV_SYS_STATUS_PREARM_CHECK
-    return mav.sys_status_encode(_SENSORS, _SENSORS, health, max(0, min(1000, load_permille)), 12600, -1, -1, 0, 0, 0, 0, 0, 0)
+    e = [max(0, min(0xFFFF, int(v))) for v in comm]
+    return mav.sys_status_encode(
+        _SENSORS, _SENSORS, health, max(0, min(1000, load_permille)), 12600, -1, -1, min(e[1], 10000), e[0], e[2], e[3], e[4], e[5]
+    )
 
 
 def attitude(mav: mavlink.MAVLink, time_boot_ms: int, st: VehicleState, body_rates_flu: Sequence[float]) -> mavlink.MAVLink_message:
@@ -132,8 +144,31 @@ def named_values(mav: mavlink.MAVLink, time_boot_ms: int, out: PipelineOutput | 
     ]
 
 
+#: characters of text one STATUSTEXT carries.
+STATUSTEXT_CHUNK = 50
+_text_ids: weakref.WeakKeyDictionary[mavlink.MAVLink, int] = weakref.WeakKeyDictionary()
+
+
 def statustext(mav: mavlink.MAVLink, severity: int, text: str) -> mavlink.MAVLink_message:
-    return mav.statustext_encode(severity, text[:50].encode("ascii", "replace"))
+    """One STATUSTEXT of at most 50 characters (longer text is cut: use :func:`statustexts`)."""
+    return mav.statustext_encode(severity, text[:STATUSTEXT_CHUNK].encode("ascii", "replace"))
+
+
+def statustexts(mav: mavlink.MAVLink, severity: int, text: str) -> list[mavlink.MAVLink_message]:
+    """``text`` as STATUSTEXT, in MAVLink 2 chunks when longer than 50 characters: every chunk
+    has the same non-zero ``id`` (one counter per encoder, so a log stays reproducible) and
+    ``chunk_seq`` 0, 1, ...; the last chunk is shorter than 50 characters (an empty one follows a
+    text of a multiple of 50), which tells the receiver the text is complete. A text of up to 50
+    characters is one message with ``id`` 0, as before."""
+    data = text.encode("ascii", "replace")
+    if len(data) <= STATUSTEXT_CHUNK:
+        return [mav.statustext_encode(severity, data)]
+    text_id = _text_ids.get(mav, 0) % 65535 + 1
+    _text_ids[mav] = text_id
+    chunks = [data[i : i + STATUSTEXT_CHUNK] for i in range(0, len(data), STATUSTEXT_CHUNK)]
+    if len(chunks[-1]) == STATUSTEXT_CHUNK:
+        chunks.append(b"")
+    return [mav.statustext_encode(severity, c, text_id, k) for k, c in enumerate(chunks[:256])]
 
 
 def smc_data(out: PipelineOutput, target: Sequence[float], yaw_target: float, flags: int = 0, mode: int = 0) -> list[float]:
@@ -205,10 +240,12 @@ class TelemetrySnapshot(NamedTuple):
     estimate_missing: int = 0
     #: the latest state is fresh (False: stale in real time, or none).
     state_fresh: bool = True
+    #: SYS_STATUS's communication counters (:data:`NO_COMM_ERRORS` layout).
+    comm_errors: tuple[int, int, int, int, int, int] = NO_COMM_ERRORS
 
 
 def snapshot(core: FlightCore, *, time_us: int, state: VehicleState | None, body_rates: tuple[float, float, float],
-             overruns: int) -> TelemetrySnapshot:  # fmt: skip
+             overruns: int, comm_errors: tuple[int, int, int, int, int, int] = NO_COMM_ERRORS) -> TelemetrySnapshot:  # fmt: skip
     """The snapshot of a flight core now, with the runner's clock, latest state and counters."""
     c = core.commander
     f = core.flight
@@ -218,7 +255,7 @@ def snapshot(core: FlightCore, *, time_us: int, state: VehicleState | None, body
         time_us, state, body_rates, f.armed, int(c.mode), core.failsafe, f.armed or c.prearm_failure() is None,
         c.landed_state(), f.target, f.yaw_target_rad, last.pipeline if last is not None else None, overruns,
         mission.current, len(mission.items), core.home, core.config.system_id, core.estimate_status,
-        core.estimate_missing, c.state_fresh,
+        core.estimate_missing, c.state_fresh, comm_errors,
     )  # fmt: skip
 
 
@@ -231,7 +268,7 @@ def _b_heartbeat(s: TelemetrySnapshot, mav: mavlink.MAVLink, t_ms: int) -> list:
 
 
 def _b_sys_status(s: TelemetrySnapshot, mav: mavlink.MAVLink, t_ms: int) -> list:
-    return [sys_status(mav, 0, not s.failsafe and s.state is not None, s.prearm_ok)]
+    return [sys_status(mav, 0, not s.failsafe and s.state is not None, s.prearm_ok, s.comm_errors)]
 
 
 def _b_system_time(s: TelemetrySnapshot, mav: mavlink.MAVLink, t_ms: int) -> list:

@@ -12,7 +12,9 @@
 
 ``--connect`` takes :mod:`smcpilot.link` URLs: ``udpin:HOST:PORT`` listens where the FC sends its
 telemetry (default ``udpin:127.0.0.1:14550``, where ``smcpilot sitl`` sends it; or set
-``SMCPILOT_CONNECT``), ``udpout:HOST:PORT`` writes to the FC's own ground port.
+``SMCPILOT_CONNECT``), ``udpout:HOST:PORT`` writes to the FC's own ground port. Watching and
+commanding at once: when the default port is taken (``gcs watch`` holds it), the CLI talks to the
+FC's own ground port ``udpout:127.0.0.1:14551`` instead (the FC serves it with its default link).
 
 Exit codes: 0 done; 1 the vehicle refused or did not answer in time (denied, timeout); 2 usage or
 configuration error (bad option, unreadable mission file). Errors are one line on stderr.
@@ -28,15 +30,18 @@ through the vehicle's HOME_POSITION in :meth:`ground.missions.Mission.to_items` 
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import math
 import os
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, TextIO
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from ground.missions.schema import ItemSpec, MissionFileError, items_to_toml, load_mission
 from ground.vehicle import (
@@ -50,7 +55,11 @@ from ground.vehicle import (
     json_safe,
     mode_number,
 )
-from smcpilot.errors import ConfigError
+from ground.vehicle.param_meta import param_meta
+from ground.vehicle.telemetry import mavlink_text
+from smcpilot.errors import ConfigError, LinkError
+from smcpilot.limits import HARD_LIMITS, takeoff_refusal, target_refusal
+from smcpilot.protocol import FC_GROUND_PORT
 
 DEFAULT_CONNECT = "udpin:127.0.0.1:14550"
 CONNECT_ENV = "SMCPILOT_CONNECT"
@@ -107,12 +116,23 @@ def render_line(t: Telemetry) -> str:
     )
 
 
+def render_comm(c: Mapping[str, int]) -> str:
+    """The FC's rejected-packet counters (SYS_STATUS) as one ``status`` line."""
+    if not c:
+        return "  rejected -  (no SYS_STATUS yet)"
+    return (
+        f"  rejected {c['errors_comm']} packets: {c['errors_count1']} bad frames, {c['errors_count2']} signing,"
+        f" {c['errors_count3']} refused, {c['errors_count4']} on the sim link; drop rate {c['drop_rate_comm'] / 100:.2f} %"
+    )
+
+
 def render_status(t: Telemetry) -> str:
     """Human-readable ``status``."""
     lines = render_frame(t)[1:]
     if t.home is not None:
         h = t.home
         lines.append(f"  home     {h.lat_deg:.7f} {h.lon_deg:.7f} {h.alt_amsl_m:.2f} m AMSL")
+    lines.append(render_comm(t.comm_errors))
     return "\n".join(line.strip() if i == 0 else line for i, line in enumerate(lines))
 
 
@@ -124,10 +144,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="URL",
         default=os.environ.get(CONNECT_ENV, DEFAULT_CONNECT),
         help=f"where the vehicle is: udpin:HOST:PORT listens where the FC sends telemetry, udpout:HOST:PORT writes"
-        f" to the FC's ground port (default ${CONNECT_ENV} or {DEFAULT_CONNECT})",
+        f" to the FC's ground port (default ${CONNECT_ENV} or {DEFAULT_CONNECT}; when that port is taken, e.g. by"
+        f" `smcpilot gcs watch`, the FC's own ground port udpout:127.0.0.1:{FC_GROUND_PORT})",
     )
     p.add_argument("--timeout", type=float, default=15.0, metavar="S", help="wall seconds to wait for the vehicle's heartbeat (default 15)")
     p.add_argument("--sysid", type=int, metavar="N", help="talk to this MAVLink system id only (default: the first vehicle heard)")
+    p.add_argument("--signing-key", type=Path, metavar="FILE",
+                   help="sign what we send and check what we get (MAVLink 2 signing): FILE holds 64 hex digits or a"
+                   " passphrase, as the FC's --signing-key (docs/security.md)")  # fmt: skip
     sub = p.add_subparsers(dest="gcs_command", metavar="ACTION")
     sub.required = True
 
@@ -150,7 +174,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     s.add_argument("--timeout-sim", type=float, default=60.0, metavar="S", help="--wait limit, simulated seconds (default 60)")
     s.set_defaults(gcs_handler=_takeoff)
 
-    s = sub.add_parser("goto", help="fly to a local NED point (m from home; D negative is up)", description="SET_POSITION_TARGET_LOCAL_NED in GUIDED (switches to GUIDED first).")
+    s = sub.add_parser("goto", help="fly to a local NED point (m from home; D negative is up)", description="SET_POSITION_TARGET_LOCAL_NED in GUIDED (switches to GUIDED first), then waits for the"
+                       " vehicle's verdict: the target echoed in POSITION_TARGET_LOCAL_NED, or its refusal (exit 1 with the"
+                       " reason). Targets must be finite, not below ground and inside the vehicle's geofence (FENCE_*).")
     s.add_argument("north_m", type=float, metavar="N", help="north of home, m")
     s.add_argument("east_m", type=float, metavar="E", help="east of home, m")
     s.add_argument("down_m", type=float, metavar="D", help="down from home, m (-3 = 3 m up)")
@@ -183,8 +209,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     s.add_argument("name", metavar="NAME", help="parameter name")
     s.add_argument("value", type=float, metavar="VALUE", help="new value")
     s.set_defaults(gcs_handler=_param_set)
-    s = psub.add_parser("list", help="print every parameter", description="PARAM_REQUEST_LIST: every parameter, NAME VALUE per line (.parm format).")
+    s = psub.add_parser("list", help="print every parameter with unit, range and description",
+                        description="PARAM_REQUEST_LIST: every parameter with its value, unit, range and description"
+                        " (from the shipped apm.pdef.xml metadata; docs/parameters.md has the same table).")  # fmt: skip
     s.add_argument("--json", action="store_true", help="print a JSON object name -> value")
+    s.add_argument("--parm", action="store_true", help="print NAME VALUE lines only (.parm format, loadable with --param-file)")
     s.set_defaults(gcs_handler=_param_list)
 
     mission = sub.add_parser("mission", help="upload, download, start or clear the mission", description="The mission protocol (item 0 is home and is handled by the client).")
@@ -240,7 +269,7 @@ def main(args: argparse.Namespace) -> int:
     _precheck(args)
     waiting = _WaitingNotice(f"smcpilot gcs: waiting up to {args.timeout:g} s for a vehicle on {args.connect} ...", sys.stderr)
     try:
-        with Vehicle(args.connect, system_id=args.sysid, connect_timeout_s=args.timeout) as vehicle:
+        with _open_vehicle(args) as vehicle:
             waiting.done()
             return handler(vehicle, args, sys.stdout)
     except UnknownModeError:
@@ -287,6 +316,28 @@ class _WaitingNotice:
                 self._out.flush()
 
 
+def _open_vehicle(args: argparse.Namespace) -> Vehicle:
+    """The vehicle link, opened. Watching and commanding at once: when the default listening
+    port is taken (``smcpilot gcs watch`` or another ground station holds it), talk to the FC's
+    own ground port instead (it answers every station that writes to it); with an explicit
+    ``--connect`` that is taken, a one-line error says what to do."""
+    url = args.connect
+    key = getattr(args, "signing_key", None)
+    try:
+        return Vehicle(url, system_id=args.sysid, connect_timeout_s=args.timeout, signing_key=key).open()
+    except LinkError as exc:
+        if not isinstance(exc.__cause__, OSError) or exc.__cause__.errno != errno.EADDRINUSE:
+            raise
+        fc_port = f"udpout:127.0.0.1:{FC_GROUND_PORT}"
+        if url != DEFAULT_CONNECT or CONNECT_ENV in os.environ:
+            raise ConfigError(
+                f"{url}: port taken (another ground station listens there, e.g. smcpilot gcs watch); use the FC's own"
+                f" ground port: --connect {fc_port} (or the gcs= address the FC prints)"
+            ) from None
+    print(f"smcpilot gcs: {url} is taken (smcpilot gcs watch?): talking to the FC's own ground port ({fc_port})", file=sys.stderr)
+    return Vehicle(fc_port, system_id=args.sysid, connect_timeout_s=args.timeout, signing_key=key).open()
+
+
 def _precheck(args: argparse.Namespace) -> None:
     """Usage errors we can find before connecting (exit 2 at once, no vehicle needed)."""
     if args.gcs_handler is _mode:
@@ -295,11 +346,16 @@ def _precheck(args: argparse.Namespace) -> None:
         args.mission = load_mission(args.file)
     elif args.gcs_handler is _takeoff and not (math.isfinite(args.alt_m) and args.alt_m > 0):
         raise ConfigError(f"takeoff altitude must be > 0 m, got {args.alt_m}")
+    elif args.gcs_handler is _takeoff and (why := takeoff_refusal(args.alt_m, HARD_LIMITS)) is not None:
+        raise ConfigError(f"takeoff: {why}")  # the vehicle would refuse it whatever its fence
     elif args.gcs_handler is _goto:
         for name in ("north_m", "east_m", "down_m", "yaw"):
             v = getattr(args, name)
             if v is not None and not math.isfinite(v):
                 raise ConfigError(f"goto {name}: must be a finite number, got {v}")
+        why = target_refusal(args.north_m, args.east_m, -args.down_m, HARD_LIMITS)
+        if why is not None:  # the same rule as the vehicle's (smcpilot.limits); it adds its own fence
+            raise ConfigError(f"goto: {why}")
     elif args.gcs_handler is _param_set and not math.isfinite(args.value):
         raise ConfigError(f"parameter value must be finite, got {args.value}")
     elif args.gcs_handler is _watch and not (math.isfinite(args.rate_hz) and 0 < args.rate_hz <= 50):
@@ -323,16 +379,43 @@ def _settle(vehicle: Vehicle, wall_s: float = 2.0) -> Telemetry:
 
 def _status(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
     _settle(vehicle)
+    deadline = time.monotonic() + 1.5  # SYS_STATUS (the counters) comes at 1 Hz
+    while not vehicle.telemetry.comm_errors and time.monotonic() < deadline:
+        time.sleep(0.02)
     try:
         vehicle.get_home(timeout_s=1.0)
     except VehicleError:
         pass
     t = vehicle.telemetry
+    why = _prearm_failure(vehicle) if t.prearm_ok is False and not t.armed else None
     if args.json:
-        out.write(json.dumps(t.as_dict(), allow_nan=False) + "\n")
+        d = t.as_dict()
+        d["prearm_failure"] = why
+        out.write(json.dumps(d, allow_nan=False) + "\n")
     else:
         out.write(render_status(t) + "\n")
+        if why is not None:
+            out.write(f"  prearm   {why}\n")
     return EXIT_OK
+
+
+def _prearm_failure(vehicle: Vehicle, wall_s: float = 2.0) -> str | None:
+    """Why the vehicle would refuse to arm: MAV_CMD_RUN_PREARM_CHECKS makes it say so in a
+    ``STATUSTEXT`` ("PreArm: ..."), as ArduPilot does; None if it said nothing in ``wall_s``."""
+    with vehicle.subscribe("STATUSTEXT") as sub:
+        try:
+            vehicle.commands.command_long(mavlink.MAV_CMD_RUN_PREARM_CHECKS)
+        except VehicleError:
+            return None
+        deadline = time.monotonic() + wall_s
+        while (remaining := deadline - time.monotonic()) > 0:
+            msg = sub.get(remaining)
+            if msg is None:
+                break
+            text = mavlink_text(msg.text)
+            if text.startswith("PreArm"):
+                return None if text == "PreArm: checks pass" else text
+    return None
 
 
 def _arm(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
@@ -357,8 +440,8 @@ def _takeoff(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
 
 
 def _goto(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
-    vehicle.goto_ned(args.north_m, args.east_m, args.down_m, args.yaw)
-    out.write(f"going to NED ({args.north_m:g}, {args.east_m:g}, {args.down_m:g}) m\n")
+    vehicle.goto_ned(args.north_m, args.east_m, args.down_m, args.yaw)  # waits for the vehicle's verdict
+    out.write(f"set-point taken: going to NED ({args.north_m:g}, {args.east_m:g}, {args.down_m:g}) m\n")
     if args.wait:
         t = vehicle.wait_position_ned(args.north_m, args.east_m, args.down_m, args.tol, args.timeout_sim)
         out.write(f"arrived (sim time {t.sim_time_s:.2f} s)\n")
@@ -403,9 +486,21 @@ def _param_list(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
     params = vehicle.list_params()
     if args.json:
         out.write(json.dumps(params) + "\n")
-    else:
+    elif args.parm:
         for name, value in params.items():
             out.write(f"{name} {_param_text(value)}\n")
+    else:
+        meta = param_meta()
+        width = max((len(n) for n in params), default=4)
+        out.write(f"{'NAME':{width}s}  {'VALUE':>12s}  {'UNIT':8s}  {'RANGE':>16s}  DESCRIPTION\n")
+        for name, value in params.items():
+            m = meta.get(name)
+            if m is None:
+                out.write(f"{name:{width}s}  {_param_text(value):>12s}\n")
+                continue
+            label = f" ({m.values[int(value)]})" if m.values and isinstance(value, int) and value in m.values else ""
+            desc = m.description.split(". Default ", 1)[0] + (" [restart]" if m.restart else "")
+            out.write(f"{name:{width}s}  {_param_text(value) + label:>12s}  {m.unit or '-':8s}  {m.range_text():>16s}  {desc}\n")
     return EXIT_OK
 
 

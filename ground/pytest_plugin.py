@@ -12,7 +12,8 @@ run once the package is installed. It provides:
 - command-line options ``--sitl-vehicle FILE``, ``--sitl-controller NAME``, ``--sitl-seed N``,
   ``--sitl-speed FACTOR`` (lockstep speed cap; default: as fast as possible),
   ``--sitl-log-dir DIR`` (default: a ``sitl-logs`` folder in pytest's temporary directory),
-  ``--sitl-keep-logs``;
+  ``--sitl-keep-logs``, ``--sitl-signing-key FILE`` (the vehicle and the FC sign with this key;
+  the marker's ``signing_key=`` does the same for one test);
 - the marker ``@pytest.mark.sitl_options(...)``: per-test :class:`~ground.sitl.SitlOptions`
   fields, e.g. ``controller="pid_smc"``, ``wind_force_ned_n=(2, 0, 0)``, ``noise=True``,
   ``seed=3``, ``vehicle="heavy.toml"``, ``gust_std_n=0.5``, ``home="47.0,8.0,400"``,
@@ -86,6 +87,8 @@ def pytest_addoption(parser: pytest.Parser) -> None:
     group.addoption("--sitl-seed", type=int, metavar="N", default=None, help="seed of sensor noise and gusts (default 0)")
     group.addoption("--sitl-speed", type=float, metavar="FACTOR", default=None, help="cap lockstep SITL at FACTOR x real time (default: as fast as possible)")
     group.addoption("--sitl-log-dir", type=Path, metavar="DIR", default=None, help="where SITL .tlog files go (default: pytest's temporary directory)")
+    group.addoption("--sitl-signing-key", type=Path, metavar="FILE", default=None,
+                    help="MAVLink 2 signing between the fixture's vehicle and the FC (a key file: 64 hex digits or a passphrase)")
     group.addoption("--sitl-keep-logs", action="store_true", default=False, help="keep every SITL .tlog, not only those of failed tests")
 
 
@@ -124,6 +127,8 @@ def _options(request: pytest.FixtureRequest, log_dir: Path, tlog: Path, param_fi
         kw["controller"] = cfg.getoption("sitl_controller")
     if cfg.getoption("sitl_seed") is not None:
         kw["seed"] = cfg.getoption("sitl_seed")
+    if cfg.getoption("sitl_signing_key") is not None:
+        kw["signing_key"] = Path(cfg.getoption("sitl_signing_key"))
     speed = cfg.getoption("sitl_speed")
     if speed is not None:
         if not speed > 0:
@@ -141,7 +146,7 @@ def _options(request: pytest.FixtureRequest, log_dir: Path, tlog: Path, param_fi
                 )
             if key == "scenario" and value is not None and not isinstance(value, Scenario):
                 value = Scenario.from_toml(value)  # a path: the scenario file
-            elif key in ("vehicle", "plan", "param_file") and value is not None:
+            elif key in ("vehicle", "plan", "param_file", "signing_key") and value is not None:
                 value = Path(value)
             elif key in ("wind_force_ned_n", "fc_args", "sim_args") and value is not None:
                 value = tuple(value)
@@ -172,7 +177,9 @@ def sitl(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactor
     run = _SitlRun(tlog=log_dir / f"{stem}.tlog", param_file=log_dir / f"{stem}.parm")
     request.node.stash[_RUN_KEY] = run
 
-    vehicle = Vehicle("udpin:127.0.0.1:0", connect_timeout_s=CONNECT_TIMEOUT_S)
+    marker = request.node.get_closest_marker(_MARKER)
+    key_file = (marker.kwargs.get("signing_key") if marker is not None else None) or cfg.getoption("sitl_signing_key")
+    vehicle = Vehicle("udpin:127.0.0.1:0", connect_timeout_s=CONNECT_TIMEOUT_S, signing_key=key_file)
     vehicle.open()
     sitl_proc: Sitl | None = None
     yielded = False

@@ -60,9 +60,13 @@ class SitlOptions:
     gcs: str | None = "udp:127.0.0.1:14550"
     log_dir: Path = Path("logs")
     tlog: Path | None = None
-    #: FC parameter file (default: fc-params.parm in log_dir).
+    #: a parameter file to keep across runs (loaded, and saved to on PARAM_SET); None: the run
+    #: starts from defaults and writes a file of its own beside the tlog.
     param_file: Path | None = None
     watchdog_s: float = 5.0
+    #: MAVLink 2 signing of the FC's ground link: a key file (64 hex digits or a passphrase);
+    #: None: unsigned. The signing timestamp is kept beside the log (``signing-timestamp``).
+    signing_key: Path | None = None
     #: extra arguments for the FC / the bridge (advanced use, tests).
     fc_args: tuple[str, ...] = ()
     sim_args: tuple[str, ...] = ()
@@ -257,8 +261,11 @@ class Sitl:
                    "--tlog", str(tlog), "--watchdog-s", f"{o.watchdog_s:g}"]  # fmt: skip
         if o.lockstep:
             fc_args.append("--lockstep")
-        param_file = o.param_file if o.param_file is not None else tlog.parent / "fc-params.parm"
-        fc_args += ["--param-file", str(param_file)]
+        if o.param_file is not None:  # else the FC starts from defaults with a file of its own (NAME.parm)
+            fc_args += ["--param-file", str(o.param_file)]
+        fc_args += ["--signing-timestamps", str(tlog.parent / "signing-timestamp")]
+        if o.signing_key is not None:
+            fc_args += ["--signing-key", str(o.signing_key)]
         if o.lockstep:
             fc_args += timed
         fc_args += list(o.fc_args)
@@ -372,6 +379,9 @@ def print_connect_help(sitl: Sitl, out: TextIO = sys.stdout) -> None:
               f" MAVProxy: mavproxy.py --master=udpin:{target})", file=out)  # fmt: skip
     if sitl.gcs_address and sitl.gcs_address != "-":
         print(f"  the FC answers on {sitl.gcs_address} (any GCS may also connect there: --master=udpout:{sitl.gcs_address})", file=out)
+    if o.signing_key is not None:
+        print("  the ground link is signed: sign with the same key (MAVProxy: module load signing; signing key"
+              " PASSPHRASE; pymavlink: setup_signing; docs/security.md)", file=out)  # fmt: skip
     if o.lockstep and o.speed is None and o.gcs:
         print("  note: lockstep runs as fast as possible; a ground station needs --speed 1", file=out)
     out.flush()

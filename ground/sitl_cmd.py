@@ -20,6 +20,7 @@ from smcpilot.errors import ConfigError, EndpointError
 from smcpilot.link import parse_endpoint
 from smcpilot.protocol import FC_CONTROLLERS
 from smcpilot.scenario import Scenario
+from smcpilot.signing import load_key
 
 
 def _ned_triple(text: str) -> tuple[float, float, float]:
@@ -57,6 +58,13 @@ def add_sitl_arguments(p: argparse.ArgumentParser) -> None:
                    help="ground link of the FC: udp:HOST:PORT sends telemetry there (default udp:127.0.0.1:14550,"
                    " where QGroundControl and MAVProxy listen), udpin:HOST:PORT listens, none: no ground link")  # fmt: skip
     p.add_argument("--plan", type=Path, metavar="FILE", help="timed set-point plan (TOML) the FC flies in simulated time")
+    p.add_argument("--param-file", type=Path, metavar="FILE",
+                   help="a parameter file to keep across runs: loaded at start if it exists, saved to after every"
+                   " PARAM_SET (default: none loaded; the run starts from the defaults and writes its own NAME.parm"
+                   " beside its tlog)")  # fmt: skip
+    p.add_argument("--signing-key", type=Path, metavar="FILE",
+                   help="MAVLink 2 signing on the ground link: FILE holds 64 hex digits (the key) or a passphrase"
+                   " (key = its SHA-256, as MAVProxy's 'signing setup'); see docs/security.md")  # fmt: skip
     p.add_argument("--paper-disturbance", action="store_true", default=None, help="add the paper's disturbances fs1..fs4")
     p.add_argument("--scenario", type=Path, metavar="FILE",
                    help="fly this scenario (TOML, see `smcpilot run`): its vehicle, environment, seed, controller,"
@@ -202,6 +210,8 @@ def sitl_main(args: argparse.Namespace) -> int:
             parse_endpoint(args.gcs)
         except EndpointError as exc:
             raise ConfigError(f"--gcs: {exc}, or none") from None
+    if args.signing_key is not None:
+        load_key(args.signing_key)  # a bad key file: one line, exit 2, before anything starts
     opts = _options(
         args,
         lockstep=args.lockstep,
@@ -209,6 +219,8 @@ def sitl_main(args: argparse.Namespace) -> int:
         gcs=None if args.gcs == "none" else args.gcs,
         plan=args.plan,
         paper_disturbance=args.paper_disturbance,
+        param_file=args.param_file,
+        signing_key=args.signing_key,
     )
 
     def started(sitl: Sitl) -> None:
@@ -226,7 +238,17 @@ def sitl_main(args: argparse.Namespace) -> int:
         f" {fcs.get('ticks', 0)} control ticks, {fcs.get('overruns', 0)} overruns; log {sitl.tlog}"
     )
     _tidy_log_dir(args.log_dir)
+    print(rejected_line(fcs.get("rx_rejected") or {}))
     return 0
+
+
+def rejected_line(rejected: dict[str, int]) -> str:
+    """The FC's rejected packets by reason (its exit summary), one line."""
+    total = rejected.get("total", 0)
+    if not total:
+        return "  rejected packets: none"
+    parts = ", ".join(f"{k} {v}" for k, v in sorted(rejected.items(), key=lambda kv: -kv[1]) if k != "total")
+    return f"  rejected packets: {total} ({parts})"
 
 
 # -- demo ---------------------------------------------------------------------------------------

@@ -20,6 +20,13 @@ the same datagram, so a good packet behind garbage still arrives. Sending never 
 network errors either (an unreachable ground station must not stop the control loop): they are
 counted in ``tx_errors``.
 
+With a :class:`~smcpilot.signing.Signing` whose key is set, every packet sent is signed
+(the fast-path ones too) with the link's ``link_id``, and every packet received is checked
+before it is returned: unsigned ones outside the accepted list, bad signatures and old or
+out-of-window timestamps are dropped and counted (``rx_unsigned``, ``rx_bad_signature``,
+``rx_old_timestamp``, ``rx_stream_window``). A ``SETUP_SIGNING`` packet reaches the tlog with its
+key zeroed.
+
 The three messages of the control loop (ATTITUDE, LOCAL_POSITION_NED, HIL_ACTUATOR_CONTROLS) are
 encoded and decoded by :mod:`smcpilot.fastcodec` (same bytes, same message objects, several times
 faster); everything else goes through pymavlink.
@@ -49,7 +56,9 @@ from typing import Literal
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from smcpilot import fastcodec
+from smcpilot import signing as _signing
 from smcpilot.errors import EndpointError, LinkClosedError, LinkError
+from smcpilot.signing import Signing, redact_setup_signing
 from smcpilot.tlog import TlogWriter
 
 __all__ = [
@@ -74,6 +83,9 @@ DEFAULT_MAX_DATAGRAM_BYTES = 1400
 #: of an ``out`` endpoint comes on top); a flood of new source addresses cannot make us send to
 #: more places than this. When full, the peer heard from least recently is forgotten.
 DEFAULT_MAX_PEERS = 16
+#: When the peer table is full, a peer (not pinned) silent this long gives its place to a new
+#: one; a station writing its 1 Hz heartbeat never is.
+PEER_QUIET_S = 2.5
 
 _SCHEMES: dict[str, Literal["out", "in"]] = {"udp": "out", "udpout": "out", "udpin": "in"}
 _HOST_RE = re.compile(r"^[A-Za-z0-9](?:[A-Za-z0-9.-]*[A-Za-z0-9])?$")
@@ -87,6 +99,9 @@ _SIGNATURE_BYTES = mavlink.MAVLINK_SIGNATURE_BLOCK_LEN
 _DECODE_ERRORS = (mavlink.MAVError, struct.error, ArithmeticError, LookupError, TypeError, ValueError)
 _FD_SETSIZE = 1024
 _UNKNOWN_MESSAGE = mavlink.MAVLink_unknown
+_SETUP_SIGNING_LOW = mavlink.MAVLINK_MSG_ID_SETUP_SIGNING & 0xFF  # id 256: low byte 0, middle byte 1
+_SIGNING_OK = _signing.OK
+_REJECT_COUNTERS = _signing.REJECT_REASONS
 
 
 @dataclass(frozen=True)
@@ -154,6 +169,8 @@ def parse_endpoint(url: str) -> Endpoint:
 class LinkCounters:
     """Traffic statistics of one link (mutable; read them, or ``reset()``).
 
+    ``rx_unsigned``, ``rx_bad_signature``, ``rx_old_timestamp`` and ``rx_stream_window`` count
+    good packets dropped by signing (:meth:`smcpilot.signing.Signing.check`).
     ``rx_bad`` counts runs of bytes that are not a good packet (garbage, a truncated packet, a
     bad CRC, bad header flags): a whole garbage datagram counts once, and a good packet ends a
     run. ``rx_unknown`` counts well-framed packets whose id the dialect does not know (their CRC
@@ -174,8 +191,25 @@ class LinkCounters:
     #: errno of the most recent failed send, 0 if none.
     last_tx_errno: int = 0
     #: datagrams from a new address not remembered as a peer because ``max_peers`` were known
-    #: (their messages are still returned by ``recv``).
+    #: (their messages are still returned by ``recv``), or peers forgotten to make room.
     peers_rejected: int = 0
+    rx_unsigned: int = 0
+    rx_bad_signature: int = 0
+    rx_old_timestamp: int = 0
+    rx_stream_window: int = 0
+
+    @property
+    def rx_rejected(self) -> int:
+        """Every packet received and not returned: bad bytes, unknown ids, foreign systems, signing."""
+        return (
+            self.rx_bad + self.rx_unknown + self.rx_foreign_system + self.rx_unsigned + self.rx_bad_signature
+            + self.rx_old_timestamp + self.rx_stream_window
+        )  # fmt: skip
+
+    @property
+    def rx_signing_rejected(self) -> int:
+        """Packets dropped by signing (unsigned, bad signature, old or out-of-window timestamp)."""
+        return self.rx_unsigned + self.rx_bad_signature + self.rx_old_timestamp + self.rx_stream_window
 
     def as_dict(self) -> dict[str, int]:
         """A plain-dict snapshot."""
@@ -220,14 +254,25 @@ class MavlinkUdp:
         max_datagram_bytes: int = DEFAULT_MAX_DATAGRAM_BYTES,
         fast_codec: bool = True,
         monotonic_s: Callable[[], float] = time.monotonic,
+        bind_port: int = 0,
+        signing: Signing | None = None,
+        link_id: int = 0,
+        accept_unsigned: frozenset[int] | None = None,
     ) -> None:
         """Open the socket.
+
+        ``bind_port``: for an ``out`` endpoint, the local port to send from (0: any free port), so
+        that others can write to a known port of ours as well (the FC's second ground port).
 
         ``source_system``/``source_component`` go into every packet we send; with
         ``accept_system`` set, packets from any other system id are dropped. ``tlog`` (owned by
         the caller, not closed here) records traffic stamped with ``clock_us()`` (default: wall
         clock, µs since the epoch). ``fast_codec=False`` forces pymavlink for every message.
         ``monotonic_s`` is the real-time clock for peer expiry (injectable for tests).
+        ``signing`` (shared by the process's links) signs and checks packets while its key is
+        set, this link's packets carrying ``link_id``; ``accept_unsigned`` replaces the signing's
+        list of messages accepted unsigned on this link (e.g. a trusted link that also takes
+        ``SETUP_SIGNING``).
         """
         endpoint = parse_endpoint(endpoint_or_url) if isinstance(endpoint_or_url, str) else endpoint_or_url
         if not isinstance(endpoint, Endpoint):
@@ -241,6 +286,8 @@ class MavlinkUdp:
                 raise LinkError(f"{name} must be an integer in 0..255, got {value!r}")
         if not peer_timeout_s > 0:
             raise LinkError(f"peer_timeout_s must be > 0, got {peer_timeout_s!r}")
+        if not isinstance(link_id, int) or not 0 <= link_id <= 255:
+            raise LinkError(f"link_id must be an integer in 0..255, got {link_id!r}")
         if max_peers < 1:
             raise LinkError(f"max_peers must be >= 1, got {max_peers!r}")
         if max_datagram_bytes < 300:
@@ -257,6 +304,13 @@ class MavlinkUdp:
         self._packers = dict(fastcodec.PACKERS) if fast_codec else {}
         self._decoders = dict(fastcodec.DECODERS) if fast_codec else {}
         self.counters = LinkCounters()
+        self._signing = signing
+        self._link_id = link_id
+        self._accept_unsigned = accept_unsigned
+        #: addresses that sent signed packets or commands: a flood of new addresses never
+        #: evicts them from the peer table (they still expire after ``peer_timeout_s`` of silence).
+        self._pinned: set[Address] = set()
+        self._rx_signed = False
 
         self._mav = mavlink.MAVLink(_LinkWriter(self), srcSystem=source_system, srcComponent=source_component)
         self._decoder = mavlink.MAVLink(None)  # decode() only: stateless without signing
@@ -268,6 +322,7 @@ class MavlinkUdp:
         self._next_prune_s = math.inf
         self._closed = True
 
+        self._bind_port = int(bind_port)
         sock = self._open_socket(endpoint)
         self._sock = sock
         self._fd = sock.fileno()
@@ -288,7 +343,7 @@ class MavlinkUdp:
                 sock.bind(address)
             else:
                 loopback = ipaddress.ip_address(address[0]).is_loopback
-                sock.bind(("127.0.0.1" if loopback else "0.0.0.0", 0))
+                sock.bind(("127.0.0.1" if loopback else "0.0.0.0", self._bind_port))
                 self._initial_destination = address
             sock.setblocking(False)
         except OSError as exc:
@@ -324,6 +379,16 @@ class MavlinkUdp:
         return self._destinations
 
     @property
+    def signing(self) -> Signing | None:
+        """The signing state this link uses (None: never signs)."""
+        return self._signing
+
+    @property
+    def link_id(self) -> int:
+        """The link id this link's signed packets carry."""
+        return self._link_id
+
+    @property
     def closed(self) -> bool:
         """True once :meth:`close` has run."""
         return self._closed
@@ -339,7 +404,7 @@ class MavlinkUdp:
         packet = self._encode(msg)
         self._send_datagram_to_peers(packet)  # the peer first: logging is off the critical path
         if self._tlog is not None:
-            self._tlog.write(self._clock_us(), packet)
+            self._tlog.write(self._clock_us(), self._log_copy(packet))
 
     def send_many(self, msgs: Iterable[mavlink.MAVLink_message]) -> None:
         """Encode several messages and send them in as few datagrams as fit
@@ -372,6 +437,10 @@ class MavlinkUdp:
         datagrams as fit, then log them: the hot-path variant of :meth:`send_many`."""
         if self._closed:
             raise LinkClosedError(f"link {self._endpoint.url} is closed")
+        signing = self._signing
+        if signing is not None and signing.enabled:
+            link_id = self._link_id
+            packets = [signing.sign(p, link_id) for p in packets]
         for datagram in self._datagrams(packets) if len(packets) > 1 else packets:
             self._send_datagram_to_peers(datagram)
         if self._tlog is not None:
@@ -392,7 +461,7 @@ class MavlinkUdp:
         """Encode ``msg`` and send it to ``addr`` only (e.g. a COMMAND_ACK to the requester)."""
         packet = self._encode(msg)
         if self._tlog is not None:
-            self._tlog.write(self._clock_us(), packet)
+            self._tlog.write(self._clock_us(), self._log_copy(packet))
         self._send_datagram(packet, addr)
 
     def _encode(self, msg: mavlink.MAVLink_message) -> bytes:
@@ -407,6 +476,16 @@ class MavlinkUdp:
             packet = msg.pack(mav)
         mav.seq = (seq + 1) & 0xFF
         self.counters.tx_messages += 1
+        signing = self._signing
+        if signing is not None and signing.enabled:
+            packet = signing.sign(packet, self._link_id)
+        return packet
+
+    @staticmethod
+    def _log_copy(packet: bytes) -> bytes:
+        """What the tlog gets of a packet: itself, or a SETUP_SIGNING with its key zeroed."""
+        if len(packet) > 9 and packet[7] == _SETUP_SIGNING_LOW and packet[8] == 1 and packet[0] == _MAGIC_V2:
+            return redact_setup_signing(packet)
         return packet
 
     def _send_encoded(self, packet: bytes) -> None:
@@ -414,8 +493,11 @@ class MavlinkUdp:
         if self._closed:
             raise LinkClosedError(f"link {self._endpoint.url} is closed")
         self.counters.tx_messages += 1
+        signing = self._signing
+        if signing is not None and signing.enabled:
+            packet = signing.sign(bytes(packet), self._link_id)
         if self._tlog is not None:
-            self._tlog.write(self._clock_us(), packet)
+            self._tlog.write(self._clock_us(), self._log_copy(packet))
         self._send_datagram_to_peers(packet)
 
     def _datagrams(self, packets: Sequence[bytes]) -> list[bytes]:
@@ -483,6 +565,7 @@ class MavlinkUdp:
                 counters.last_tx_errno = exc.errno or 0
                 continue
             counters.rx_datagrams += 1
+            self._rx_signed = False
             if parse(data, addr, received):
                 if now_s < 0:
                     now_s = self._monotonic_s()
@@ -491,6 +574,8 @@ class MavlinkUdp:
                     seen[addr] = now_s
                 else:
                     self._add_peer(addr, now_s)
+                if self._rx_signed and addr in seen:
+                    self._pinned.add(addr)
         return received
 
     def _wait_readable(self, timeout_s: float) -> bool:
@@ -509,6 +594,7 @@ class MavlinkUdp:
         decoders = self._decoders
         accept_system = self._accept_system
         tlog = self._tlog
+        signing = self._signing
         stamp_us = -1
         accepted = 0
         in_bad_run = False
@@ -552,12 +638,23 @@ class MavlinkUdp:
                     if accept_system is not None and src_system != accept_system:
                         counters.rx_foreign_system += 1
                         continue
+                    if signing is not None and signing.enabled:
+                        mid = packet[7] | packet[8] << 8 | packet[9] << 16 if magic == _MAGIC_V2 else packet[5]
+                        verdict = signing.check(packet, mid, self._accept_unsigned)
+                        if verdict != _SIGNING_OK:
+                            name = _REJECT_COUNTERS[verdict]
+                            setattr(counters, name, getattr(counters, name) + 1)
+                            continue
+                        if packet[2] & 1 and magic == _MAGIC_V2:
+                            msg._signed = True
+                            msg._link_id = packet[-13]
+                            self._rx_signed = True
                     received.append((msg, addr))
                     accepted += 1
                     if tlog is not None:
                         if stamp_us < 0:
                             stamp_us = self._clock_us()
-                        tlog.write(stamp_us, packet)
+                        tlog.write(stamp_us, self._log_copy(packet))
                     continue
             # Not a good packet at i: count the run once and resynchronise on the next
             # start-of-frame byte after i.
@@ -571,18 +668,44 @@ class MavlinkUdp:
 
     # ------------------------------------------------------------------ peers
 
-    def _add_peer(self, addr: Address, now_s: float) -> None:
+    def pin_peer(self, addr: Address) -> None:
+        """Keep ``addr`` (a station that sent a command) in the peer table: new addresses never
+        evict it, only its own silence for ``peer_timeout_s`` does."""
+        if addr in self._peer_seen_s:
+            self._pinned.add(addr)
+        else:
+            self._add_peer(addr, self._monotonic_s(), pin=True)
+
+    @property
+    def pinned_peers(self) -> frozenset[Address]:
+        """The peers kept against floods (signed packets or commands came from them)."""
+        return frozenset(self._pinned)
+
+    def _add_peer(self, addr: Address, now_s: float, *, pin: bool = False) -> None:
         seen = self._peer_seen_s
         if len(seen) >= self._max_peers:
-            self._prune_peers()
+            if self._next_prune_s <= now_s:  # (a flood calls this per datagram: prune only when due)
+                self._prune_peers()
             if len(seen) >= self._max_peers:
-                # Full: forget the peer heard from least recently (a live ground station writes
-                # at least its 1 Hz heartbeat and is back within a second; a burst of short-lived
-                # clients cannot lock new ones out for the whole peer timeout).
-                oldest = min(seen, key=seen.__getitem__)
-                del seen[oldest]
+                # Full. Pinned peers (signed packets, commands) are never evicted by a newcomer;
+                # of the others, one silent for PEER_QUIET_S (it missed its 1 Hz heartbeat: gone
+                # or going) makes room, so short-lived clients cannot lock new ones out. A peer
+                # that keeps writing keeps its place: a flood of new addresses is not remembered
+                # (its messages are still returned) and cannot evict the stations already known.
+                pinned = self._pinned
+                candidates = [a for a in seen if a not in pinned]
+                victim: Address | None = None
+                if candidates:
+                    oldest = min(candidates, key=seen.__getitem__)
+                    if pin or now_s - seen[oldest] >= PEER_QUIET_S:
+                        victim = oldest
                 self.counters.peers_rejected += 1
+                if victim is None:
+                    return
+                del seen[victim]
         seen[addr] = now_s
+        if pin:
+            self._pinned.add(addr)
         self._next_prune_s = min(self._next_prune_s, now_s + self._peer_timeout_s)
         self._rebuild_destinations()
 
@@ -593,6 +716,7 @@ class MavlinkUdp:
         stale = [addr for addr, seen_s in seen.items() if seen_s < oldest_allowed_s]
         for addr in stale:
             del seen[addr]
+            self._pinned.discard(addr)
         self._next_prune_s = min(seen.values()) + self._peer_timeout_s if seen else math.inf
         if stale:
             self._rebuild_destinations()

@@ -70,6 +70,11 @@ def flown_mode_from_name(name: str) -> Mode:
 
 
 # -- commands --------------------------------------------------------------------------------------
+#: where the FC sends ground telemetry by default (QGroundControl and MAVProxy listen there).
+DEFAULT_GCS_URL = "udp:127.0.0.1:14550"
+#: the FC's own ground port with the default ground link: a second station (``smcpilot gcs``
+#: while ``smcpilot gcs watch`` holds 14550) writes to it and is answered (``udpout:127.0.0.1:14551``).
+FC_GROUND_PORT = 14551
 #: ``param2`` of MAV_CMD_COMPONENT_ARM_DISARM that forces arming or disarming (ArduPilot's value).
 FORCE_ARM_MAGIC = 21196.0
 

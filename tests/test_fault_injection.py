@@ -184,7 +184,12 @@ def test_sim_params_are_listed_volatile_validated_and_forwarded(rig: Rig) -> Non
 
     # SIM_* never reach the parameter file; the FC's own parameters do.
     assert g.param_set("SYS_FAILURE_EN", 1.0, M.MAV_PARAM_TYPE_INT32).param_value == 1.0
-    names = {ln.split()[0] for ln in rig.param_file.read_text().splitlines() if ln and not ln.startswith("#")}
+    deadline = time.monotonic() + 5.0  # the FC writes the file on a thread of its own, moments after the echo
+    while True:
+        names = {ln.split()[0] for ln in rig.param_file.read_text().splitlines() if ln and not ln.startswith("#")}
+        if "SYS_FAILURE_EN" in names or time.monotonic() > deadline:
+            break
+        time.sleep(0.01)
     assert "SYS_FAILURE_EN" in names and "FS_POS_TMO" in names and not {n for n in names if n.startswith("SIM_")}
 
     assert rig.fc.stop() == 0

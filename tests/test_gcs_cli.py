@@ -197,7 +197,7 @@ def test_param_get_set_list(fc_url: str) -> None:
     r = gcs("param", "list", "--json", connect=fc_url)
     params = json.loads(r.stdout)
     assert params["WP_RADIUS_M"] == pytest.approx(0.8) and isinstance(params["ARMING_CHECK"], int)
-    r = gcs("param", "list", connect=fc_url)
+    r = gcs("param", "list", "--parm", connect=fc_url)
     lines = r.stdout.splitlines()
     assert len(lines) == len(params) and "ARMING_CHECK 1" in lines
 

@@ -435,16 +435,38 @@ def test_initial_destination_never_expires() -> None:
             assert fc.peers == (sim.getsockname(),)
 
 
-def test_a_new_peer_beyond_max_peers_replaces_the_least_recently_heard() -> None:
+def test_a_new_peer_beyond_max_peers_replaces_a_quiet_one_only() -> None:
     now_s = [0.0]
+    hb = packet(encoder(255), heartbeat(encoder(255)))
     with listener(max_peers=2, monotonic_s=lambda: now_s[0]) as fc, raw_socket() as a, raw_socket() as b, raw_socket() as c:
         for sock in (a, b, c):
-            now_s[0] += 1.0  # a is the least recently heard when c arrives
-            sock.sendto(packet(encoder(255), heartbeat(encoder(255))), fc.local_address)
+            now_s[0] += 1.0  # a has been quiet 2 s when c arrives: still live (PEER_QUIET_S 2.5)
+            sock.sendto(hb, fc.local_address)
             assert len(recv_messages(fc, 1)) == 1  # messages are always delivered
+        assert set(fc.peers) == {a.getsockname(), b.getsockname()}
+        assert fc.counters.peers_rejected == 1
+        now_s[0] += 1.0  # a quiet 3 s now: it gives its place to c
+        c.sendto(hb, fc.local_address)
+        recv_messages(fc, 1)
         assert set(fc.peers) == {b.getsockname(), c.getsockname()}
         assert len(fc.peers) == 2  # never more than max_peers
-        assert fc.counters.peers_rejected == 1
+        assert fc.counters.peers_rejected == 2
+
+
+def test_a_pinned_peer_is_never_evicted_by_newcomers() -> None:
+    now_s = [0.0]
+    hb = packet(encoder(255), heartbeat(encoder(255)))
+    with listener(max_peers=2, monotonic_s=lambda: now_s[0]) as fc, raw_socket() as gcs:
+        gcs.sendto(hb, fc.local_address)
+        recv_messages(fc, 1)
+        fc.pin_peer(gcs.getsockname())
+        for _ in range(3):  # a quiet pinned station (9 s < peer timeout), newcomers from new ports
+            now_s[0] += 3.0
+            with raw_socket() as newcomer:
+                newcomer.sendto(hb, fc.local_address)
+                recv_messages(fc, 1)
+        assert gcs.getsockname() in fc.peers
+        assert len(fc.peers) == 2
 
 
 def test_fast_path_and_pymavlink_path_send_identical_bytes() -> None:

@@ -40,9 +40,12 @@ from typing import Any
 
 import numpy as np
 
+from ground.vehicle.telemetry import StatusTextAssembler
 from smcpilot.errors import SmcpilotError, TlogError, TlogFormatError
 from smcpilot.frames import euler_flu_to_frd, nwu_to_ned
-from smcpilot.protocol import CHI_NAMES, SIG_NAMES, SIM_COMPONENT_ID, SMC_ARRAY_ID, SMC_FIELDS
+from smcpilot.protocol import CHI_NAMES, FC_COMPONENT_ID, SIG_NAMES, SIM_COMPONENT_ID, SMC_ARRAY_ID, SMC_FIELDS
+
+_COMM_FIELDS = ("errors_comm", "drop_rate_comm", "errors_count1", "errors_count2", "errors_count3", "errors_count4")
 from smcpilot.tlog import read_tlog
 
 __all__ = ["CHANNELS", "SIM_COMPONENT", "FlightLog", "LogError", "LogEvent", "TimeSeries", "load_log"]
@@ -182,6 +185,9 @@ class FlightLog:
     events: list[LogEvent] = field(default_factory=list)
     #: last NAMED_VALUE_INT "OVERRUN" (cumulative missed deadlines), None if never sent.
     overruns: int | None = None
+    #: the FC's last SYS_STATUS communication counters (errors_comm, drop_rate_comm,
+    #: errors_count1..4: rejected packets, docs/security.md); None if it sent none.
+    comm_errors: dict[str, int] | None = None
 
     @property
     def name(self) -> str:
@@ -264,6 +270,8 @@ def load_log(path: str | os.PathLike[str]) -> FlightLog:
     named_f: dict[str, list[tuple[int, float]]] = {}
     named_i: dict[str, list[tuple[int, int]]] = {}
     events: list[tuple[int, int, str]] = []
+    log_s = [0.0]  # STATUSTEXT chunks (texts over 50 characters) are joined on the log's own clock
+    texts = StatusTextAssembler(clock_s=lambda: log_s[0])
     first_us: int | None = None
     last_us = 0
     sim_state_us = 0
@@ -303,11 +311,15 @@ def load_log(path: str | os.PathLike[str]) -> FlightLog:
                 named_f.setdefault(msg.name, []).append((time_us, msg.value))
             elif mtype == "NAMED_VALUE_INT":
                 named_i.setdefault(msg.name, []).append((time_us, msg.value))
+            elif mtype == "SYS_STATUS":
+                if msg.get_srcComponent() == FC_COMPONENT_ID:
+                    log.comm_errors = {name: int(getattr(msg, name)) for name in _COMM_FIELDS}
             elif mtype == "STATUSTEXT":
                 # The simulator announces a fault right after the first state it acts on; a lockstep
                 # FC logs the whole datagram batch before its clock reaches that state's time.
                 t_ev = max(time_us, sim_state_us) if msg.get_srcComponent() == SIM_COMPONENT_ID else time_us
-                events.append((t_ev, msg.severity, msg.text))
+                log_s[0] = time_us * 1e-6
+                events.extend((t_ev, whole.severity, whole.text) for whole in texts.feed(msg))
     except TlogFormatError as exc:
         reason = str(exc)
         prefix = f"{p}: "

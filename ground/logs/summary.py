@@ -213,7 +213,8 @@ def summarize(
     last ``sigma_window_s`` seconds of flight while holding, i.e. before a final landing: the RMS
     of sigma low-passed with tau = 0.1 s, how far sigma stays from the sliding surface, and the
     RMS of what the low-pass removes, the chattering; see :mod:`ground.logs.metrics`),
-    ``overruns`` (last OVERRUN count), ``message_counts``, ``events`` and ``metrics``
+    ``overruns`` (last OVERRUN count), ``comm_errors`` (the FC's last SYS_STATUS rejected-packet
+    counters, None without one), ``message_counts``, ``events`` and ``metrics``
     (:func:`log_metrics`: IAE/ISE/ITAE, effort, crash, recovery; None without "SMC" records).
     """
     out: dict[str, Any] = {
@@ -229,6 +230,7 @@ def summarize(
         "duration_s": _num(log.duration_s) if log.records else None,
         "message_counts": dict(log.message_counts),
         "overruns": log.overruns,
+        "comm_errors": dict(log.comm_errors) if log.comm_errors is not None else None,
     }
 
     # Armed time.
@@ -357,6 +359,13 @@ def print_summary(summary: dict[str, Any], file: TextIO | None = None) -> None:
             line("  note", note)
     line("Duration", f"{_fmt(s.get('duration_s'), '.2f', ' s simulated')}, armed {_fmt(s.get('armed_time_s'), '.2f', ' s')}")
     line("Overruns", "n/a (no OVERRUN telemetry)" if s.get("overruns") is None else str(s["overruns"]))
+    c = s.get("comm_errors")
+    line(
+        "Rejected packets",
+        "n/a (no SYS_STATUS from the FC)" if c is None else
+        f"{c['errors_comm']}: {c['errors_count1']} bad frames, {c['errors_count2']} signing, {c['errors_count3']} refused,"
+        f" {c['errors_count4']} on the sim link",
+    )  # fmt: skip
     line("State from", s.get("state_source") or "n/a")
     line("Controller data", s.get("controller_data") or "n/a")
     line("Max tilt", _fmt(s.get("max_tilt_deg"), ".1f", " deg"))

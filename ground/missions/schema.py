@@ -26,6 +26,7 @@ from ground.vehicle import HomePosition, MissionItem
 from smcpilot.errors import ConfigError
 from smcpilot.faults import FaultSpec
 from smcpilot.geo import Home, global_to_ned, ned_to_global
+from smcpilot.limits import HARD_LIMITS, TAKEOFF_ALT_MIN_M, target_refusal
 from smcpilot.protocol import FC_CONTROLLERS
 from smcpilot.scenario import EnvironmentSpec, Scenario
 from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
@@ -59,13 +60,15 @@ _ITEM_KEYS: dict[str, tuple[frozenset[str], frozenset[str]]] = {
     "speed": (frozenset({"speed_mps"}), frozenset()),
 }
 #: key -> (low, high) inclusive bounds of item numbers.
+#: positions and altitudes: the absolute limits every target source shares (smcpilot.limits);
+#: the vehicle also applies its own geofence (FENCE_*) and says so if an item lies outside it.
 _ITEM_RANGES: dict[str, tuple[float, float]] = {
-    "alt_m": (0.0, 500.0),
+    "alt_m": (0.0, HARD_LIMITS.alt_max_m),
     "hold_s": (0.0, 3600.0),
     "yaw_deg": (-360.0, 360.0),
     "radius_m": (0.0, 100.0),
-    "north_m": (-10_000.0, 10_000.0),
-    "east_m": (-10_000.0, 10_000.0),
+    "north_m": (-HARD_LIMITS.radius_m, HARD_LIMITS.radius_m),
+    "east_m": (-HARD_LIMITS.radius_m, HARD_LIMITS.radius_m),
     "lat_deg": (-90.0, 90.0),
     "lon_deg": (-180.0, 180.0),
 }
@@ -311,7 +314,7 @@ def _parse_item(where: _Where, raw: Any) -> ItemSpec:
             continue
         lo, hi = _ITEM_RANGES.get(key, (None, None))
         if key == "alt_m" and kind == "takeoff":
-            lo, hi = 0.5, 500.0
+            lo, hi = TAKEOFF_ALT_MIN_M, HARD_LIMITS.alt_max_m
         if key == "speed_mps":
             vals[key] = _number(w, table, key, 0.0, 50.0, lo_open=True)
         else:
@@ -326,6 +329,10 @@ def _parse_item(where: _Where, raw: Any) -> ItemSpec:
             other = pair[1] if present[0] == pair[0] else pair[0]
             raise w.error(f"missing key {other!r} ({present[0]} and {other} go together)", other)
     positioned = bool(has_local or has_global)
+    if has_local:  # the same rule as the vehicle's, with the absolute limits (it adds its fence)
+        why = target_refusal(vals["north_m"], vals["east_m"], vals.get("alt_m", 0.0), HARD_LIMITS)
+        if why is not None:
+            raise w.error(why, "north_m")
     if kind == "waypoint" and not positioned:
         raise w.error("missing key 'north_m' (a waypoint needs north_m/east_m or lat_deg/lon_deg)", "north_m")
     if kind == "loiter_time" and positioned and "alt_m" not in vals:

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from ground.vehicle.errors import CommandDenied, CommandTimeout, VehicleTimeout
+from ground.vehicle.errors import CommandDenied, CommandTimeout, SetpointRefused, VehicleTimeout
 from ground.vehicle.exchange import refusal_reason
 from ground.vehicle.modes import mode_number
 from ground.vehicle.names import command_name
@@ -174,13 +174,17 @@ class Commands:
         Returns once accepted; :meth:`~ground.vehicle.Vehicle.wait_altitude` waits for the climb."""
         self.command_long(mavlink.MAV_CMD_NAV_TAKEOFF, param7=float(alt_m), check=True)
 
-    def goto_ned(self, north_m: float, east_m: float, down_m: float, yaw_deg: float | None = None) -> None:
+    def goto_ned(self, north_m: float, east_m: float, down_m: float, yaw_deg: float | None = None, *, verify: bool = True) -> None:
         """Fly to a local NED point (metres from home; down negative = up) with
         SET_POSITION_TARGET_LOCAL_NED; yaw in degrees (0 north, 90 east), None keeps the heading.
 
         The vehicle only follows set-points in GUIDED: if it is in another mode, this switches to
-        GUIDED first. The message has no acknowledgement; use
-        :meth:`~ground.vehicle.Vehicle.wait_position_ned`.
+        GUIDED first. The message has no acknowledgement, so with ``verify`` (the default) this
+        waits for the vehicle's verdict: its target echoed in ``POSITION_TARGET_LOCAL_NED``
+        (taken), or its refusal ``STATUSTEXT`` ("Set-point ..."), or an echo that keeps another
+        target after three sends (:class:`SetpointRefused`); nothing within
+        ``ack_timeout_s * command_tries`` wall seconds: :class:`VehicleTimeout`.
+        :meth:`~ground.vehicle.Vehicle.wait_position_ned` waits for the flight.
         """
         for name, v in (("north_m", north_m), ("east_m", east_m), ("down_m", down_m)):
             if not math.isfinite(v):
@@ -208,7 +212,39 @@ class Commands:
             self._boot_ms(), vehicle.target_system, vehicle.target_component, mavlink.MAV_FRAME_LOCAL_NED, mask,
             float(north_m), float(east_m), float(down_m), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, yaw_rad, 0.0,
         )  # fmt: skip
-        vehicle.send(msg)
+        if not verify:
+            vehicle.send(msg)
+            return
+        want = (float(north_m), float(east_m), float(down_m))
+
+        def taken(m: mavlink.MAVLink_message) -> bool:
+            return all(abs(a - b) <= 1e-3 + 1e-6 * abs(b) for a, b in zip((m.x, m.y, m.z), want))
+
+        sends = 1
+        wall_s = vehicle.ack_timeout_s * max(1, vehicle.command_tries)
+        with vehicle.subscribe(("POSITION_TARGET_LOCAL_NED", "STATUSTEXT")) as sub:
+            vehicle.send(msg)
+            deadline = time.monotonic() + wall_s
+            while (remaining := deadline - time.monotonic()) > 0:
+                got = sub.get(remaining)
+                if got is None:
+                    break
+                if got.get_type() == "STATUSTEXT":
+                    text = StatusText.received(got, vehicle.sim_time_s).text
+                    if text.startswith("Set-point"):
+                        raise SetpointRefused(text.removeprefix("Set-point refused: "))
+                    continue
+                if taken(got):
+                    return
+                if sends >= 3:  # the vehicle streams another target: ours was not taken
+                    raise SetpointRefused(f"the vehicle keeps its target NED ({got.x:.2f}, {got.y:.2f}, {got.z:.2f}) m")
+                vehicle.send(msg)  # lost on the way, or it crossed an older echo: once more
+                sends += 1
+        raise VehicleTimeout(
+            f"no verdict on the set-point within {wall_s:g} s wall (no POSITION_TARGET_LOCAL_NED echo, no refusal)",
+            what="POSITION_TARGET_LOCAL_NED echo",
+            sim_time_s=vehicle.sim_time_s,
+        )
 
     def goto_global(self, lat_deg: float, lon_deg: float, alt_rel_m: float, yaw_deg: float | None = None) -> None:
         """Fly to a global point (altitude ``alt_rel_m`` above home) with COMMAND_INT

@@ -8,6 +8,7 @@ Hierarchy::
     │   │   ├── ConnectTimeout       no HEARTBEAT
     │   │   └── CommandTimeout       no COMMAND_ACK
     │   ├── CommandDenied            a MAV_RESULT other than ACCEPTED
+    │   ├── SetpointRefused          a position target the vehicle did not take
     │   ├── ParamExchangeError (also importable as ParamError)
     │   │   └── ParamRejected        the vehicle kept another value
     │   └── MissionError
@@ -28,6 +29,7 @@ __all__ = [
     "ParamError",
     "ParamExchangeError",
     "ParamRejected",
+    "SetpointRefused",
     "UnknownModeError",
     "VehicleError",
     "VehicleTimeout",
@@ -76,6 +78,15 @@ class CommandDenied(VehicleError):
         self.reason = reason
         why = f": {reason}" if reason else ""
         super().__init__(f"{self.command_name} refused with {self.result_name}{why}")
+
+
+class SetpointRefused(VehicleError):
+    """The vehicle did not take a position target (``SET_POSITION_TARGET_*`` has no ack: its
+    refusal STATUSTEXT came, or its echoed target stayed elsewhere). ``reason`` says why."""
+
+    def __init__(self, reason: str) -> None:
+        self.reason = reason
+        super().__init__(f"set-point refused: {reason}")
 
 
 class UnknownModeError(ConfigError):

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import threading
 import time
 from collections.abc import Callable, Iterable
@@ -27,9 +28,10 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from ground.vehicle.errors import ConnectTimeout, VehicleTimeout
 from ground.vehicle.modes import mode_name, mode_number
 from ground.vehicle.subscription import Subscription
-from ground.vehicle.telemetry import StatusText, Telemetry, TelemetryParser
+from ground.vehicle.telemetry import StatusText, StatusTextAssembler, Telemetry, TelemetryParser
 from smcpilot.errors import ConfigError, LinkClosedError
-from smcpilot.link import Address, MavlinkUdp
+from smcpilot.link import Address, LinkCounters, MavlinkUdp
+from smcpilot.signing import KEY_BYTES, Signing, load_key
 
 __all__ = ["GCS_COMPONENT_ID", "GCS_SYSTEM_ID", "Link"]
 
@@ -38,6 +40,7 @@ log = logging.getLogger(__name__)
 #: Our MAVLink identity: a ground station (MAV_COMP_ID_MISSIONPLANNER).
 GCS_SYSTEM_ID = 255
 GCS_COMPONENT_ID = mavlink.MAV_COMP_ID_MISSIONPLANNER  # 190
+_STATUSTEXT = mavlink.MAVLink_statustext_message
 
 
 class Link:
@@ -61,8 +64,18 @@ class Link:
         stall_timeout_s: float = 10.0,
         statustext_history: int = 100,
         heartbeat_period_s: float = 1.0,
+        signing_key: bytes | str | os.PathLike[str] | None = None,
     ) -> None:
         self.url = url
+        #: MAVLink 2 signing (None: unsigned): a 32-byte key, or a key file (smcpilot.signing.load_key).
+        if signing_key is None:
+            self.signing: Signing | None = None
+        elif isinstance(signing_key, (bytes, bytearray)):
+            if len(signing_key) != KEY_BYTES:
+                raise ConfigError(f"signing_key must be {KEY_BYTES} bytes or a key file, got {len(signing_key)} bytes")
+            self.signing = Signing(bytes(signing_key))
+        else:
+            self.signing = Signing(load_key(signing_key))
         self.connect_timeout_s = float(connect_timeout_s)
         self.wall_margin_s = float(wall_margin_s)
         self.wall_per_sim_s = float(wall_per_sim_s)
@@ -74,6 +87,7 @@ class Link:
         self._tx_lock = threading.Lock()
         self._cond = threading.Condition()
         self._parser = TelemetryParser(system_id, statustext_history)
+        self._texts = StatusTextAssembler()
         self._subs: tuple[Subscription, ...] = ()
         self._subs_lock = threading.Lock()
         self._stop = threading.Event()
@@ -89,7 +103,9 @@ class Link:
         """Open the link and start the receiver and heartbeat threads (does not wait for the vehicle)."""
         if self._link is not None:
             return self
-        self._link = MavlinkUdp(self.url, source_system=GCS_SYSTEM_ID, source_component=GCS_COMPONENT_ID)
+        self._link = MavlinkUdp(
+            self.url, source_system=GCS_SYSTEM_ID, source_component=GCS_COMPONENT_ID, signing=self.signing
+        )
         self._stop.clear()
         self._threads = [
             threading.Thread(target=self._rx_loop, name=f"vehicle-rx {self.url}", daemon=True),
@@ -174,6 +190,11 @@ class Link:
         return link
 
     @property
+    def link_counters(self) -> LinkCounters:
+        """This station's own link counters (e.g. packets it dropped for a bad signature)."""
+        return self._require_link().counters
+
+    @property
     def mav(self) -> mavlink.MAVLink:
         """pymavlink encoder for building messages to :meth:`send` (``vehicle.mav.xxx_encode(...)``)."""
         return self._require_link().mav
@@ -219,9 +240,12 @@ class Link:
                 continue
             accepted: list[mavlink.MAVLink_message] = []
             with self._cond:
-                for msg, addr in batch:
-                    if self._parser.ingest(msg, addr):
-                        accepted.append(msg)
+                for raw, addr in batch:
+                    # STATUSTEXT chunks are joined first: everyone downstream sees whole texts
+                    # (type(), not .id: STATUSTEXT's own field "id" hides the message id)
+                    for msg in self._texts.feed(raw) if type(raw) is _STATUSTEXT else (raw,):
+                        if self._parser.ingest(msg, addr):
+                            accepted.append(msg)
                 self._cond.notify_all()
             subs = self._subs
             if subs and accepted:

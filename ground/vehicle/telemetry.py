@@ -23,7 +23,8 @@ from ground.vehicle.modes import mode_name
 from ground.vehicle.names import enum_name
 from smcpilot.link import Address
 
-__all__ = ["TIMED_MESSAGES", "HomePosition", "StatusText", "Telemetry", "TelemetryParser", "json_safe", "mavlink_text"]
+__all__ = ["TIMED_MESSAGES", "HomePosition", "StatusText", "StatusTextAssembler", "Telemetry", "TelemetryParser", "json_safe",
+           "mavlink_text"]
 
 #: Messages whose time_boot_ms is the vehicle's (simulated) clock.
 TIMED_MESSAGES = frozenset(
@@ -82,6 +83,10 @@ class HomePosition:
     down_m: float = 0.0
 
 
+#: SYS_STATUS fields of :attr:`Telemetry.comm_errors`.
+COMM_ERROR_FIELDS = ("errors_comm", "drop_rate_comm", "errors_count1", "errors_count2", "errors_count3", "errors_count4")
+
+
 @dataclass(frozen=True)
 class Telemetry:
     """A snapshot of the latest telemetry. ``None`` means "not received yet".
@@ -127,6 +132,10 @@ class Telemetry:
     setpoint_ned_m: tuple[float, float, float] | None = None
     #: the last STATUSTEXTs (oldest first).
     statustexts: tuple[StatusText, ...] = ()
+    #: SYS_STATUS's communication counters, named as in MAVLink (errors_comm, drop_rate_comm
+    #: in c%, errors_count1..4; docs/security.md says what the FC counts in each); empty
+    #: before the first SYS_STATUS.
+    comm_errors: Mapping[str, int] = field(default_factory=dict)
 
     @property
     def mode_name(self) -> str | None:
@@ -187,6 +196,7 @@ class Telemetry:
             "overruns": self.overruns,
             "setpoint_ned_m": list(self.setpoint_ned_m) if self.setpoint_ned_m else None,
             "last_statustext": self.last_statustext.text if self.last_statustext else None,
+            "comm_errors": dict(self.comm_errors),
         })
 
 
@@ -206,6 +216,59 @@ def mavlink_text(raw: str | bytes) -> str:
     if isinstance(raw, bytes):
         raw = raw.decode("utf-8", "replace")
     return raw.split("\0", 1)[0]
+
+
+class StatusTextAssembler:
+    """Joins MAVLink 2 STATUSTEXT chunks (same non-zero ``id``, ``chunk_seq`` 0, 1, ...; the last
+    one shorter than 50 characters) into one message with the whole text.
+
+    :meth:`feed` returns the message to deliver: a single STATUSTEXT (``id`` 0) as it is, the
+    last chunk of a text carrying the joined text, or None while chunks are outstanding. A chunk
+    lost on the way leaves ``[...]`` in its place; a text whose last chunk never comes is
+    delivered as it stands after ``timeout_s`` wall seconds (at the next message fed).
+    """
+
+    def __init__(self, timeout_s: float = 2.0, clock_s: Any = time.monotonic) -> None:
+        self.timeout_s = timeout_s
+        self._clock_s = clock_s
+        #: (system, component, id) -> (first arrival, {chunk_seq: text}, latest chunk message)
+        self._open: dict[tuple[int, int, int], tuple[float, dict[int, str], mavlink.MAVLink_message]] = {}
+
+    def feed(self, msg: mavlink.MAVLink_message) -> list[mavlink.MAVLink_message]:
+        """The messages complete now (see the class doc), oldest first."""
+        now = self._clock_s()
+        out = self._expire(now)
+        text_id = int(getattr(msg, "id", 0) or 0)
+        if text_id == 0:
+            out.append(msg)
+            return out
+        key = (msg.get_srcSystem(), msg.get_srcComponent(), text_id)
+        piece = mavlink_text(msg.text)
+        first, chunks, _ = self._open.get(key, (now, {}, msg))
+        chunks[int(msg.chunk_seq)] = piece
+        if len(piece) < 50:  # the last chunk: the text is complete
+            self._open.pop(key, None)
+            out.append(self._joined(msg, chunks))
+        else:
+            if len(self._open) >= 64:  # a flood of unfinished texts: deliver the oldest
+                oldest = min(self._open, key=lambda k: self._open[k][0])
+                _, c, m = self._open.pop(oldest)
+                out.append(self._joined(m, c))
+            self._open[key] = (first, chunks, msg)
+        return out
+
+    def _expire(self, now: float) -> list[mavlink.MAVLink_message]:
+        out = []
+        for key in [k for k, (t0, _, _) in self._open.items() if now - t0 > self.timeout_s]:
+            _, chunks, msg = self._open.pop(key)
+            out.append(self._joined(msg, chunks))
+        return out
+
+    @staticmethod
+    def _joined(msg: mavlink.MAVLink_message, chunks: dict[int, str]) -> mavlink.MAVLink_message:
+        last = max(chunks)
+        msg.text = "".join(chunks.get(i, "[...]") for i in range(last + 1))
+        return msg
 
 
 class TelemetryParser:
@@ -268,6 +331,7 @@ class TelemetryParser:
             bit = mavlink.MAV_SYS_STATUS_PREARM_CHECK
             if msg.onboard_control_sensors_present & bit:
                 upd["prearm_ok"] = bool(msg.onboard_control_sensors_health & bit)
+            upd["comm_errors"] = {name: int(getattr(msg, name)) for name in COMM_ERROR_FIELDS}
         elif t == "MISSION_CURRENT":
             upd["mission_current"] = msg.seq
             total = getattr(msg, "total", 0)

@@ -9,6 +9,7 @@
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Sequence
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -36,6 +37,8 @@ class Vehicle(Link):
     Waits: ``wall_margin_s``, ``wall_per_sim_s`` (wall safety limit of a wait of T simulated
     seconds = margin + per_sim × T) and ``stall_timeout_s`` (give up when the vehicle has been
     silent this many wall seconds).
+    ``signing_key``: MAVLink 2 signing, a 32-byte key or a key file (64 hex digits or a
+    passphrase, see :func:`smcpilot.signing.load_key`); None: unsigned (docs/security.md).
 
     Parts: ``commands`` (:class:`~ground.vehicle.commands.Commands`), ``params``
     (:class:`~ground.vehicle.params.Params`: ``get``, ``set``, ``list``) and ``mission``
@@ -60,6 +63,7 @@ class Vehicle(Link):
         stall_timeout_s: float = 10.0,
         statustext_history: int = 100,
         heartbeat_period_s: float = 1.0,
+        signing_key: bytes | str | os.PathLike[str] | None = None,
     ) -> None:
         for name, value in (
             ("connect_timeout_s", connect_timeout_s),
@@ -86,6 +90,7 @@ class Vehicle(Link):
             stall_timeout_s=stall_timeout_s,
             statustext_history=statustext_history,
             heartbeat_period_s=heartbeat_period_s,
+            signing_key=signing_key,
         )
         self.ack_timeout_s = float(ack_timeout_s)
         self.command_tries = command_tries
@@ -157,9 +162,10 @@ class Vehicle(Link):
         """Take off to ``alt_m`` metres above home (see :meth:`Commands.takeoff`)."""
         self.commands.takeoff(alt_m)
 
-    def goto_ned(self, north_m: float, east_m: float, down_m: float, yaw_deg: float | None = None) -> None:
-        """Fly to a local NED point, metres from home (see :meth:`Commands.goto_ned`)."""
-        self.commands.goto_ned(north_m, east_m, down_m, yaw_deg)
+    def goto_ned(self, north_m: float, east_m: float, down_m: float, yaw_deg: float | None = None, *, verify: bool = True) -> None:
+        """Fly to a local NED point, metres from home; waits for the vehicle's verdict unless
+        ``verify`` is False (see :meth:`Commands.goto_ned`)."""
+        self.commands.goto_ned(north_m, east_m, down_m, yaw_deg, verify=verify)
 
     def goto_global(self, lat_deg: float, lon_deg: float, alt_rel_m: float, yaw_deg: float | None = None) -> None:
         """Fly to a global point, altitude above home (see :meth:`Commands.goto_global`)."""
