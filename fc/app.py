@@ -381,7 +381,7 @@ class FlightControllerApp:
                 now = mono()
                 if self._last_actuator is not None and now - max(last_rx, last_probe) > LOCKSTEP_PROBE_S:
                     last_probe = now
-                    sim.send_packets((self._last_actuator,))  # not logged (the sim link logs nothing)
+                    self._answer_sim((self._last_actuator,))  # not logged (the sim link logs nothing)
                     self._poll_sim()  # a closed port (dead simulator) is reported here
                 if self._sim_pending:
                     self._check_sim_answers(now)
@@ -450,7 +450,7 @@ class FlightControllerApp:
         for msg, addr in sim.recv(0.0):
             peer = self._sim_peer
             if peer is not None and addr != peer:
-                if msg.id in (_ATTITUDE_ID, _LPN_ID):
+                if msg.id == _LPN_ID:  # one per state (ATTITUDE + LOCAL_POSITION_NED)
                     self.stats.foreign_states += 1
                 continue
             mid = msg.id
@@ -496,6 +496,14 @@ class FlightControllerApp:
                                 " (the simulator process has died); stopping")  # fmt: skip
         return got
 
+    def _answer_sim(self, packets: tuple[bytes, ...]) -> None:
+        """To the simulator only (not to whoever else wrote to the sim port)."""
+        peer = self._sim_peer
+        if peer is not None:
+            self.sim.send_packets_to(packets, peer)
+        else:
+            self.sim.send_packets(packets)
+
     def _log_sim(self, msg: mavlink.MAVLink_message) -> None:
         if self.tlog is not None:
             self.tlog.write(self.clock.now_us(), msg.get_msgbuf())
@@ -510,7 +518,7 @@ class FlightControllerApp:
             if t_ms == last:
                 if self._last_actuator is not None:
                     stats.duplicate_states += 1  # the simulator re-sent (our answer was lost): answer again
-                    self.sim.send_packets((self._last_actuator,))
+                    self._answer_sim((self._last_actuator,))
                 return False
             if abs((t_ms - last) * 1000 - self.cfg.period_us) < 1000:  # one period (stamps are whole ms)
                 self._rejected_ms, self._rejected_repeats = -1, 0
@@ -552,7 +560,11 @@ class FlightControllerApp:
         msg = self.sim.mav.param_set_encode(
             self._sim_sysid, SIM_COMPONENT_ID, name.encode(), float(value), mavlink.MAV_PARAM_TYPE_REAL32
         )
-        self.sim.send(msg)
+        peer = self._sim_peer
+        if peer is not None:
+            self.sim.send_to(msg, peer)
+        else:
+            self.sim.send(msg)
         self._log_sim(msg)
         self.stats.sim_param_forwards += 1
         self._sim_pending[name] = self._mono()
@@ -625,7 +637,7 @@ class FlightControllerApp:
             sim.take_seq(), *sim.source, t_us, [m[0], m[1], m[2], m[3]] + _ZEROS12,
             _ARMED if out.armed else 0, ACTUATOR_FLAG_LOCKSTEP if self.lockstep else 0,
         )  # fmt: skip
-        sim.send_packets((act,))
+        self._answer_sim((act,))
         self._last_actuator = act
         self._last_tick_ms = self._state_ms
         if self._sim_pending:

@@ -391,6 +391,15 @@ class MavlinkUdp:
         if self._tlog is not None:
             self._tlog.write_many(self._clock_us(), packets)
 
+    def send_packets_to(self, packets: Sequence[bytes], addr: Address) -> None:
+        """:meth:`send_packets` to ``addr`` only (e.g. the one simulator a link answers)."""
+        if self._closed:
+            raise LinkClosedError(f"link {self._endpoint.url} is closed")
+        for datagram in self._datagrams(packets) if len(packets) > 1 else packets:
+            self._send_datagram(datagram, addr)
+        if self._tlog is not None:
+            self._tlog.write_many(self._clock_us(), packets)
+
     def send_many_to(self, msgs: Iterable[mavlink.MAVLink_message], addr: Address) -> None:
         """Like :meth:`send_many`, to ``addr`` only (e.g. a parameter list to the station that asked)."""
         encode = self._encode
