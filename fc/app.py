@@ -78,6 +78,8 @@ _F32 = struct.Struct("<f")
 _STATUSTEXT = mavlink.MAVLink_statustext_message
 _ATTITUDE_ID = mavlink.MAVLINK_MSG_ID_ATTITUDE
 _LPN_ID = mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED
+_HEARTBEAT_ID = mavlink.MAVLINK_MSG_ID_HEARTBEAT
+_POWEROFF = mavlink.MAV_STATE_POWEROFF
 
 
 def _f32(v: float) -> float:
@@ -490,7 +492,11 @@ class FlightControllerApp:
             elif mid == mavlink.MAVLINK_MSG_ID_PARAM_VALUE:
                 self._log_sim(msg)
                 self._sim_param_value(msg)
-        if sim.peer_refused:
+            elif mid == _HEARTBEAT_ID and msg.system_status == _POWEROFF and not self._stop:
+                # The simulator's clean end (not logged: in lockstep it may come after the last tick or not).
+                self.say("fc: the simulator has ended; stopping")
+                self._stop = True
+        if sim.peer_refused and not self._stop:
             silent_s = max(0.0, self._mono() - self._state_wall_s) if self._state_wall_s > -math.inf else 0.0
             raise WatchdogError(f"simulator has been silent for {silent_s:.1f} s and its port is closed"
                                 " (the simulator process has died); stopping")  # fmt: skip

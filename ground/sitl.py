@@ -308,8 +308,12 @@ class Sitl:
             time.sleep(0.05)
         # The child that ended first is the one to name when something went wrong (the other one
         # then only reports that its peer is gone).
-        first = self.sim if sim_rc is not None else self.fc
-        first_rc = sim_rc if sim_rc is not None else fc_rc
+        first: Child
+        first_rc: int | None
+        if sim_rc is not None and fc_rc is not None:  # both seen ended at once: the one killed by a signal
+            first, first_rc = (self.fc, fc_rc) if fc_rc < 0 <= sim_rc else (self.sim, sim_rc)
+        else:
+            first, first_rc = (self.sim, sim_rc) if sim_rc is not None else (self.fc, fc_rc)
         # One side ended. In lockstep the other ends by itself at the same simulated time: give it a
         # moment. In real time the FC would only fly on into its state-loss failsafe: stop it now.
         self.stop(grace_s=3.0 if self.options.lockstep else 0.0)

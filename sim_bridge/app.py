@@ -55,6 +55,8 @@ SIM_COMPONENT = SIM_COMPONENT_ID
 EXIT_OK = 0
 EXIT_WATCHDOG = 3
 EXIT_DIVERGED = 4
+#: copies of the closing HEARTBEAT (MAV_STATE_POWEROFF) sent at a clean end.
+GOODBYE_COPIES = 4
 _ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
 _ACTUATORS = mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS
 _PARAM_SET = mavlink.MAVLINK_MSG_ID_PARAM_SET
@@ -166,6 +168,14 @@ class SimBridgeApp:
         if faults is not None and faults.events:
             self._announce()
 
+    def _say_goodbye(self) -> None:
+        """A clean end: HEARTBEAT with MAV_STATE_POWEROFF (a few copies: the link may lose some), so
+        the FC stops cleanly instead of taking the closed port for a dead simulator."""
+        mav = self.link.mav
+        hb = mav.heartbeat_encode(mavlink.MAV_TYPE_GENERIC, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_POWEROFF)
+        for _ in range(GOODBYE_COPIES):  # one datagram each (sending never raises)
+            self.link.send(hb)
+
     def _announce(self) -> None:
         """Every fault start/stop (and refusal) since the last call, as STATUSTEXT to the FC."""
         assert self.faults is not None
@@ -276,6 +286,8 @@ class SimBridgeApp:
                 "faults_stopped": self.faults.stopped if self.faults is not None else 0,
                 "link": self.link.counters.as_dict(),
             }
+            if self._exit == EXIT_OK:
+                self._say_goodbye()
             self.link.close()
             self.say("SIM_SUMMARY " + json.dumps(summary, sort_keys=True))
         return self._exit
