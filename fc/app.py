@@ -26,7 +26,16 @@ Timing:
   ``failsafe_state_timeout_s`` puts the FC in failsafe (level, descend, ``STATUSTEXT``).
 
 Everything the FC sends and receives is logged to a ``.tlog`` (simulated-time stamps in
-lockstep, so the log is reproducible bit for bit), plus the law's internals every tick.
+lockstep, so the log is reproducible bit for bit), plus the law's internals every tick. On the sim
+link the app logs, not the link: each state when it is flown and each answer when it is made, never
+a re-sent or duplicated copy. The log is handed to the OS every ``TLOG_FLUSH_S`` of ticks.
+
+The sim link's checks (docs/links.md): states only from the simulator's address (the first that
+sent one); lockstep stamps exactly one period apart, real-time stamps newer than the last and not
+implausibly far ahead; every rejected state counted in :class:`FcStats` and dropped. A dead
+simulator (its port closed, reported by the OS) ends the FC at once (exit 3); a clean simulator end
+(``HEARTBEAT`` with ``MAV_STATE_POWEROFF``) stops it cleanly. ``sim_impairment`` /
+``gcs_impairment`` (:mod:`smcpilot.impair`) degrade both directions of a link.
 """
 
 from __future__ import annotations

@@ -7,12 +7,18 @@ commands of ``HIL_ACTUATOR_CONTROLS``: controls[0..3] in [0, 1] are rotors 1..4 
 :mod:`smcpilot.actuators`); ``mode`` with MAV_MODE_FLAG_SAFETY_ARMED spins the rotors, without it
 they stop; ``flags`` bit 0 marks a lockstep FC.
 
-- **lockstep**: send the state at t, wait for the actuator message stamped t (re-sending the
-  state if it does not come), integrate one control period, repeat. As fast as possible, or at
+- **lockstep**: send the state at t, wait for the actuator message stamped t (re-sending the same
+  bytes if it does not come: after 4x the running mean round trip, at least ``resend_min_s``,
+  doubling up to ``resend_s``), integrate one control period, repeat. As fast as possible, or at
   most ``speed`` times real time. A flight controller silent for ``watchdog_s`` wall seconds
   ends the bridge with an error (exit 3).
 - **real time**: physics at ``physics_hz`` on the wall clock (times ``speed``), state out at
   ``rate_hz``, the latest motor commands held between messages.
+
+Motor commands and parameters are taken from the FC's address only (others counted in
+``foreign_msgs``); a NaN or infinite motor value is counted (``nonfinite_actuator_msgs``) and that
+motor keeps its last command. A dead FC (its port closed, reported by the OS) ends the bridge at
+once (exit 3); a clean end sends ``HEARTBEAT`` with ``MAV_STATE_POWEROFF`` so the FC stops too.
 
 Faults (:mod:`sim_bridge.faults`, the plant's ``faults``): the state sent is the faulty sensors'
 (a dropped-out sensor's fields are NaN: gyro -> rollspeed/pitchspeed/yawspeed, attitude ->
