@@ -316,10 +316,13 @@ class SimBridgeApp:
         sent_at = first_sent = last_answer = mono()
         resend_after = tm.resend_s
         answered = False
+        final = False  # the last state (at the duration) is out: its answer ends the run
         while not self._stop:
             now = mono()
             msgs = recv(0.0 if now - sent_at < spin_s else min(0.05, resend_after))
             if link.peer_refused:
+                if final:
+                    return  # a timed FC stops on the last state: its answer was lost, it is gone
                 raise WatchdogError("the flight controller's port is closed (the FC process has died); stopping")
             advanced = False
             for msg, addr in msgs:  # in arrival order: a PARAM_SET before the answer acts on this period
@@ -336,6 +339,8 @@ class SimBridgeApp:
                 if msg.time_usec != self._t_us:
                     self.stale_actuator_msgs += 1
                     continue
+                if final:
+                    return
                 self._apply(msg)
                 answered = True
                 if sent_at == first_sent:  # a clean round trip (no re-send): the running mean
@@ -343,9 +348,10 @@ class SimBridgeApp:
                     self.rtt_s += 0.05 * (rtt - self.rtt_s) if self.rtt_s else rtt
                 self._integrate(substeps)
                 if duration_us is not None and self._t_us >= duration_us:
-                    self._send_state()  # the final state: a lockstep FC with the same duration stops on it
-                    return
-                if tm.speed is not None:
+                    # The final state: a lockstep FC with the same duration stops on it. Re-sent like
+                    # any other until it is answered (or the timed FC has gone), so a loss cannot cut it.
+                    final = True
+                if tm.speed is not None and not final:
                     ahead = self._t_us * 1e-6 / tm.speed - (mono() - self._wall_start)
                     if ahead > 0.0:
                         self._sleep(ahead)

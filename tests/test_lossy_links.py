@@ -217,3 +217,14 @@ def test_ground_protocols_complete_with_30_percent_loss(tmp_path: Path) -> None:
     print(f"\nground link 30 % loss: {lost} datagrams lost ({fcs_imp['rx']['lost']} of {fcs_imp['rx']['offered']} in,"
           f" {fcs_imp['tx']['lost']} of {fcs_imp['tx']['offered']} out); 5 param set+get, 6-item mission up and down, arm, takeoff done")
     assert fcs_imp["rx"]["lost"] > 10 and fcs_imp["tx"]["lost"] > 10
+
+
+def test_lockstep_last_state_survives_a_lossy_link(tmp_path: Path) -> None:
+    """The final state (at the duration) is re-sent like any other until answered: with half the
+    datagrams lost, every run still flies every tick and ends exactly at its duration."""
+    for i in range(3):
+        opts = sitl_options(tmp_path, f"end{i}", duration_s=0.2, sim_link=LinkImpairment(loss=0.5, seed=i))
+        with Sitl(opts) as sitl:
+            assert sitl.wait(timeout_s=60.0) == 0
+        fcs = sitl.fc_summary or {}
+        assert fcs["ticks"] == opts.scenario.n_ticks and abs(fcs["sim_time_s"] - 0.2) < 1e-9, fcs
