@@ -26,7 +26,16 @@ Timing:
   ``failsafe_state_timeout_s`` puts the FC in failsafe (level, descend, ``STATUSTEXT``).
 
 Everything the FC sends and receives is logged to a ``.tlog`` (simulated-time stamps in
-lockstep, so the log is reproducible bit for bit), plus the law's internals every tick.
+lockstep, so the log is reproducible bit for bit), plus the law's internals every tick. On the sim
+link the app logs, not the link: each state when it is flown and each answer when it is made, never
+a re-sent or duplicated copy. The log is handed to the OS every ``TLOG_FLUSH_S`` of ticks.
+
+The sim link's checks (docs/links.md): states only from the simulator's address (the first that
+sent one); lockstep stamps exactly one period apart, real-time stamps newer than the last and not
+implausibly far ahead; every rejected state counted in :class:`FcStats` and dropped. A dead
+simulator (its port closed, reported by the OS) ends the FC at once (exit 3); a clean simulator end
+(``HEARTBEAT`` with ``MAV_STATE_POWEROFF``) stops it cleanly. ``sim_impairment`` /
+``gcs_impairment`` (:mod:`smcpilot.impair`) degrade both directions of a link.
 """
 
 from __future__ import annotations
@@ -60,6 +69,7 @@ from smcpilot.fastcodec import encode_debug_float_array, encode_hil_actuator_con
 from smcpilot.faults import SIM_PARAM_INDEX
 from smcpilot.frames import body_rates_to_euler_rates, euler_frd_to_flu, ned_to_nwu, rates_frd_to_flu
 from smcpilot.geo import Home
+from smcpilot.impair import LinkImpairment
 from smcpilot.link import MavlinkUdp
 from smcpilot.plan import PlanStep
 from smcpilot.protocol import ACTUATOR_FLAG_LOCKSTEP, FC_COMPONENT_ID, OVERRUN_NAME, SIM_COMPONENT_ID, SMC_ARRAY_ID, SMC_ARRAY_NAME
@@ -77,6 +87,10 @@ _isfinite = math.isfinite
 _NAN = math.nan
 _F32 = struct.Struct("<f")
 _STATUSTEXT = mavlink.MAVLink_statustext_message
+_ATTITUDE_ID = mavlink.MAVLINK_MSG_ID_ATTITUDE
+_LPN_ID = mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED
+_HEARTBEAT_ID = mavlink.MAVLINK_MSG_ID_HEARTBEAT
+_POWEROFF = mavlink.MAV_STATE_POWEROFF
 
 
 def _f32(v: float) -> float:
@@ -100,6 +114,14 @@ def _is_loopback(host: str) -> bool:
         return False
 
 
+#: lockstep: while the simulator is silent, the last answer is re-sent this often (wall s): it
+#: recovers a lost answer, and a dead simulator's closed port is reported on the next receive.
+LOCKSTEP_PROBE_S = 0.2
+#: the tlog is handed to the OS at least this often (simulated s of ticks).
+TLOG_FLUSH_S = 0.25
+#: real time: a state may be stamped at most this much (plus 4x the wall time since the last
+#: one) after the last one; later stamps are taken for forged or garbled and dropped.
+FUTURE_STATE_S = 0.5
 
 
 @dataclass
@@ -114,6 +136,15 @@ class FcStats:
     states_missing_fields: int = 0
     duplicate_states: int = 0
     out_of_order_states: int = 0
+    #: states from another address than the simulator's (the first that sent one), dropped.
+    foreign_states: int = 0
+    #: lockstep: states whose stamp is not exactly one period after the last tick's, dropped.
+    wrong_step_states: int = 0
+    #: real time: states not newer than the last one used (replays, late copies), dropped.
+    stale_states: int = 0
+    #: real time: states stamped implausibly far ahead of the last one (more than 0.5 s plus four
+    #: times the wall time since it), dropped: a forged stamp is never adopted.
+    future_states: int = 0
     #: SIM_* values forwarded to the simulator, PARAM_VALUE answers heard, forwards unanswered.
     sim_param_forwards: int = 0
     sim_param_answers: int = 0
@@ -138,6 +169,10 @@ class FcStats:
             "states_missing_fields": self.states_missing_fields,
             "duplicate_states": self.duplicate_states,
             "out_of_order_states": self.out_of_order_states,
+            "foreign_states": self.foreign_states,
+            "wrong_step_states": self.wrong_step_states,
+            "stale_states": self.stale_states,
+            "future_states": self.future_states,
             "sim_param_forwards": self.sim_param_forwards,
             "sim_param_answers": self.sim_param_answers,
             "sim_param_unanswered": self.sim_param_unanswered,
@@ -190,6 +225,9 @@ class FlightControllerApp:
         startup_timeout_s: float = 30.0,
         spin_s: float = 0.002,
         sim_system_id: int | None = None,
+        sim_impairment: LinkImpairment | None = None,
+        gcs_impairment: LinkImpairment | None = None,
+        impair_seed: int = 0,
         out: TextIO = sys.stdout,
         monotonic: Callable[[], float] = time.monotonic,
         gcs_port: int = 0,
@@ -222,11 +260,14 @@ class FlightControllerApp:
         #: SIM_* forwards awaiting the simulator's PARAM_VALUE: name -> wall time sent.
         self._sim_pending: dict[str, float] = {}
         try:
+            # The sim link logs nothing itself: this app logs each state it flies and each answer
+            # once, so a re-sent or duplicated datagram never changes the log (lockstep: bit for bit).
             self.sim = MavlinkUdp(
                 sim_url, source_system=sim_sysid, source_component=FC_COMPONENT, accept_system=sim_sysid,
-                tlog=self.tlog, clock_us=clock_us,
+                tlog=None, clock_us=clock_us, monotonic_s=monotonic, impairment=sim_impairment, impair_seed=impair_seed,
             )  # fmt: skip
-            self.gcs = self._open_gcs(gcs_url, gcs_port, sysid, clock_us, gcs_trusted) if gcs_url else None
+            self.sim.report_peer_errors()
+            self.gcs = self._open_gcs(gcs_url, gcs_port, sysid, clock_us, gcs_trusted, gcs_impairment, impair_seed + 1) if gcs_url else None
         except Exception:
             if self.tlog is not None:  # a configuration error must not leave an empty log behind
                 self.tlog.close()
@@ -263,12 +304,23 @@ class FlightControllerApp:
         self._state_ms = -1
         self._state_wall_s = -math.inf
         self._last_tick_ms = -1
-        self._odd_steps = 0
         self._last_actuator: bytes | None = None
+        #: the simulator's address: the first to send a state; states from elsewhere are dropped.
+        self._sim_peer: tuple[str, int] | None = None
+        #: lockstep: a rejected stamp and how often in a row it came (the simulator insisting).
+        self._rejected_ms = -1
+        self._rejected_repeats = 0
+        self._impaired = self.sim.impair_counters is not None or (self.gcs is not None and self.gcs.impair_counters is not None)
+        #: the tlog is handed to the OS every this many ticks (a killed FC loses at most ~0.25 s).
+        self._flush_ticks = max(1, int(config.rate_hz * TLOG_FLUSH_S))
+        self._unflushed_ticks = 0
         self._stop = False
         self._exit_code = EXIT_OK
 
-    def _open_gcs(self, url: str, port: int, sysid: int, clock_us: Callable[[], int], trusted: bool) -> MavlinkUdp:
+    def _open_gcs(
+        self, url: str, port: int, sysid: int, clock_us: Callable[[], int], trusted: bool,
+        impairment: LinkImpairment | None, impair_seed: int,
+    ) -> MavlinkUdp:  # fmt: skip
         """The ground link; with ``port``, sending from that port of ours (a second ground
         station writes to it while the first listens where we send); a port already taken
         (another FC) falls back to a free one, said on stdout."""
@@ -276,7 +328,8 @@ class FlightControllerApp:
 
         def open_link(bind_port: int) -> MavlinkUdp:
             return MavlinkUdp(url, source_system=sysid, source_component=FC_COMPONENT, tlog=self.tlog, clock_us=clock_us,
-                              bind_port=bind_port, signing=self.signing, link_id=GCS_LINK_ID, accept_unsigned=unsigned_ok)  # fmt: skip
+                              bind_port=bind_port, signing=self.signing, link_id=GCS_LINK_ID, accept_unsigned=unsigned_ok,
+                              impairment=impairment, impair_seed=impair_seed)  # fmt: skip
 
         try:
             return open_link(port)
@@ -333,6 +386,7 @@ class FlightControllerApp:
             summary["failsafe_events"] = self.core.failsafe_events
             summary["sim_time_s"] = self.clock.now_s()
             summary["links"] = {"sim": self.sim.counters.as_dict(), "gcs": self.gcs.counters.as_dict() if self.gcs else None}
+            summary["impairment"] = {"sim": self.sim.impair_counters, "gcs": self.gcs.impair_counters if self.gcs else None}
             summary["gcs_rejected"] = dict(self.gcs_handler.rejected)
             summary["rx_rejected"] = self.rejected_summary()
             summary["tlog"] = str(self.tlog.path) if self.tlog is not None else None
@@ -397,9 +451,11 @@ class FlightControllerApp:
         poll_sim = self._poll_sim
         poll_gcs = self._poll_gcs if self.gcs is not None else None
         spin_s = self.spin_s
-        last_rx = mono()
+        last_rx = last_probe = mono()
         spin_until = last_rx + spin_s
         n = 0
+        sim = self.sim
+        gcs = self.gcs
         while not self._stop:
             if poll_sim():
                 last_rx = mono()
@@ -412,11 +468,18 @@ class FlightControllerApp:
             if now < spin_until:
                 _yield()  # let the simulator have this core if the machine is oversubscribed
                 continue
-            readable, _, _ = select.select(fds, (), (), 0.1)
+            timeout = 0.1
+            if self._impaired:
+                timeout = min(timeout, sim.impair_wait_s(), gcs.impair_wait_s() if gcs is not None else 0.1)
+            readable, _, _ = select.select(fds, (), (), timeout)
             if readable and poll_gcs is not None:
                 poll_gcs()
             if not readable:
                 now = mono()
+                if self._last_actuator is not None and now - max(last_rx, last_probe) > LOCKSTEP_PROBE_S:
+                    last_probe = now
+                    self._answer_sim((self._last_actuator,))  # not logged (the sim link logs nothing)
+                    self._poll_sim()  # a closed port (dead simulator) is reported here
                 if self._sim_pending:
                     self._check_sim_answers(now)
                 limit = self.cfg.watchdog_s if self.core.ticks else self.startup_timeout_s
@@ -461,6 +524,11 @@ class FlightControllerApp:
                 self.stats.overruns += missed
                 deadline += missed * period
             deadline += period
+            if self._impaired:  # release held datagrams on time
+                self._poll_sim()
+                if self.gcs is not None:
+                    self.gcs.pump()
+                    self._poll_gcs()
             age = now - self._state_wall_s
             if age > self.cfg.watchdog_s:
                 raise WatchdogError(f"simulator has been silent for {age:.1f} s (real-time watchdog); stopping")
@@ -470,15 +538,32 @@ class FlightControllerApp:
 
     # -- input ---------------------------------------------------------------------------------
     def _poll_sim(self) -> bool:
-        """Handle simulator traffic; True if anything valid arrived."""
+        """Handle simulator traffic; True if a state was flown (lockstep) or taken (real time).
+
+        Checks, each counted in :class:`FcStats` and dropped (never adopted): a state from another
+        address than the simulator's; in lockstep a stamp that is not exactly one period after the
+        last tick's (a re-sent copy of the last one is answered again, unlogged); in real time a
+        stamp not newer than the last one (stale) or implausibly far ahead (future)."""
         got = False
-        for msg, _addr in self.sim.recv(0.0):
+        sim = self.sim
+        for msg, addr in sim.recv(0.0):
+            peer = self._sim_peer
+            if peer is not None and addr != peer:
+                if msg.id == _LPN_ID:  # one per state (ATTITUDE + LOCAL_POSITION_NED)
+                    self.stats.foreign_states += 1
+                continue
             mid = msg.id
-            if mid == mavlink.MAVLINK_MSG_ID_ATTITUDE:
+            if mid == _ATTITUDE_ID:
                 self._att = msg
-            elif mid == mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED:
+            elif mid == _LPN_ID:
                 att = self._att
                 if att is None or att.time_boot_ms != msg.time_boot_ms:
+                    continue
+                self._att = None
+                if peer is None:
+                    self._sim_peer = addr
+                t_ms = msg.time_boot_ms
+                if not self._stamp_ok(t_ms):
                     continue
                 got = True
                 state, rates, missing = state_from_mavlink(att, msg)
@@ -486,26 +571,8 @@ class FlightControllerApp:
                     self.stats.states_missing_fields += 1
                     if missing == 2:
                         self.stats.rx_invalid_state += 1
-                t_ms = msg.time_boot_ms
-                if self.lockstep:
-                    if t_ms == self._last_tick_ms and self._last_actuator is not None:
-                        self.stats.duplicate_states += 1  # the simulator re-sent: answer again
-                        self.sim.send_packets((self._last_actuator,))
-                        continue
-                    if t_ms < self._last_tick_ms:
-                        self.stats.out_of_order_states += 1
-                        continue
-                    step_ms = t_ms - self._last_tick_ms
-                    if self._last_tick_ms >= 0 and abs(step_ms * 1000 - self.cfg.period_us) > 500:
-                        # One odd step is a dropped state; three in a row is a simulator at another rate.
-                        self._odd_steps += 1
-                        if self._odd_steps >= 3:
-                            raise RateMismatchError(
-                                f"the simulator steps {step_ms} ms per state but this FC runs at {self.cfg.rate_hz:g} Hz"
-                                f" ({self.cfg.period_us / 1000:g} ms): give both the same rate (--rate-hz; FC_RATE_HZ)"
-                            )
-                    else:
-                        self._odd_steps = 0
+                if self.tlog is not None:  # stamped as the link stamped it: before the clock moves
+                    self.tlog.write_many(self.clock.now_us(), (att.get_msgbuf(), msg.get_msgbuf()))
                 self.state = state
                 if not missing or (_isfinite(rates[0]) and _isfinite(rates[1]) and _isfinite(rates[2])):
                     self.body_rates = rates
@@ -517,10 +584,77 @@ class FlightControllerApp:
                     if self.duration_s is not None and t_ms * 1e-3 >= self.duration_s:
                         self._stop = True
             elif type(msg) is _STATUSTEXT:  # its field "id" (the chunk id) hides the message id
+                self._log_sim(msg)
                 self._relay_sim_text(msg)
             elif mid == mavlink.MAVLINK_MSG_ID_PARAM_VALUE:
+                self._log_sim(msg)
                 self._sim_param_value(msg)
+            elif mid == _HEARTBEAT_ID and msg.system_status == _POWEROFF and not self._stop:
+                # The simulator's clean end (not logged: in lockstep it may come after the last tick or not).
+                self.say("fc: the simulator has ended; stopping")
+                self._stop = True
+        if sim.peer_refused and not self._stop:
+            silent_s = max(0.0, self._mono() - self._state_wall_s) if self._state_wall_s > -math.inf else 0.0
+            raise WatchdogError(f"simulator has been silent for {silent_s:.1f} s and its port is closed"
+                                " (the simulator process has died); stopping")  # fmt: skip
         return got
+
+    def _answer_sim(self, packets: tuple[bytes, ...]) -> None:
+        """To the simulator only (not to whoever else wrote to the sim port)."""
+        peer = self._sim_peer
+        if peer is not None:
+            self.sim.send_packets_to(packets, peer)
+        else:
+            self.sim.send_packets(packets)
+
+    def _log_sim(self, msg: mavlink.MAVLink_message) -> None:
+        if self.tlog is not None:
+            self.tlog.write(self.clock.now_us(), msg.get_msgbuf())
+
+    def _stamp_ok(self, t_ms: int) -> bool:
+        """Is a state stamped ``t_ms`` (from the simulator's address) the next one to use?"""
+        stats = self.stats
+        if self.lockstep:
+            last = self._last_tick_ms
+            if last < 0:
+                return True
+            if t_ms == last:
+                if self._last_actuator is not None:
+                    stats.duplicate_states += 1  # the simulator re-sent (our answer was lost): answer again
+                    self._answer_sim((self._last_actuator,))
+                return False
+            if abs((t_ms - last) * 1000 - self.cfg.period_us) < 1000:  # one period (stamps are whole ms)
+                self._rejected_ms, self._rejected_repeats = -1, 0
+                return True
+            if t_ms < last:
+                stats.out_of_order_states += 1
+            else:
+                stats.wrong_step_states += 1
+            if t_ms == self._rejected_ms:
+                self._rejected_repeats += 1
+            else:
+                self._rejected_ms, self._rejected_repeats = t_ms, 1
+            # A simulator at another rate shows it on its second state, and then insists (re-sends
+            # the state we do not answer); one odd stamp is dropped and costs nothing.
+            if t_ms > last and (self.core.ticks == 1 or self._rejected_repeats >= 3):
+                raise RateMismatchError(
+                    f"the simulator steps {t_ms - last} ms per state but this FC runs at {self.cfg.rate_hz:g} Hz"
+                    f" ({self.cfg.period_us / 1000:g} ms): give both the same rate (--rate-hz; FC_RATE_HZ)"
+                )
+            return False
+        last = self._state_ms
+        if last < 0:
+            return True
+        if t_ms <= last:
+            if t_ms == last:
+                stats.duplicate_states += 1
+            else:
+                stats.stale_states += 1
+            return False
+        if (t_ms - last) * 1e-3 > FUTURE_STATE_S + 4.0 * (self._mono() - self._state_wall_s):
+            stats.future_states += 1
+            return False
+        return True
 
     # -- the simulator's parameters and announcements --------------------------------------------
     def forward_sim_param(self, name: str, value: float) -> None:
@@ -529,7 +663,12 @@ class FlightControllerApp:
         msg = self.sim.mav.param_set_encode(
             self._sim_sysid, SIM_COMPONENT_ID, name.encode(), float(value), mavlink.MAV_PARAM_TYPE_REAL32
         )
-        self.sim.send(msg)
+        peer = self._sim_peer
+        if peer is not None:
+            self.sim.send_to(msg, peer)
+        else:
+            self.sim.send(msg)
+        self._log_sim(msg)
         self.stats.sim_param_forwards += 1
         self._sim_pending[name] = self._mono()
 
@@ -601,16 +740,22 @@ class FlightControllerApp:
             sim.take_seq(), *sim.source, t_us, [m[0], m[1], m[2], m[3]] + _ZEROS12,
             _ARMED if out.armed else 0, ACTUATOR_FLAG_LOCKSTEP if self.lockstep else 0,
         )  # fmt: skip
-        sim.send_packets((act,))
+        self._answer_sim((act,))
         self._last_actuator = act
         self._last_tick_ms = self._state_ms
         if self._sim_pending:
             self._check_sim_answers(self._mono())
-        if self.tlog is not None:
+        tlog = self.tlog
+        if tlog is not None:
+            tlog.write(self.clock.now_us(), act)
             data = telemetry.smc_record(core, out)
             lm = self._logmav
-            self.tlog.write(t_us, encode_debug_float_array(lm.seq, lm.srcSystem, FC_COMPONENT, t_us, SMC_ARRAY_NAME, SMC_ARRAY_ID, data))
+            tlog.write(t_us, encode_debug_float_array(lm.seq, lm.srcSystem, FC_COMPONENT, t_us, SMC_ARRAY_NAME, SMC_ARRAY_ID, data))
             lm.seq = (lm.seq + 1) & 0xFF
+            self._unflushed_ticks += 1
+            if self._unflushed_ticks >= self._flush_ticks:
+                self._unflushed_ticks = 0
+                tlog.flush()
         self.gcs_handler.on_tick(t_us)
 
     def event(self, severity: int, text: str) -> None:

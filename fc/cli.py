@@ -15,6 +15,7 @@ from fc.config import FcConfig
 from fc.params import ParamStore, apply_scenario
 from smcpilot.errors import SmcpilotError
 from smcpilot.geo import Home
+from smcpilot.impair import parse_impairment
 from smcpilot.plan import load_plan
 from smcpilot.protocol import DEFAULT_GCS_URL, FC_CONTROLLERS, FC_GROUND_PORT
 from smcpilot.scenario import Scenario
@@ -64,6 +65,9 @@ def build_parser() -> argparse.ArgumentParser:
                    " duration come from it; the explicit flags above still win")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                    help="set a parameter for this run, over the parameter file and the scenario (repeatable)")
+    p.add_argument("--sim-link", metavar="SPEC",
+                   help="impair the simulator link, both directions (smcpilot.impair), e.g. loss=0.2,delay_ms=4 (default: the scenario's)")
+    p.add_argument("--gcs-link", metavar="SPEC", help="impair the ground link, both directions, e.g. loss=0.3 (default: the scenario's)")
     p.add_argument("--sysid", type=int, default=None, metavar="N",
                    help=f"MAVLink system id (default {d.system_id}, or SYSID_THISMAV from the parameter file)")
     p.add_argument("--signing-key", type=Path, metavar="FILE",
@@ -177,6 +181,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             gcs_port=gcs_port,
             signing=signing,
             gcs_trusted=args.gcs_trusted,
+            sim_impairment=parse_impairment(args.sim_link, "--sim-link") if args.sim_link is not None
+            else (scenario.sim_link if scenario is not None else None),
+            gcs_impairment=parse_impairment(args.gcs_link, "--gcs-link") if args.gcs_link is not None
+            else (scenario.gcs_link if scenario is not None else None),
+            impair_seed=scenario.seed if scenario is not None else 0,
         )
         if not kept:
             params.save()  # the run's own file says from the start what flew

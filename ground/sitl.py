@@ -27,6 +27,7 @@ from typing import Any, TextIO
 
 from smcpilot.errors import SmcpilotError
 from smcpilot.geo import Home
+from smcpilot.impair import parse_impairment
 from smcpilot.plan import load_plan
 from smcpilot.scenario import Scenario
 from smcpilot.vehicle import VehicleParams
@@ -39,7 +40,7 @@ class SitlError(SmcpilotError):
 #: SitlOptions keywords that describe the flight (they build its Scenario).
 SCENARIO_KEYWORDS = frozenset(
     {"controller", "seed", "plant", "rate_hz", "physics_hz", "vehicle", "plan", "home", "duration_s", "noise",
-     "noise_scale", "wind_force_ned_n", "gust_std_n", "paper_disturbance"}
+     "noise_scale", "wind_force_ned_n", "gust_std_n", "paper_disturbance", "sim_link", "gcs_link"}
 )  # fmt: skip
 
 
@@ -102,6 +103,9 @@ class SitlOptions:
             if "wind_force_ned_n" in env:
                 env["wind_force_ned_n"] = tuple(float(v) for v in env["wind_force_ned_n"])
             changes["environment"] = replace(base.environment, **env)
+        for key in ("sim_link", "gcs_link"):  # "loss=0.2,delay_ms=4" or a LinkImpairment
+            if isinstance(flight.get(key), str):
+                flight[key] = parse_impairment(flight[key], f"--{key.replace('_', '-')}")
         changes.update(flight)
         return cls(scenario=replace(base, **changes) if changes else base, **kw)
 
@@ -309,14 +313,25 @@ class Sitl:
             if deadline is not None and time.monotonic() > deadline:
                 raise SitlError(f"SITL did not finish within {timeout_s:g} s")
             time.sleep(0.05)
+        # The child that ended first is the one to name when something went wrong (the other one
+        # then only reports that its peer is gone).
+        first: Child
+        first_rc: int | None
+        if sim_rc is not None and fc_rc is not None:  # both seen ended at once: the one killed by a signal
+            first, first_rc = (self.fc, fc_rc) if fc_rc < 0 <= sim_rc else (self.sim, sim_rc)
+        else:
+            first, first_rc = (self.sim, sim_rc) if sim_rc is not None else (self.fc, fc_rc)
         # One side ended. In lockstep the other ends by itself at the same simulated time: give it a
         # moment. In real time the FC would only fly on into its state-loss failsafe: stop it now.
         self.stop(grace_s=3.0 if self.options.lockstep else 0.0)
         fc_rc = self.fc.proc.returncode
         sim_rc = self.sim.proc.returncode
+        clean = (0, -signal.SIGTERM, -signal.SIGINT)
+        if first_rc not in clean:
+            raise SitlError(f"{first.name} {_how(first_rc)}{self._tail(first)}")
         for child, rc in ((self.sim, sim_rc), (self.fc, fc_rc)):
-            if rc not in (0, -signal.SIGTERM, -signal.SIGINT):
-                raise SitlError(f"{child.name} exited with code {rc}{self._tail(child)}")
+            if rc not in clean:
+                raise SitlError(f"{child.name} {_how(rc)}{self._tail(child)}")
         return 0
 
     def stop(self, grace_s: float = 5.0) -> None:
@@ -367,6 +382,17 @@ class Sitl:
     @property
     def sim_summary(self) -> dict | None:
         return self.sim.summary if self.sim else None
+
+
+def _how(rc: int | None) -> str:
+    """How a child ended, for a message: "exited with code 3", "was killed by SIGKILL (exit code -9)"."""
+    if rc is not None and rc < 0:
+        try:
+            name = signal.Signals(-rc).name
+        except ValueError:
+            name = f"signal {-rc}"
+        return f"was killed by {name} (exit code {rc})"
+    return f"exited with code {rc}"
 
 
 def print_connect_help(sitl: Sitl, out: TextIO = sys.stdout) -> None:

@@ -66,6 +66,10 @@ def add_sitl_arguments(p: argparse.ArgumentParser) -> None:
                    help="MAVLink 2 signing on the ground link: FILE holds 64 hex digits (the key) or a passphrase"
                    " (key = its SHA-256, as MAVProxy's 'signing setup'); see docs/security.md")  # fmt: skip
     p.add_argument("--paper-disturbance", action="store_true", default=None, help="add the paper's disturbances fs1..fs4")
+    p.add_argument("--sim-link", metavar="SPEC",
+                   help="impair the simulator <-> FC link, both directions, seeded: loss, delay_ms, jitter_ms, duplicate,"
+                   " reorder, reorder_ms, dup_gap_ms, outage_at_s, outage_s, seed, e.g. loss=0.2,delay_ms=4 (docs/links.md)")
+    p.add_argument("--gcs-link", metavar="SPEC", help="impair the FC's ground link the same way, e.g. loss=0.3")
     p.add_argument("--scenario", type=Path, metavar="FILE",
                    help="fly this scenario (TOML, see `smcpilot run`): its vehicle, environment, seed, controller,"
                    " parameters and plan (the flags above change it); runs until Ctrl-C unless --duration is given")  # fmt: skip
@@ -221,6 +225,8 @@ def sitl_main(args: argparse.Namespace) -> int:
         paper_disturbance=args.paper_disturbance,
         param_file=args.param_file,
         signing_key=args.signing_key,
+        sim_link=args.sim_link,
+        gcs_link=args.gcs_link,
     )
 
     def started(sitl: Sitl) -> None:

@@ -11,11 +11,13 @@ from __future__ import annotations
 import argparse
 import functools
 import math
+import os
 import platform
 import sys
 import time
 import timeit
 from collections.abc import Callable
+from pathlib import Path
 
 from fc.control import CONTROLLER_NAMES
 from smcpilot.errors import ConfigError
@@ -194,7 +196,30 @@ def _add_campaign(sub: argparse._SubParsersAction) -> None:
     campaign_bench.add_arguments(sub)
 
 
-_EXTRA_TARGETS: list[Callable[[argparse._SubParsersAction], None]] = [_add_sitl, _add_campaign]
+def _add_soak(sub: argparse._SubParsersAction) -> None:
+    c = sub.add_parser("soak", help="random missions, faults and lossy links in lockstep SITL for hours: crashes, logs, memory trend")
+    c.add_argument("--sim-hours", type=float, default=1.0, metavar="H", help="simulated hours to fly (default 1)")
+    c.add_argument("--segment-s", type=float, default=600.0, metavar="SIM_S",
+                   help="simulated seconds per SITL run (a fresh pair of processes; default 600)")
+    c.add_argument("--seed", type=int, default=0, help="seed of the random missions, faults and impairments (default 0)")
+    c.add_argument("--sample-s", type=float, default=1.0, metavar="S", help="wall seconds between memory samples (default 1)")
+    c.add_argument("--speed", type=float, default=None, metavar="FACTOR", help="pace the simulation at most FACTOR x real time")
+    c.add_argument("--keep-logs", type=Path, default=None, metavar="DIR", help="keep the logs here (default: deleted once checked)")
+    c.set_defaults(bench=bench_soak)
+
+
+def bench_soak(args: argparse.Namespace) -> int:
+    from lab.soak import SoakConfig, report, run_soak
+
+    cfg = SoakConfig(sim_hours=args.sim_hours, segment_s=args.segment_s, seed=args.seed, sample_s=args.sample_s,
+                     keep_logs=args.keep_logs, speed=args.speed)  # fmt: skip
+    load = os.getloadavg() if hasattr(os, "getloadavg") else (math.nan,) * 3
+    print(f"smcpilot bench soak — {cfg.sim_hours:g} simulated h in {len(cfg.segments)} lockstep SITL runs, seed {cfg.seed};"
+          f" Python {platform.python_version()}, machine load {load[0]:.2f} on {os.cpu_count()} cores")  # fmt: skip
+    return report(cfg, run_soak(cfg))
+
+
+_EXTRA_TARGETS: list[Callable[[argparse._SubParsersAction], None]] = [_add_sitl, _add_campaign, _add_soak]
 
 
 def main(args: argparse.Namespace) -> int:

@@ -7,12 +7,18 @@ commands of ``HIL_ACTUATOR_CONTROLS``: controls[0..3] in [0, 1] are rotors 1..4 
 :mod:`smcpilot.actuators`); ``mode`` with MAV_MODE_FLAG_SAFETY_ARMED spins the rotors, without it
 they stop; ``flags`` bit 0 marks a lockstep FC.
 
-- **lockstep**: send the state at t, wait for the actuator message stamped t (re-sending the
-  state if it does not come), integrate one control period, repeat. As fast as possible, or at
+- **lockstep**: send the state at t, wait for the actuator message stamped t (re-sending the same
+  bytes if it does not come: after 4x the running mean round trip, at least ``resend_min_s``,
+  doubling up to ``resend_s``), integrate one control period, repeat. As fast as possible, or at
   most ``speed`` times real time. A flight controller silent for ``watchdog_s`` wall seconds
   ends the bridge with an error (exit 3).
 - **real time**: physics at ``physics_hz`` on the wall clock (times ``speed``), state out at
   ``rate_hz``, the latest motor commands held between messages.
+
+Motor commands and parameters are taken from the FC's address only (others counted in
+``foreign_msgs``); a NaN or infinite motor value is counted (``nonfinite_actuator_msgs``) and that
+motor keeps its last command. A dead FC (its port closed, reported by the OS) ends the bridge at
+once (exit 3); a clean end sends ``HEARTBEAT`` with ``MAV_STATE_POWEROFF`` so the FC stops too.
 
 Faults (:mod:`sim_bridge.faults`, the plant's ``faults``): the state sent is the faulty sensors'
 (a dropped-out sensor's fields are NaN: gyro -> rollspeed/pitchspeed/yawspeed, attitude ->
@@ -30,6 +36,7 @@ this component are answered with ``PARAM_VALUE`` too.
 from __future__ import annotations
 
 import json
+import math
 import os
 import signal
 import sys
@@ -54,6 +61,8 @@ SIM_COMPONENT = SIM_COMPONENT_ID
 EXIT_OK = 0
 EXIT_WATCHDOG = 3
 EXIT_DIVERGED = 4
+#: copies of the closing HEARTBEAT (MAV_STATE_POWEROFF) sent at a clean end.
+GOODBYE_COPIES = 4
 _ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
 _ACTUATORS = mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS
 _PARAM_SET = mavlink.MAVLINK_MSG_ID_PARAM_SET
@@ -61,6 +70,7 @@ _PARAM_READ = mavlink.MAVLINK_MSG_ID_PARAM_REQUEST_READ
 _PARAM_LIST = mavlink.MAVLINK_MSG_ID_PARAM_REQUEST_LIST
 _REAL32 = mavlink.MAV_PARAM_TYPE_REAL32
 _yield = getattr(os, "sched_yield", lambda: None)
+_isfinite = math.isfinite
 
 
 @dataclass(frozen=True)
@@ -75,8 +85,11 @@ class BridgeTiming:
     duration_s: float | None = None
     watchdog_s: float = 5.0
     startup_timeout_s: float = 30.0
-    #: lockstep: re-send the state if no answer came for this long (wall seconds).
+    #: lockstep: re-send the state if no answer came for this long (wall seconds): at most this
+    #: long, at least ``resend_min_s``; in between 4 times the running mean round trip, doubled
+    #: on each further re-send of the same state.
     resend_s: float = 0.25
+    resend_min_s: float = 0.001
     #: lockstep: busy-poll this long for the FC's answer before blocking, s (0: always block).
     spin_s: float = 0.002
 
@@ -111,6 +124,9 @@ class SimBridgeApp:
             fc_url, source_system=system_id, source_component=SIM_COMPONENT, accept_system=system_id,
             clock_us=lambda: self._t_us,
         )  # fmt: skip
+        self.link.report_peer_errors()
+        #: the FC's address: motor commands and parameters are taken from it only.
+        self._fc_addr = self.link.peers[0]
         self.system_id = system_id
         self.faults: SimFaults | None = getattr(plant, "faults", None)
         self.commands = (0.0, 0.0, 0.0, 0.0)
@@ -120,6 +136,13 @@ class SimBridgeApp:
         self.params_rejected = 0
         self.actuator_msgs = 0
         self.stale_actuator_msgs = 0
+        #: messages from another address than the FC's, dropped.
+        self.foreign_msgs = 0
+        #: actuator messages with a NaN or infinite motor value (that motor keeps its last command).
+        self.nonfinite_actuator_msgs = 0
+        #: lockstep: running mean round trip state -> answer, wall s.
+        self.rtt_s = 0.0
+        self._last_state: tuple[bytes, ...] = ()
         self._stop = False
         self._exit = EXIT_OK
         self._wall_start = 0.0
@@ -141,15 +164,23 @@ class SimBridgeApp:
         x, y, z = nwu_to_ned(obs.position_m)
         vx, vy, vz = nwu_to_ned(obs.velocity_mps)
         # The per-tick pair, encoded straight to bytes (smcpilot.fastcodec; the same bytes as pymavlink).
-        link.send_packets(
-            (
-                encode_attitude(link.take_seq(), sysid, comp, t_ms, roll, pitch, yaw, p, q, r),
-                encode_local_position_ned(link.take_seq(), sysid, comp, t_ms, x, y, z, vx, vy, vz),
-            )
+        packets = (
+            encode_attitude(link.take_seq(), sysid, comp, t_ms, roll, pitch, yaw, p, q, r),
+            encode_local_position_ned(link.take_seq(), sysid, comp, t_ms, x, y, z, vx, vy, vz),
         )
+        link.send_packets(packets)
+        self._last_state = packets
         faults = self.faults
         if faults is not None and faults.events:
             self._announce()
+
+    def _say_goodbye(self) -> None:
+        """A clean end: HEARTBEAT with MAV_STATE_POWEROFF (a few copies: the link may lose some), so
+        the FC stops cleanly instead of taking the closed port for a dead simulator."""
+        mav = self.link.mav
+        hb = mav.heartbeat_encode(mavlink.MAV_TYPE_GENERIC, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, mavlink.MAV_STATE_POWEROFF)
+        for _ in range(GOODBYE_COPIES):  # one datagram each (sending never raises)
+            self.link.send(hb)
 
     def _announce(self) -> None:
         """Every fault start/stop (and refusal) since the last call, as STATUSTEXT to the FC."""
@@ -206,7 +237,12 @@ class SimBridgeApp:
 
     def _apply(self, msg: mavlink.MAVLink_hil_actuator_controls_message) -> None:
         c = msg.controls
-        self.commands = (c[0], c[1], c[2], c[3])
+        c0, c1, c2, c3 = c[0], c[1], c[2], c[3]
+        if not (_isfinite(c0) and _isfinite(c1) and _isfinite(c2) and _isfinite(c3)):
+            self.nonfinite_actuator_msgs += 1  # counted; the motor holds its last command
+            old = self.commands
+            c0, c1, c2, c3 = (new if _isfinite(new) else prev for new, prev in zip((c0, c1, c2, c3), old))
+        self.commands = (c0, c1, c2, c3)
         self.armed = bool(msg.mode & _ARMED)
         self.actuator_msgs += 1
 
@@ -247,12 +283,17 @@ class SimBridgeApp:
                 "actuator_msgs": self.actuator_msgs,
                 "stale_actuator_msgs": self.stale_actuator_msgs,
                 "resends": self.resends,
+                "foreign_msgs": self.foreign_msgs,
+                "nonfinite_actuator_msgs": self.nonfinite_actuator_msgs,
+                "rtt_mean_s": self.rtt_s,
                 "params_set": self.params_set,
                 "params_rejected": self.params_rejected,
                 "faults_started": self.faults.started if self.faults is not None else 0,
                 "faults_stopped": self.faults.stopped if self.faults is not None else 0,
                 "link": self.link.counters.as_dict(),
             }
+            if self._exit == EXIT_OK:
+                self._say_goodbye()
             self.link.close()
             self.say("SIM_SUMMARY " + json.dumps(summary, sort_keys=True))
         return self._exit
@@ -269,14 +310,25 @@ class SimBridgeApp:
         mono = self._mono
         recv = self.link.recv
         spin_s = tm.spin_s
+        fc_addr = self._fc_addr
+        link = self.link
         self._send_state()
-        sent_at = last_answer = mono()
+        sent_at = first_sent = last_answer = mono()
+        resend_after = tm.resend_s
         answered = False
+        final = False  # the last state (at the duration) is out: its answer ends the run
         while not self._stop:
             now = mono()
-            msgs = recv(0.0 if now - sent_at < spin_s else 0.05)
+            msgs = recv(0.0 if now - sent_at < spin_s else min(0.05, resend_after))
+            if link.peer_refused:
+                if final:
+                    return  # a timed FC stops on the last state: its answer was lost, it is gone
+                raise WatchdogError("the flight controller's port is closed (the FC process has died); stopping")
             advanced = False
-            for msg, _addr in msgs:  # in arrival order: a PARAM_SET before the answer acts on this period
+            for msg, addr in msgs:  # in arrival order: a PARAM_SET before the answer acts on this period
+                if addr != fc_addr:
+                    self.foreign_msgs += 1
+                    continue
                 mid = msg.id
                 if mid != _ACTUATORS:
                     if mid == _PARAM_SET or mid == _PARAM_READ or mid == _PARAM_LIST:
@@ -287,18 +339,25 @@ class SimBridgeApp:
                 if msg.time_usec != self._t_us:
                     self.stale_actuator_msgs += 1
                     continue
+                if final:
+                    return
                 self._apply(msg)
                 answered = True
+                if sent_at == first_sent:  # a clean round trip (no re-send): the running mean
+                    rtt = mono() - first_sent
+                    self.rtt_s += 0.05 * (rtt - self.rtt_s) if self.rtt_s else rtt
                 self._integrate(substeps)
                 if duration_us is not None and self._t_us >= duration_us:
-                    self._send_state()  # the final state: a lockstep FC with the same duration stops on it
-                    return
-                if tm.speed is not None:
+                    # The final state: a lockstep FC with the same duration stops on it. Re-sent like
+                    # any other until it is answered (or the timed FC has gone), so a loss cannot cut it.
+                    final = True
+                if tm.speed is not None and not final:
                     ahead = self._t_us * 1e-6 / tm.speed - (mono() - self._wall_start)
                     if ahead > 0.0:
                         self._sleep(ahead)
                 self._send_state()
-                sent_at = last_answer = mono()
+                sent_at = first_sent = last_answer = mono()
+                resend_after = min(tm.resend_s, max(tm.resend_min_s, 4.0 * self.rtt_s))
                 advanced = True
                 # the rest of the batch came after this answer: it acts from the state just sent
             if advanced:
@@ -311,10 +370,12 @@ class SimBridgeApp:
             if now - last_answer > limit:
                 what = "never answered" if not answered else f"has been silent for {now - last_answer:.1f} s"
                 raise WatchdogError(f"flight controller {what} (lockstep watchdog {limit:g} s); stopping")
-            if now - sent_at > tm.resend_s:
+            if now - sent_at > resend_after:
                 self.resends += 1
-                self._send_state()
+                # The same bytes again (a lost state or a lost answer): a copy cannot change the FC's log.
+                self.link.send_packets(self._last_state)
                 sent_at = now
+                resend_after = min(tm.resend_s, 2.0 * resend_after)
 
     def _run_realtime(self) -> None:
         tm = self.timing
@@ -328,11 +389,16 @@ class SimBridgeApp:
         answered = False
         deadline = mono()
         k = 0
+        fc_addr = self._fc_addr
+        link = self.link
         while not self._stop:
             now = mono()
             wait = deadline - now
             if wait > 0.0:
-                for msg, _addr in recv(wait):
+                for msg, addr in recv(wait):
+                    if addr != fc_addr:
+                        self.foreign_msgs += 1
+                        continue
                     mid = msg.id
                     if mid == _ACTUATORS:
                         self._apply(msg)
@@ -340,6 +406,8 @@ class SimBridgeApp:
                         last_answer = mono()
                     elif mid == _PARAM_SET or mid == _PARAM_READ or mid == _PARAM_LIST:
                         self._on_param(msg)
+                if link.peer_refused:
+                    raise WatchdogError("the flight controller's port is closed (the FC process has died); stopping")
                 continue
             if k % substeps == 0:
                 self._send_state()

@@ -41,6 +41,7 @@ A link is not thread-safe: one thread owns it.
 
 from __future__ import annotations
 
+import errno
 import ipaddress
 import math
 import re
@@ -58,6 +59,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from smcpilot import fastcodec
 from smcpilot import signing as _signing
 from smcpilot.errors import EndpointError, LinkClosedError, LinkError
+from smcpilot.impair import Impairer, LinkImpairment
 from smcpilot.signing import Signing, redact_setup_signing
 from smcpilot.tlog import TlogWriter
 
@@ -102,6 +104,8 @@ _UNKNOWN_MESSAGE = mavlink.MAVLink_unknown
 _SETUP_SIGNING_LOW = mavlink.MAVLINK_MSG_ID_SETUP_SIGNING & 0xFF  # id 256: low byte 0, middle byte 1
 _SIGNING_OK = _signing.OK
 _REJECT_COUNTERS = _signing.REJECT_REASONS
+#: Linux's IP_RECVERR: report ICMP errors (a closed peer port) on an unconnected UDP socket.
+_IP_RECVERR = getattr(socket, "IP_RECVERR", 11)
 
 
 @dataclass(frozen=True)
@@ -258,6 +262,8 @@ class MavlinkUdp:
         signing: Signing | None = None,
         link_id: int = 0,
         accept_unsigned: frozenset[int] | None = None,
+        impairment: LinkImpairment | None = None,
+        impair_seed: int = 0,
     ) -> None:
         """Open the socket.
 
@@ -273,6 +279,8 @@ class MavlinkUdp:
         set, this link's packets carrying ``link_id``; ``accept_unsigned`` replaces the signing's
         list of messages accepted unsigned on this link (e.g. a trusted link that also takes
         ``SETUP_SIGNING``).
+        ``impairment`` (:mod:`smcpilot.impair`) degrades what this link sends and what it receives,
+        each direction with its own stream seeded from ``impair_seed``, timed by ``monotonic_s``.
         """
         endpoint = parse_endpoint(endpoint_or_url) if isinstance(endpoint_or_url, str) else endpoint_or_url
         if not isinstance(endpoint, Endpoint):
@@ -311,6 +319,12 @@ class MavlinkUdp:
         #: evicts them from the peer table (they still expire after ``peer_timeout_s`` of silence).
         self._pinned: set[Address] = set()
         self._rx_signed = False
+        #: set once a send was refused by the peer's host (its port is closed: the peer process is
+        #: gone); reported only after :meth:`report_peer_errors`.
+        self.peer_refused = False
+        active = impairment is not None and impairment.active
+        self._tx_impair: Impairer[tuple[bytes, Address]] | None = Impairer(impairment, 2 * impair_seed + 1) if active else None  # type: ignore[arg-type]
+        self._rx_impair: Impairer[tuple[bytes, Address]] | None = Impairer(impairment, 2 * impair_seed + 2) if active else None  # type: ignore[arg-type]
 
         self._mav = mavlink.MAVLink(_LinkWriter(self), srcSystem=source_system, srcComponent=source_component)
         self._decoder = mavlink.MAVLink(None)  # decode() only: stateless without signing
@@ -446,6 +460,19 @@ class MavlinkUdp:
         if self._tlog is not None:
             self._tlog.write_many(self._clock_us(), packets)
 
+    def send_packets_to(self, packets: Sequence[bytes], addr: Address) -> None:
+        """:meth:`send_packets` to ``addr`` only (e.g. the one simulator a link answers)."""
+        if self._closed:
+            raise LinkClosedError(f"link {self._endpoint.url} is closed")
+        signing = self._signing
+        if signing is not None and signing.enabled:
+            link_id = self._link_id
+            packets = [signing.sign(p, link_id) for p in packets]
+        for datagram in self._datagrams(packets) if len(packets) > 1 else packets:
+            self._send_datagram(datagram, addr)
+        if self._tlog is not None:
+            self._tlog.write_many(self._clock_us(), packets)
+
     def send_many_to(self, msgs: Iterable[mavlink.MAVLink_message], addr: Address) -> None:
         """Like :meth:`send_many`, to ``addr`` only (e.g. a parameter list to the station that asked)."""
         encode = self._encode
@@ -517,6 +544,10 @@ class MavlinkUdp:
     def _send_datagram_to_peers(self, datagram: bytes) -> None:
         if self._next_prune_s <= self._monotonic_s():
             self._prune_peers()
+        if self._tx_impair is not None:
+            for addr in self._destinations:
+                self._send_datagram(datagram, addr)
+            return
         sendto = self._sock.sendto
         counters = self.counters
         for addr in self._destinations:
@@ -525,16 +556,30 @@ class MavlinkUdp:
             except OSError as exc:
                 counters.tx_errors += 1
                 counters.last_tx_errno = exc.errno or 0
+                if exc.errno == errno.ECONNREFUSED:
+                    self.peer_refused = True
             else:
                 counters.tx_datagrams += 1
 
     def _send_datagram(self, datagram: bytes, addr: Address) -> None:
+        impair = self._tx_impair
+        if impair is not None:
+            now_s = self._monotonic_s()
+            impair.offer((datagram, addr), now_s)
+            for held, to in impair.due(now_s):
+                self._sendto(held, to)
+            return
+        self._sendto(datagram, addr)
+
+    def _sendto(self, datagram: bytes, addr: Address) -> None:
         counters = self.counters
         try:
             self._sock.sendto(datagram, addr)
         except OSError as exc:
             counters.tx_errors += 1
             counters.last_tx_errno = exc.errno or 0
+            if exc.errno == errno.ECONNREFUSED:
+                self.peer_refused = True
         else:
             counters.tx_datagrams += 1
 
@@ -547,6 +592,8 @@ class MavlinkUdp:
         when everything that arrived was dropped."""
         if self._closed:
             raise LinkClosedError(f"link {self._endpoint.url} is closed")
+        if self._rx_impair is not None:
+            return self._recv_impaired(timeout_s, max_datagrams)
         received: list[tuple[mavlink.MAVLink_message, Address]] = []
         if timeout_s > 0 and not self._wait_readable(timeout_s):
             return received
@@ -563,6 +610,7 @@ class MavlinkUdp:
                 # An ICMP "port unreachable" for an earlier send, reported here by some systems.
                 counters.tx_errors += 1
                 counters.last_tx_errno = exc.errno or 0
+                self.peer_refused = True
                 continue
             counters.rx_datagrams += 1
             self._rx_signed = False
@@ -577,6 +625,82 @@ class MavlinkUdp:
                 if self._rx_signed and addr in seen:
                     self._pinned.add(addr)
         return received
+
+    # ------------------------------------------------------------------ impairment, dead peers
+
+    def report_peer_errors(self) -> None:
+        """Ask the OS to report ICMP errors for our sends (Linux ``IP_RECVERR``): a datagram sent
+        to a closed port (the peer process died) then sets :attr:`peer_refused` on a later
+        :meth:`recv`. A stopped (SIGSTOP) peer keeps its port open and is not reported. Meant for
+        the simulator link, where the peer is one process on this machine."""
+        try:
+            self._sock.setsockopt(socket.IPPROTO_IP, _IP_RECVERR, 1)
+        except OSError:  # pragma: no cover - not Linux: the watchdogs still notice
+            pass
+
+    def pump(self) -> None:
+        """Release the impaired datagrams whose time has come (sending side; the receiving side is
+        released by :meth:`recv`). Nothing to do without an impairment."""
+        impair = self._tx_impair
+        if impair is not None and impair.pending:
+            for held, to in impair.due(self._monotonic_s()):
+                self._sendto(held, to)
+
+    def impair_wait_s(self) -> float:
+        """Seconds until an impaired datagram is due, either direction (``inf``: none held), for
+        the owner's ``select`` timeout."""
+        tx, rx = self._tx_impair, self._rx_impair
+        if tx is None or rx is None:
+            return math.inf
+        now_s = self._monotonic_s()
+        return min(tx.wait_s(now_s), rx.wait_s(now_s))
+
+    @property
+    def impair_counters(self) -> dict[str, dict[str, int]] | None:
+        """What the impairment did, per direction (None without one)."""
+        tx, rx = self._tx_impair, self._rx_impair
+        if tx is None or rx is None:
+            return None
+        return {"tx": tx.counters.as_dict(), "rx": rx.counters.as_dict()}
+
+    def _recv_impaired(self, timeout_s: float, max_datagrams: int) -> list[tuple[mavlink.MAVLink_message, Address]]:
+        """:meth:`recv` through the receiving impairer: datagrams are taken off the socket at once
+        and parsed when the impairer releases them."""
+        rx = self._rx_impair
+        assert rx is not None
+        mono = self._monotonic_s
+        counters = self.counters
+        received: list[tuple[mavlink.MAVLink_message, Address]] = []
+        end_s = mono() + max(0.0, timeout_s)
+        while True:
+            self.pump()
+            now_s = mono()
+            for _ in range(max_datagrams):
+                try:
+                    data, addr = self._sock.recvfrom(_RECV_BUFFER_BYTES)
+                except BlockingIOError:
+                    break
+                except (ConnectionRefusedError, ConnectionResetError) as exc:
+                    counters.tx_errors += 1
+                    counters.last_tx_errno = exc.errno or 0
+                    self.peer_refused = True
+                    continue
+                counters.rx_datagrams += 1
+                rx.offer((data, addr), now_s)
+            for data, addr in rx.due(now_s):
+                self._rx_signed = False
+                if self._parse_datagram(data, addr, received):
+                    seen = self._peer_seen_s
+                    if addr in seen:
+                        seen[addr] = now_s
+                    else:
+                        self._add_peer(addr, now_s)
+                    if self._rx_signed and addr in seen:
+                        self._pinned.add(addr)
+            remaining = end_s - now_s
+            if received or remaining <= 0:
+                return received
+            self._wait_readable(min(remaining, self.impair_wait_s()))
 
     def _wait_readable(self, timeout_s: float) -> bool:
         if self._fd < _FD_SETSIZE:

@@ -34,6 +34,10 @@ north, east, altitude up)::
     [sim]
     physics_hz = 1000.0
 
+    [link]                     # impaired links (smcpilot.impair): a string or a table
+    sim = "loss=0.2,delay_ms=4"           # the simulator <-> FC link, both directions
+    gcs = { loss = 0.3 }                  # the FC's ground link, both directions
+
     [[step]]                   # the timed plan (see smcpilot.plan); or plan = "file.toml"
     t_s = 0.0
     action = "takeoff"
@@ -72,6 +76,7 @@ from typing import Any
 
 from smcpilot.errors import ConfigError, ScenarioError
 from smcpilot.faults import FaultSpec
+from smcpilot.impair import ImpairmentError, LinkImpairment
 from smcpilot.plan import PlanError, PlanStep, load_plan, parse_plan
 from smcpilot.protocol import FC_CONTROLLERS
 from smcpilot.tomlfile import read_toml
@@ -147,6 +152,10 @@ class Scenario:
     plan: tuple[PlanStep, ...] = ()
     #: timed faults, acted out by the simulator in simulated time (``[[fault]]`` tables).
     faults: tuple[FaultSpec, ...] = ()
+    #: impairment of the simulator <-> FC link (``[link] sim``), seeded from ``seed`` unless it has its own.
+    sim_link: LinkImpairment = field(default_factory=LinkImpairment)
+    #: impairment of the FC's ground link (``[link] gcs``).
+    gcs_link: LinkImpairment = field(default_factory=LinkImpairment)
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
@@ -241,6 +250,9 @@ class Scenario:
                                    ("alt_m", s.alt_m), ("yaw_deg", s.yaw_deg)) if v is not None}  # fmt: skip
                 for s in self.plan
             ]
+        links = {k: v.to_mapping() for k, v in (("sim", self.sim_link), ("gcs", self.gcs_link)) if v != LinkImpairment()}
+        if links:
+            doc["link"] = links
         if self.faults:
             doc["fault"] = [f.to_mapping() for f in self.faults]
         return doc
@@ -257,7 +269,7 @@ class Scenario:
 
 
 # -- parsing ---------------------------------------------------------------------------------------
-_TOP = {"name", "description", "duration_s", "seed", "vehicle", "environment", "fc", "sim", "step", "plan", "fault"}
+_TOP = {"name", "description", "duration_s", "seed", "vehicle", "environment", "fc", "sim", "step", "plan", "fault", "link"}
 _ENV_KEYS = {f.name for f in fields(EnvironmentSpec)}
 _FC_KEYS = {"controller", "rate_hz", "home", "params"}
 _SIM_KEYS = {"physics_hz"}
@@ -361,6 +373,15 @@ def _parse(doc: Mapping[str, Any], source: str, base_dir: Path | None) -> Scenar
     _check(sim, _SIM_KEYS, "sim.")
     if "physics_hz" in sim:
         kw["physics_hz"] = _number(sim["physics_hz"], "sim.physics_hz")
+
+    link = _table(doc, "link")
+    _check(link, {"sim", "gcs"}, "link.")
+    try:
+        for key in ("sim", "gcs"):
+            if key in link:
+                kw[f"{key}_link"] = LinkImpairment.from_mapping(link[key], f"link.{key}")
+    except ImpairmentError as exc:
+        raise ScenarioError(str(exc)) from None
 
     if "plan" in doc and "step" in doc:
         raise ScenarioError("give either plan = \"FILE\" or [[step]] tables, not both")

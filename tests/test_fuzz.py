@@ -16,8 +16,7 @@ each on its own socket). The same flight is flown clean first. Then:
 - a ground station that sent a command keeps its telemetry through the flood.
 
 The test prints packets sent by class, rejected by reason, and the loop figures (wall time per
-tick, lockstep) fuzzed vs clean. Checks that need the target validation / geofence and the
-simulator link's address check of other branches are marked xfail (strict=False).
+tick, lockstep) fuzzed vs clean.
 """
 
 from __future__ import annotations
@@ -504,7 +503,6 @@ def test_huge_finite_targets_and_other_components_are_not_flown(tmp_path: Path) 
     assert flight_records(fuzzed.tlog) == flight_records(clean.tlog)
 
 
-@pytest.mark.xfail(strict=False, reason="needs the simulator link's peer-address check (states only from the simulator's address)")
 def test_valid_states_forged_from_another_address_are_not_flown(tmp_path: Path) -> None:
     forged = M.MAVLink(None, srcSystem=FC_SYSID, srcComponent=SIM_COMPONENT_ID)
 
