@@ -188,8 +188,13 @@ def test_bridge_counts_nan_motor_values_and_takes_commands_from_the_fc_only() ->
     try:
         armed = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
         answered = 0
-        while answered < 10:
-            data, addr = fc_sock.recvfrom(65535)
+        fc_sock.settimeout(0.2)
+        deadline = time.monotonic() + 20.0
+        while proc.poll() is None and time.monotonic() < deadline:  # answer every state, the final one too
+            try:
+                data, addr = fc_sock.recvfrom(65535)
+            except TimeoutError:
+                continue
             lpn = [m for m in parse_datagram(data) if m.get_type() == "LOCAL_POSITION_NED"]
             if not lpn:
                 continue
