@@ -27,10 +27,14 @@ from smcpilot.limits import DEFAULT_FENCE, Fence, takeoff_refusal, target_refusa
 Address = tuple[str, int]
 
 REQUEST_TIMEOUT_S = 1.0
-MAX_RETRIES = 5
+#: re-requests before an upload is cancelled: 8 s of silence, as ArduPilot's upload timeout (a
+#: lossy link — 30 % each way — still completes uploads).
+MAX_RETRIES = 8
 #: An upload whose station has sent nothing for this long (wall seconds) is abandoned: another
 #: station's MISSION_COUNT takes over (the old station gets OPERATION_CANCELLED).
 ABANDONED_UPLOAD_S = 2.0
+#: for this long (wall seconds) after an upload completed, a re-sent last item gets the ACK again.
+REACK_S = 10.0
 MAX_ITEMS = 500
 #: at most this many stations remembered as speaking the float (non-INT) mission protocol.
 MAX_LEGACY_STATIONS = 64
@@ -183,6 +187,9 @@ class MissionProtocol:
         self._incoming: list[MissionItem] = []
         self._deadline = 0.0
         self._retries = 0
+        #: the last completed upload (station, item count, wall s): a re-sent last item from it is
+        #: answered with ACCEPTED again (the first ACK was lost).
+        self._last_upload: tuple[Address, int, float] | None = None
         self.uploads_completed = 0
         self.uploads_failed = 0
 
@@ -263,6 +270,11 @@ class MissionProtocol:
         else:
             self.legacy_stations.discard(addr)
         if self._partner is None or addr != self._partner:
+            done = self._last_upload
+            if done is not None and done[0] == addr and m.seq == done[1] - 1 and now_s - done[2] < REACK_S:
+                # The station re-sent its last item: our ACCEPTED was lost on the way. Say it again.
+                self._ack(addr, m.get_srcSystem(), m.get_srcComponent(), mavlink.MAV_MISSION_ACCEPTED)
+                return
             self.ignored += 1
             return  # not in an upload with this station: ignore, as ArduPilot does
         if getattr(m, "mission_type", 0) != mavlink.MAV_MISSION_TYPE_MISSION:
@@ -300,6 +312,7 @@ class MissionProtocol:
         self.items = [replace(it, current=0) for it in self._incoming]
         self.current = 1 if len(self.items) > 1 else 0
         self.uploads_completed += 1
+        self._last_upload = (addr, self._count, now_s)
         self._ack(addr, self._partner_sys, self._partner_comp, mavlink.MAV_MISSION_ACCEPTED)
         self._end_upload()
         self._on_change()

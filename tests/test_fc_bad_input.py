@@ -101,10 +101,10 @@ def test_bad_state_is_dropped_counted_and_the_next_good_state_answered(lockstep_
     _assert_normal_answer(sim.exchange(0), 0)
     _assert_normal_answer(sim.exchange(2), 2)
     sim.send_raw(make(sim, 4))
-    # The first answer after the bad datagram must be the one for the next good state (t = 6 ms):
-    # an answer to the bad one (stamped 4 ms) would arrive first.
+    # The bad datagram is dropped unanswered; the simulator re-sends the state it stands for, and
+    # the first answer after it is that state's (an answer to the bad bytes would arrive first).
+    _assert_normal_answer(sim.exchange(4), 4)
     _assert_normal_answer(sim.exchange(6), 6)
-    _assert_normal_answer(sim.exchange(8), 8)
     assert fc.stop() == 0
     summary = fc.summary()
     want = {"rx_bad": 0, "rx_foreign_system": 0, "rx_unknown": 0, "rx_invalid_state": 0, "duplicate_states": 0} | expected
@@ -286,12 +286,17 @@ def test_realtime_state_loss_failsafe_then_watchdog(tmp_path: Path) -> None:
 
 
 def test_lockstep_rate_mismatch_is_a_clear_error(lockstep_fc) -> None:
-    """A simulator stepping 4 ms per state against a 500 Hz FC would fly the law with the wrong dt."""
+    """A simulator stepping 4 ms per state against a 500 Hz FC would fly the law with the wrong dt.
+    One odd stamp is dropped unanswered and costs nothing; a simulator that insists on it (re-sends
+    the state the FC does not answer) is at another rate: exit 2 with the reason."""
     fc, sim = lockstep_fc
-    _assert_normal_answer(sim.exchange(0), 0)
-    _assert_normal_answer(sim.exchange(4), 4)  # one odd step: a dropped state, tolerated
-    _assert_normal_answer(sim.exchange(8), 8)
-    sim.send_state(12)  # the third 4 ms step in a row: a 250 Hz simulator
+    for t in (0, 2, 4):
+        _assert_normal_answer(sim.exchange(t), t)
+    sim.send_state(8)  # one odd step: dropped, not adopted
+    _assert_normal_answer(sim.exchange(6), 6)  # the right next state is still answered
+    for _ in range(3):  # a 250 Hz simulator insists on its 4 ms step
+        sim.send_state(10)
+        time.sleep(0.05)
     assert fc.wait(timeout_s=30.0) == 2
     assert any("steps 4 ms per state" in ln and "500 Hz" in ln for ln in fc.all_lines), fc.all_lines
 

@@ -667,16 +667,37 @@ def upload_mission_from_request(g: Gcs, items) -> object:
     raise AssertionError("upload did not finish")
 
 
-def test_mission_upload_is_cancelled_after_five_silent_retries(fc):
+def test_a_resent_last_item_gets_the_lost_accept_again(fc):
+    """The upload's final MISSION_ACK lost on the way: the station re-sends its last item and the
+    FC, the upload already done, says ACCEPTED again (instead of ignoring it and leaving the
+    station to time out); another item is still ignored."""
+    g = fc().gcs
+    good = standard_mission()
+    assert upload_mission(g, good).type == M.MAV_MISSION_ACCEPTED
+    mark = g.mark()
+    good[-1].send(g, len(good) - 1)
+    ack = g.wait("MISSION_ACK", since=mark, timeout=5, what="the repeated ACCEPTED")
+    assert ack.type == M.MAV_MISSION_ACCEPTED
+    mark = g.mark()
+    good[0].send(g, 0)  # not the last item: ignored, as before
+    time.sleep(0.5)
+    g.pump(0.1)
+    assert not g.since(mark, "MISSION_ACK")
+    assert_mission(g, good)
+
+
+def test_mission_upload_is_cancelled_after_eight_silent_retries(fc):
     g = fc().gcs
     good = standard_mission()
     assert upload_mission(g, good).type == M.MAV_MISSION_ACCEPTED
     mark = g.mark()
     g.mav.mission_count_send(FC_SYSID, FC_COMPID, 3, M.MAV_MISSION_TYPE_MISSION)
-    ack = g.wait("MISSION_ACK", since=mark, timeout=20, what="MISSION_ACK after the retries")
+    ack = g.wait("MISSION_ACK", since=mark, timeout=30, what="MISSION_ACK after the retries")
     assert ack.type == M.MAV_MISSION_OPERATION_CANCELLED
     requests = g.since(mark, "MISSION_REQUEST_INT")
-    assert len(requests) == 6 and {m.seq for m in requests} == {0}, requests
+    from fc.mission import MAX_RETRIES
+
+    assert len(requests) == 1 + MAX_RETRIES and {m.seq for m in requests} == {0}, requests
     assert_mission(g, good)
 
 

@@ -151,14 +151,16 @@ def test_log_clean_deletes_all_but_the_newest(flight, tmp_path: Path) -> None:
     old = copies(src, logs, 4, age_s=100)
     (logs / f"{old[3].stem}-plots").mkdir()
     (logs / f"{old[3].stem}-plots" / "track.png").write_bytes(b"x")
-    (logs / "fc-params.parm").write_text("X 1\n", encoding="utf-8")
+    (logs / f"{old[3].stem}.parm").write_text("X 1\n", encoding="utf-8")  # that run's own parameters
+    (logs / "kept.parm").write_text("X 1\n", encoding="utf-8")  # kept with --param-file: no flight's
     dry = smcpilot("log", "clean", logs, "--keep", "2", "--dry-run", cwd=tmp_path)
     assert dry.returncode == 0 and "would delete" in dry.stdout and len(list(logs.glob("*.tlog"))) == 4
     r = smcpilot("log", "clean", logs, "--keep", "2", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     assert sorted(p.name for p in logs.glob("*.tlog")) == sorted(p.name for p in old[:2])
     assert not (logs / f"{old[3].stem}-plots").exists() and not (logs / f"{old[3].stem}.scenario.toml").exists()
-    assert (logs / "fc-params.parm").is_file()
+    assert not (logs / f"{old[3].stem}.parm").exists()
+    assert (logs / "kept.parm").is_file()
     assert clean_logs(logs, keep=5).touched == []
     bad = smcpilot("log", "clean", tmp_path / "nope", cwd=tmp_path)
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "nope" in bad.stderr

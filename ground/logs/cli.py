@@ -84,8 +84,8 @@ def add_log_arguments(p: argparse.ArgumentParser) -> None:
     k = sub.add_parser(
         "clean",
         help=f"delete all but the newest flights in a log directory (default: keep {DEFAULT_KEEP})",
-        description="Delete the oldest flights in DIR: each flight's .tlog (or .tlog.gz), its .scenario.toml and its"
-        " -plots/ directory go together. The parameter file (fc-params.parm) is never touched. --compress gzips"
+        description="Delete the oldest flights in DIR: each flight's .tlog (or .tlog.gz), its .scenario.toml, its own .parm"
+        " and its -plots/ directory go together; other files (a parameter file kept with --param-file) are never touched. --compress gzips"
         " the older flights instead of deleting them.",
     )
     k.add_argument("dir", type=Path, nargs="?", default=Path("logs"), metavar="DIR", help="log directory (default logs/)")

@@ -1,9 +1,10 @@
 """Keeping a log directory small: compress flight logs, delete old flights.
 
 A *flight* in a log directory is a ``.tlog`` (or a compressed ``.tlog.gz``) and what every SITL
-launch leaves beside it under the same stem: ``<stem>.scenario.toml`` (to fly it again) and
-``<stem>-plots/`` (``smcpilot plot``'s default). The parameter file ``fc-params.parm`` belongs to
-no flight and is never touched. Flights are ordered by the modification time of their log.
+launch leaves beside it under the same stem: ``<stem>.scenario.toml`` (to fly it again), the
+run's own parameter file ``<stem>.parm`` and ``<stem>-plots/`` (``smcpilot plot``'s default).
+Other files (a parameter file kept with ``--param-file``, say) belong to no flight and are never
+touched. Flights are ordered by the modification time of their log.
 """
 
 from __future__ import annotations
@@ -121,7 +122,7 @@ def clean_logs(directory: Path, *, keep: int = DEFAULT_KEEP, compress: bool = Fa
             report.bytes_freed += before - after
             continue
         stem = flight_stem(log)
-        for path in (log, directory / f"{stem}.scenario.toml", directory / f"{stem}-plots"):
+        for path in (log, directory / f"{stem}.scenario.toml", directory / f"{stem}.parm", directory / f"{stem}-plots"):
             if not path.exists():
                 continue
             report.touched.append(path)

@@ -67,6 +67,7 @@ class Mission:
         count_msg = mav.mission_count_encode(ts, tc, len(full), mavlink.MAV_MISSION_TYPE_MISSION)
         texts: list[StatusText] = []
         requested = False
+        last_sent: mavlink.MAVLink_message | None = None
         silent_rounds = 0
         with v.subscribe(("MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK", "STATUSTEXT")) as sub:
             v.send(count_msg)
@@ -80,8 +81,9 @@ class Mission:
                             f" {silent_rounds * v.mission_timeout_s:g} s wall"
                             + ("" if requested else " without requesting any item")
                         )
-                    if not requested:
-                        v.send(count_msg)
+                    # Nothing requested yet: the count was lost. Else our last item or the
+                    # vehicle's answer to it was: send it again (the vehicle re-acks a finished upload).
+                    v.send(count_msg if last_sent is None else last_sent)
                     continue
                 t = msg.get_type()
                 if t == "STATUSTEXT":
@@ -104,7 +106,8 @@ class Mission:
                 if not 0 <= seq < len(full):
                     raise MissionError(f"the vehicle requested item {seq} of a {len(full)}-item mission")
                 requested = True
-                v.send(full[seq].to_message(mav, seq, ts, tc))
+                last_sent = full[seq].to_message(mav, seq, ts, tc)
+                v.send(last_sent)
 
     def download(self, *, include_home: bool = False) -> list[MissionItem]:
         """Download the mission: MISSION_REQUEST_LIST -> MISSION_COUNT -> MISSION_REQUEST_INT

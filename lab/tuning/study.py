@@ -301,7 +301,7 @@ def _outputs(spec: TuneSpec, study: Any, out: Path) -> TuneResult:
     v = spec.campaign.variants[0]
     lines = [f"# smcpilot tune {spec.name}: the best gains (trial {best.number}, objective {best.value:.6g} = {spec.objective.statistic}"
              f" {spec.objective.metric} + {spec.objective.failure_penalty:g} per failed flight), controller {v.controller}",
-             "# the FC loads it: python -m fc --param-file FILE, or as fc-params.parm in the log directory of smcpilot sitl"]  # fmt: skip
+             "# the FC loads it: python -m fc --param-file FILE, or smcpilot sitl --param-file FILE"]  # fmt: skip
     lines += [f"{k} {val!r}" for k, val in gains.items()]
     paths["parm"] = out / "best.parm"
     paths["parm"].write_text("\n".join(lines) + "\n", encoding="utf-8")
