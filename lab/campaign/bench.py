@@ -2,9 +2,9 @@
 
 - the baseline: the same units flown one after another in this process, no engine;
 - flights per second on a local cluster of 1 and of 2 workers (processes), and the ratio
-  (target ≥ 1.7× on 2 cores);
+  (goal ≥ 1.7× on 2 cores);
 - the engine's per-unit overhead: the 1-worker campaign's wall time less the flights' own wall
-  time (measured inside the workers), per unit, as a share of the flight time (target < 2 %);
+  time (measured inside the workers), per unit, as a share of the flight time (goal < 2 %);
 - in-process against ``--sitl`` units (the real two processes over UDP in lockstep).
 
 Clusters are started and their workers warmed up (modules imported, one short flight) before the
@@ -95,10 +95,10 @@ def bench_campaign(args: argparse.Namespace) -> int:
     print(f"engine, local cluster of 1 worker:  {n / w1:.2f} flights/s ({w1 / serial:.2f}× the baseline's time; cluster up and warm in {s1:.1f} s)")
     overhead = (w1 - f1) / n
     print(f"  per-unit engine overhead: {overhead * 1e3:.1f} ms = {overhead / (f1 / n) * 100:.2f} % of the flight time"
-          f" ({f1 / n:.3f} s per flight inside the worker; target < 2 %)")  # fmt: skip
+          f" ({f1 / n:.3f} s per flight inside the worker; goal < 2 %)")  # fmt: skip
     s2, w2, _ = _campaign_rate(2, units)
     print(f"engine, local cluster of 2 workers: {n / w2:.2f} flights/s (cluster up and warm in {s2:.1f} s)")
-    print(f"  scaling 1 -> 2 workers: {w1 / w2:.2f}× (target ≥ 1.7× on 2 cores; the other work on the machine takes its share)")
+    print(f"  scaling 1 -> 2 workers: {w1 / w2:.2f}× (goal ≥ 1.7× on 2 cores; the other work on the machine takes its share)")
     if args.sitl_units:
         from lab.campaign.flight import fly_unit
 
