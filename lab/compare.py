@@ -45,7 +45,7 @@ from lab.campaign.flight import Trace
 from lab.campaign.flight import fly_unit as campaign_fly_unit
 from lab.campaign.run import Progress, retrace
 from lab.campaign.spec import Variant
-from lab.campaign.summary import ci95, summarize
+from lab.campaign.summary import MAIN_METRICS, ci95, summarize
 from lab.campaign.summary import markdown_table as campaign_table
 from lab.campaign.units import Unit as CampaignUnit
 from smcpilot.errors import ConfigError
@@ -54,15 +54,8 @@ from smcpilot.plan import PlanStep
 from smcpilot.scenario import EnvironmentSpec, Scenario
 from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
 
-#: the metrics the table reports, in order, with their labels.
-TABLE_METRICS = (
-    ("max_tilt_deg", "max tilt °"),
-    ("max_pos_err_m", "max pos. err. m"),
-    ("iae_pos_m_s", "IAE pos. m·s"),
-    ("iae_att_rad_s", "IAE att. rad·s"),
-    ("recover_s", "recover s"),
-    ("motor_tv_per_s", "motor TV /s"),
-)
+#: the metrics the table reports, in order, with their labels (the campaign tables').
+TABLE_METRICS = MAIN_METRICS
 
 
 #: the controllers compared.
