@@ -544,22 +544,9 @@ class MavlinkUdp:
     def _send_datagram_to_peers(self, datagram: bytes) -> None:
         if self._next_prune_s <= self._monotonic_s():
             self._prune_peers()
-        if self._tx_impair is not None:
-            for addr in self._destinations:
-                self._send_datagram(datagram, addr)
-            return
-        sendto = self._sock.sendto
-        counters = self.counters
+        send = self._send_datagram if self._tx_impair is not None else self._sendto
         for addr in self._destinations:
-            try:
-                sendto(datagram, addr)
-            except OSError as exc:
-                counters.tx_errors += 1
-                counters.last_tx_errno = exc.errno or 0
-                if exc.errno == errno.ECONNREFUSED:
-                    self.peer_refused = True
-            else:
-                counters.tx_datagrams += 1
+            send(datagram, addr)
 
     def _send_datagram(self, datagram: bytes, addr: Address) -> None:
         impair = self._tx_impair
@@ -607,24 +594,32 @@ class MavlinkUdp:
             except BlockingIOError:
                 break
             except (ConnectionRefusedError, ConnectionResetError) as exc:
-                # An ICMP "port unreachable" for an earlier send, reported here by some systems.
-                counters.tx_errors += 1
-                counters.last_tx_errno = exc.errno or 0
-                self.peer_refused = True
+                self._refused(exc)  # an ICMP "port unreachable" for an earlier send
                 continue
             counters.rx_datagrams += 1
             self._rx_signed = False
             if parse(data, addr, received):
                 if now_s < 0:
                     now_s = self._monotonic_s()
-                seen = self._peer_seen_s
-                if addr in seen:
-                    seen[addr] = now_s
-                else:
-                    self._add_peer(addr, now_s)
-                if self._rx_signed and addr in seen:
-                    self._pinned.add(addr)
+                self._heard(addr, now_s)
         return received
+
+    def _refused(self, exc: OSError) -> None:
+        """A send of ours was refused by the peer's host (its port is closed), reported on receive."""
+        counters = self.counters
+        counters.tx_errors += 1
+        counters.last_tx_errno = exc.errno or 0
+        self.peer_refused = True
+
+    def _heard(self, addr: Address, now_s: float) -> None:
+        """A good datagram from ``addr``: refresh (or add) its peer entry; pin it if it was signed."""
+        seen = self._peer_seen_s
+        if addr in seen:
+            seen[addr] = now_s
+        else:
+            self._add_peer(addr, now_s)
+        if self._rx_signed and addr in seen:
+            self._pinned.add(addr)
 
     # ------------------------------------------------------------------ impairment, dead peers
 
@@ -681,22 +676,14 @@ class MavlinkUdp:
                 except BlockingIOError:
                     break
                 except (ConnectionRefusedError, ConnectionResetError) as exc:
-                    counters.tx_errors += 1
-                    counters.last_tx_errno = exc.errno or 0
-                    self.peer_refused = True
+                    self._refused(exc)
                     continue
                 counters.rx_datagrams += 1
                 rx.offer((data, addr), now_s)
             for data, addr in rx.due(now_s):
                 self._rx_signed = False
                 if self._parse_datagram(data, addr, received):
-                    seen = self._peer_seen_s
-                    if addr in seen:
-                        seen[addr] = now_s
-                    else:
-                        self._add_peer(addr, now_s)
-                    if self._rx_signed and addr in seen:
-                        self._pinned.add(addr)
+                    self._heard(addr, now_s)
             remaining = end_s - now_s
             if received or remaining <= 0:
                 return received
