@@ -12,10 +12,12 @@ from pathlib import Path
 
 from fc.app import EXIT_CONFIG, FlightControllerApp, install_signal_handlers
 from fc.config import FcConfig
+from fc.control import registry
 from fc.params import ParamStore, apply_scenario
 from smcpilot.errors import SmcpilotError
 from smcpilot.geo import Home
 from smcpilot.impair import parse_impairment
+from smcpilot.lawref import law_argument
 from smcpilot.plan import load_plan
 from smcpilot.protocol import DEFAULT_GCS_URL, FC_CONTROLLERS, FC_GROUND_PORT
 from smcpilot.scenario import Scenario
@@ -38,8 +40,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--gcs-port", type=int, default=None, metavar="PORT",
                    help=f"with a udp:HOST:PORT ground link, send from this port of ours, so that other ground stations"
                    f" can write to it (default {FC_GROUND_PORT} with the default --gcs, else any free port; 0: any free port)")
-    p.add_argument("--controller", choices=FC_CONTROLLERS, default=None,
-                   help=f"control law (default {d.controller}, or FC_CONTROLLER from the parameter file)")
+    p.add_argument("--controller", "--law", dest="controller", type=law_argument, default=None, metavar="LAW",
+                   help=f"control law: a built-in ({', '.join(FC_CONTROLLERS)}), an installed plug-in, path/to/file.py:NAME"
+                   f" or package.module:NAME (default {d.controller}, or FC_CONTROLLER from the parameter file)")
     p.add_argument("--rate-hz", type=float, default=None, metavar="HZ",
                    help=f"control rate (default {d.rate_hz:g}, or FC_RATE_HZ from the parameter file)")
     p.add_argument("--lockstep", action="store_true", help="one tick per simulator state message (simulated time)")
@@ -105,6 +108,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         # --param-file names it; otherwise the run has a file of its own beside its tlog.
         kept = args.param_file is not None
         param_file = args.param_file if kept else tlog.with_name(tlog.stem + ".parm")
+        scenario = Scenario.from_toml(args.scenario) if args.scenario is not None else None
+        for ref in (args.controller, scenario.controller if scenario is not None else None):
+            if ref is not None:
+                registry.resolve(ref)  # a plug-in's parameters join the table before any is read or set
         params = ParamStore(FcConfig(), param_file)
         for leftover in params.clean_leftovers():
             print(f"fc: removed {leftover.name} (an interrupted write of {param_file.name})", file=sys.stderr)
@@ -113,7 +120,6 @@ def main(argv: Sequence[str] | None = None) -> int:
             for warning in params.load():
                 print(f"fc: warning: {warning}", file=sys.stderr)
         from_file = len(params.differences())
-        scenario = Scenario.from_toml(args.scenario) if args.scenario is not None else None
         if scenario is not None:
             apply_scenario(params, scenario)
         # What the command line says explicitly wins over the parameter file, for this run.

@@ -16,8 +16,8 @@ from fc.control.gains import PAPER_GAINS, Gains4, gains_with_overrides
 from fc.control.pid_smc import DISTURBANCE_ESTIMATES, AdaptationBounds
 from fc.position import PositionGains
 from smcpilot.errors import ConfigError
+from smcpilot.lawref import law_reference_problem
 from smcpilot.limits import DEFAULT_FENCE, Fence
-from smcpilot.protocol import FC_CONTROLLERS
 
 #: the flight controller's default gains: the paper's (spec §5) with Theta = 1 on roll, pitch and yaw
 #: (the altitude channel keeps 0.05: its sigma carries the position and velocity noise).
@@ -43,8 +43,13 @@ class FcConfig:
 
     #: control loop rate, Hz (in lockstep: the simulator's state rate).
     rate_hz: float = 500.0
-    #: attitude/altitude law: adaptive_pid_smc (default), pid_smc or cascade_pid.
+    #: the control law: a built-in's name (adaptive_pid_smc, the default; pid_smc, cascade_pid,
+    #: sign_smc), an installed plug-in's, or path/to/file.py:NAME / package.module:NAME
+    #: (:mod:`fc.control.registry`).
     controller: str = "adaptive_pid_smc"
+    #: values of the parameters of laws that keep theirs as MAVLink values (plug-ins, sign_smc):
+    #: (full name, value) pairs, sorted by name; a parameter not here is at its default.
+    law_values: tuple[tuple[str, float], ...] = ()
     #: the paper's gains, with an adaptation rate Theta of 1 instead of 0.05 on the attitude channels:
     #: at 0.05 chi_hat moves by about 0.03 during a motor fault's transient (docs/disturbance-observer.md).
     gains: Gains4 = FC_GAINS
@@ -56,10 +61,11 @@ class FcConfig:
     )
     #: chi_hat(0) of the adaptive law, every channel.
     chi_hat0: float = 0.5
-    #: the PID-SMC's on-board disturbance estimate (:mod:`fc.control.observer`): "none" (the paper's
-    #: nominal-model sigma), "sigma" (estimated acceleration in sigma only) or "lumped" (the estimate
-    #: added to the model's drift f). See docs/disturbance-observer.md.
-    disturbance_estimate: str = "input"
+    #: the disturbance observer in front of the law (:mod:`fc.control.observer`, ``DOB_MODE``): "none",
+    #: "sigma" or "lumped" (the estimate handed to the law: the PID-SMC uses it in sigma only or
+    #: added to its model's drift f), "input" (cancelled at the law's output), or "auto": the law's
+    #: own default (the PID-SMC flies "input", the baselines "none"). See docs/disturbance-observer.md.
+    disturbance_estimate: str = "auto"
     #: disturbance-observer bandwidth of the roll and pitch channels, rad/s.
     dob_bandwidth_att_radps: float = 40.0
     #: disturbance-observer bandwidth of the yaw channel, rad/s (low: yaw authority is small, so its
@@ -125,12 +131,13 @@ class FcConfig:
         return Fence(self.fence_enable, self.fence_radius_m, self.fence_alt_max_m)
 
     def __post_init__(self) -> None:
-        if self.disturbance_estimate not in DISTURBANCE_ESTIMATES:
+        if self.disturbance_estimate not in DISTURBANCE_ESTIMATES + ("auto",):
             raise ConfigError(
-                f"disturbance_estimate must be one of {', '.join(DISTURBANCE_ESTIMATES)}, got {self.disturbance_estimate!r}"
+                f"disturbance_estimate must be auto or one of {', '.join(DISTURBANCE_ESTIMATES)}, got {self.disturbance_estimate!r}"
             )
-        if self.controller not in FC_CONTROLLERS:
-            raise ConfigError(f"unknown controller {self.controller!r}; choose from: {', '.join(FC_CONTROLLERS)}")
+        problem = law_reference_problem(self.controller)
+        if problem:
+            raise ConfigError(problem)
         for f in fields(self):
             v = getattr(self, f.name)
             if isinstance(v, (int, float)) and not isinstance(v, bool):

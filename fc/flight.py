@@ -20,33 +20,42 @@ keeps its state between ticks and the commander's set-points, and is what the re
 
 from __future__ import annotations
 
-from dataclasses import fields
+import math
 from typing import NamedTuple
 
 from fc.config import FcConfig
-from fc.control import make_controller
+from fc.control import registry
 from fc.control.base import Diagnostics
+from fc.control.law import Law
 from fc.mixer import Mixer, mix
 from fc.pipeline import (
-    LAW_CASCADE_PID,
-    LAW_PID_SMC,
     PipelineInputs,
     PipelineParams,
     PipelineState,
     VehicleState,
+    observer_authority,
     pipeline_params,
     pipeline_reset,
+    pipeline_reset_full,
     pipeline_step,
+    pipeline_step_full,
 )
+from smcpilot.errors import SmcpilotError
 from smcpilot.frames import wrap_pi
 from smcpilot.model import PaperModel
 from smcpilot.vehicle import VehicleParams
 
 _NAN = float("nan")
+_isfinite = math.isfinite
 #: builds a NamedTuple without the class call's argument handling (the wrapper is plain CPython).
 _tuple_new = tuple.__new__
 
-__all__ = ["FlightControl", "PipelineOutput", "VehicleState"]
+__all__ = ["FlightControl", "LawFault", "PipelineOutput", "VehicleState", "observer_authority"]
+
+
+class LawFault(SmcpilotError):
+    """The control law failed in flight: it raised, or returned a non-finite or wrong-length command.
+    The FC counts it and flies the state-loss failsafe (level, descend) instead."""
 
 
 class PipelineOutput(NamedTuple):
@@ -66,28 +75,13 @@ class PipelineOutput(NamedTuple):
     d_hat: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
 
 
-_ZERO_STATE = PipelineState(*(0.0,) * 20, (0.0,) * 12, 0, 0.0)
-
-
-def observer_authority(vehicle: VehicleParams) -> tuple[float, float, float, float]:
-    """Largest |d_hat| worth estimating per channel: the angular accelerations full differential thrust
-    gives (rad/s^2) and 2 g vertically (m/s^2). Beyond that no input can cancel it anyway."""
-    v = vehicle
-    f_max = v.thrust_coeff_n_s2 * v.rotor_speed_max_radps**2
-    q_max = v.drag_coeff_n_m_s2 * v.rotor_speed_max_radps**2
-    return (
-        2.0 * v.arm_length_m * f_max / v.ixx_kg_m2,
-        2.0 * v.arm_length_m * f_max / v.iyy_kg_m2,
-        4.0 * q_max / v.izz_kg_m2,
-        2.0 * v.gravity_mps2,
-    )
-
-
 class FlightControl:
     """Set-point tracking for one vehicle: prefilters, position loop, law, mixer, anti-windup.
 
-    A thin stateful wrapper: the tick is :func:`fc.pipeline.pipeline_step` on the flattened
-    configuration (``params``) and the carried state (``pipeline_state``).
+    A thin stateful wrapper: the tick is :func:`fc.pipeline.pipeline_step` (or, for a whole-stack
+    law, :func:`fc.pipeline.pipeline_step_full`) on the flattened configuration (``params``), the
+    law's functions (``law_functions``) and the carried state (``pipeline_state``). The law is
+    ``config.controller``, resolved through :mod:`fc.control.registry` (built-in or plug-in).
     """
 
     def __init__(self, config: FcConfig, vehicle: VehicleParams) -> None:
@@ -95,9 +89,7 @@ class FlightControl:
         self.vehicle = vehicle
         self.model = PaperModel.from_vehicle(vehicle)
         self.mixer = Mixer(vehicle)
-        self.law = self._make_law(config)
-        #: the configuration, vehicle and law flattened for :func:`fc.pipeline.pipeline_step`.
-        self.params: PipelineParams = pipeline_params(config, vehicle, self.law)
+        self._set_law(config)
         self.armed = False
         self.landing = False
         #: False in ALT_HOLD: level attitude, no horizontal position control.
@@ -108,41 +100,38 @@ class FlightControl:
         self.target = (0.0, 0.0, 0.0)
         self._psi_target = 0.0
         #: prefilter states, integrators, the law's state, the landed timer.
-        self.pipeline_state: PipelineState = _ZERO_STATE
+        self.pipeline_state: PipelineState = pipeline_reset(VehicleState(*(0.0,) * 12), self.params, self.law_functions)
+        #: the law failed in flight this many times (raised, non-finite or malformed output).
+        self.law_faults = 0
+        #: the last law failure's message (None: none yet).
+        self.last_law_fault: str | None = None
+
+    def _set_law(self, cfg: FcConfig) -> None:
+        law: Law = registry.resolve(cfg.controller)
+        self.law = law
+        self.law_params = law.params_of(cfg) if law.params_of is not None else law.params_from_values(dict(cfg.law_values))
+        self.law_functions = law.functions
+        self._full = law.full_stack
+        self._step_fn = pipeline_step_full if self._full else pipeline_step
+        self._reset_fn = pipeline_reset_full if self._full else pipeline_reset
+        self._diag_mask = tuple(name in law.diagnostics for name in ("s", "sigma", "chi_hat", "u_dot"))
+        #: the configuration, vehicle and law flattened for the pipeline.
+        self.params: PipelineParams = pipeline_params(cfg, self.vehicle, law, self.law_params)
 
     def reconfigure(self, config: FcConfig) -> None:
-        """Apply new settings between control steps; the law keeps its state (same layout)."""
-        old = self.config
+        """Apply new settings between control steps; a law of the same name keeps its state, another
+        law starts from its initial state at the next step."""
+        old_law = self.law
         self.config = config
-        law_keys = ("gains", "adaptation", "controller", "disturbance_estimate", "dob_bandwidth_att_radps", "dob_bandwidth_z_radps", "dob_motor_lag",
-                    "cascade")
-        if any(getattr(config, k) != getattr(old, k) for k in law_keys):
-            n = self.pipeline_state.law_n
-            self.law = self._make_law(config)
-            if n != len(self.law.state_names) and self.armed:
-                # another controller type: restart its state where we are
-                self.pipeline_state = self.pipeline_state._replace(law_n=0)
-        self.params = pipeline_params(config, self.vehicle, self.law)
-
-    def _make_law(self, cfg: FcConfig):
-        opts: dict = {}
-        if cfg.controller in ("adaptive_pid_smc", "pid_smc"):
-            wa, wy, wz = cfg.dob_bandwidth_att_radps, cfg.dob_bandwidth_yaw_radps, cfg.dob_bandwidth_z_radps
-            opts = {
-                "gains": cfg.gains, "adaptation": cfg.adaptation, "chi_hat0": (cfg.chi_hat0,) * 4,
-                "disturbance_estimate": cfg.disturbance_estimate,
-                "observer_bandwidth_radps": (wa, wa, wy, wz),
-                "observer_motor_tau_s": self.vehicle.motor_time_constant_s if cfg.dob_motor_lag else 0.0,
-                "observer_d_max": observer_authority(self.vehicle),
-            }  # fmt: skip
-        elif cfg.controller == "cascade_pid":
-            opts = {f.name: getattr(cfg.cascade, f.name) for f in fields(cfg.cascade)}
-        return make_controller(cfg.controller, self.model, **opts)
+        self._set_law(config)
+        if self.law is not old_law:
+            placeholder = self._reset_fn(VehicleState(*(0.0,) * 12), self.params, self.law_functions).law
+            self.pipeline_state = self.pipeline_state._replace(law=placeholder, law_init=True)
 
     # -- commands ------------------------------------------------------------------------------
     def arm(self, st: VehicleState) -> None:
-        """Arm at the current state: references start where the vehicle is, the law at hover trim."""
-        self.pipeline_state = pipeline_reset(st, self.params)
+        """Arm at the current state: references start where the vehicle is, the law at its initial state."""
+        self.pipeline_state = self._reset_fn(st, self.params, self.law_functions)
         self._psi_target = st.psi_rad
         self.target = (st.x_m, st.y_m, st.z_m)
         self.armed = True
@@ -182,13 +171,15 @@ class FlightControl:
 
     @property
     def law_state(self) -> tuple[float, ...]:
-        ps = self.pipeline_state
-        n = ps.law_n
-        return ps.law if n == 12 else ps.law[:n]
+        return self.pipeline_state.law
 
     # -- the tick -------------------------------------------------------------------------------
     def step(self, st: VehicleState, dt_s: float) -> PipelineOutput:
-        """One control tick of ``dt_s`` seconds. Disarmed: motors stopped."""
+        """One control tick of ``dt_s`` seconds. Disarmed: motors stopped.
+
+        Raises :class:`LawFault` if the law raised or returned a non-finite or malformed command
+        (the state is then unchanged; the caller flies :meth:`failsafe_step`).
+        """
         if not self.armed:
             return PipelineOutput((0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0), (False,) * 4, None, (_NAN,) * 4)
         p = self.params
@@ -197,19 +188,27 @@ class FlightControl:
         cmd = _tuple_new(PipelineInputs, (
             tx, ty, tz, self._psi_target, True, self.landing, self.position_hold, p.speed_max_xy_mps if vxy is None else vxy
         ))  # fmt: skip
-        self.pipeline_state, (motors, u, limited, s, sigma, chi, u_law, u_dot, ref, touchdown, d_hat) = pipeline_step(
-            self.pipeline_state, st, cmd, p, dt_s
-        )
-        kind = p.law_kind
-        if kind == LAW_PID_SMC:
-            diag = Diagnostics(s, sigma, chi, u_law, u_dot)
-        elif kind == LAW_CASCADE_PID:
-            diag = Diagnostics(None, None, None, u_law, None)
-        else:
-            diag = Diagnostics(None, sigma, None, u_law, None)
+        try:
+            new_state, (motors, u, limited, s, sigma, chi, u_law, u_dot, ref, touchdown, d_hat) = self._step_fn(
+                self.pipeline_state, st, cmd, p, dt_s, self.law_functions
+            )
+            m0, m1, m2, m3 = motors
+            ok = _isfinite(m0 + m1 + m2 + m3) and len(u_law) == 4 and _isfinite(u_law[0] + u_law[1] + u_law[2] + u_law[3])
+        except Exception as exc:  # the law is anyone's code: any failure is counted and flown around
+            self._law_fault(f"{type(exc).__name__}: {exc}")
+        if not ok:
+            self._law_fault(f"non-finite command u = {tuple(u_law)!r}")
+        self.pipeline_state = new_state
+        sm, gm, cm, dm = self._diag_mask
+        diag = Diagnostics(s if sm else None, sigma if gm else None, chi if cm else None, u_law, u_dot if dm else None)
         if touchdown:
             self.disarm()
         return PipelineOutput(motors, u, limited, diag, ref, d_hat)
+
+    def _law_fault(self, why: str) -> None:
+        self.law_faults += 1
+        self.last_law_fault = f"law {self.law.name}: {why}"
+        raise LawFault(self.last_law_fault)
 
     def failsafe_step(self) -> PipelineOutput:
         """Open loop (no state): level, thrust a fraction of hover, no yaw. Used when the state is lost."""

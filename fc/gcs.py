@@ -25,7 +25,7 @@ from fc.config import FcConfig
 from fc.core import EventSink, FlightCore
 from fc.mission import GLOBAL_FRAMES, RELATIVE_FRAMES, MissionItem, MissionProtocol
 from fc.modes import Refusal
-from fc.params import PARAM_COUNT, PARAM_INDEX, PARAMS, SIM_PARAM_OFFSET, ParamError, ParamStore, is_sim_param
+from fc.params import ParamError, ParamStore, is_sim_param, param_table
 from fc.streams import StreamScheduler, interval_refusal
 from fc.telemetry import CAPABILITIES, IGNORE_POS, IGNORE_YAW, TelemetrySnapshot
 from smcpilot.faults import SIM_PARAM_INDEX, SIM_PARAMS
@@ -419,22 +419,22 @@ class GcsHandler:
 
     # -- parameters -----------------------------------------------------------------------------
     # Indices 0..len(PARAMS)-1 are the FC's parameters, then the simulator's SIM_* (volatile,
-    # forwarded to the simulator on a change): PARAM_COUNT in all.
+    # forwarded to the simulator on a change): param_table().count in all.
     def _param_msg(self, index: int) -> mavlink.MAVLink_message:
-        if index >= SIM_PARAM_OFFSET:
-            sp = SIM_PARAMS[index - SIM_PARAM_OFFSET]
+        if index >= param_table().sim_offset:
+            sp = SIM_PARAMS[index - param_table().sim_offset]
             name, value, is_int = sp.name, self.params.sim[sp.name], sp.is_int
         else:
-            p = PARAMS[index]
+            p = param_table().specs[index]
             name, value, is_int = p.name, self.params.value(p.name), p.is_int
         ptype = M.MAV_PARAM_TYPE_INT32 if is_int else M.MAV_PARAM_TYPE_REAL32
-        return self.mav.param_value_encode(name.encode(), float(value), ptype, PARAM_COUNT, index)
+        return self.mav.param_value_encode(name.encode(), float(value), ptype, param_table().count, index)
 
     @staticmethod
     def _param_index(name: str) -> int | None:
-        index = PARAM_INDEX.get(name)
+        index = param_table().index.get(name)
         if index is None and name in SIM_PARAM_INDEX:
-            index = SIM_PARAM_OFFSET + SIM_PARAM_INDEX[name]
+            index = param_table().sim_offset + SIM_PARAM_INDEX[name]
         return index
 
     def announce_param(self, name: str) -> None:
@@ -448,14 +448,14 @@ class GcsHandler:
         if not self._for_us(m.target_system, m.target_component):
             return
         if self.link is not None:
-            self.link.send_many_to([self._param_msg(i) for i in range(PARAM_COUNT)], addr)
+            self.link.send_many_to([self._param_msg(i) for i in range(param_table().count)], addr)
 
     def _param_read(self, m: mavlink.MAVLink_message, addr: Address) -> None:
         if not self._for_us(m.target_system, m.target_component):
             return
         name = _param_name(m.param_id)
         if m.param_index >= 0:
-            index = m.param_index if m.param_index < PARAM_COUNT else -1
+            index = m.param_index if m.param_index < param_table().count else -1
         else:
             found = self._param_index(name)
             index = -1 if found is None else found
@@ -471,7 +471,7 @@ class GcsHandler:
         if is_sim_param(name):
             self._sim_param_set(name, float(m.param_value), addr)
             return
-        index = PARAM_INDEX.get(name)
+        index = param_table().index.get(name)
         if index is None:
             self._refuse("unknown_param", f"Param set: unknown {name}", addr)
             return
@@ -486,7 +486,7 @@ class GcsHandler:
             self._event(M.MAV_SEVERITY_ERROR, f"Param file not written: {exc.strerror or exc}")
             cfg = self.params.config
         self._apply_config(cfg)
-        if PARAMS[index].restart:
+        if param_table().specs[index].restart:
             self._event(M.MAV_SEVERITY_INFO, f"{name} takes effect at the next start")
         self._broadcast(self._param_msg(index))
 
@@ -494,7 +494,7 @@ class GcsHandler:
         """A simulator parameter: validated here (the pair of a sensor fault too), recorded,
         forwarded to the simulator and echoed at once (as ArduPilot answers); a refusal gets the
         value in force back and a STATUSTEXT with the reason."""
-        index = SIM_PARAM_OFFSET + SIM_PARAM_INDEX[name]
+        index = param_table().sim_offset + SIM_PARAM_INDEX[name]
         try:
             if self._forward_sim is None:
                 raise ParamError(f"{name}: no simulator link to forward it to")

@@ -33,7 +33,7 @@ _ROOT = Path(__file__).resolve().parent.parent
 #: shipped with the package (the ground station reads it: ground.vehicle.param_meta).
 PDEF_PATH = _ROOT / "smcpilot" / "data" / "apm.pdef.xml"
 MARKDOWN_PATH = _ROOT / "docs" / "parameters.md"
-_VALUE_RE = re.compile(r"(\d+) ([A-Za-z_][\w-]*)")
+_VALUE_RE = re.compile(r"(-?\d+) ([A-Za-z_][\w-]*)")
 
 
 def values_of(is_int: bool, lo: float, hi: float, doc: str) -> dict[int, str]:

@@ -23,6 +23,9 @@ from pathlib import Path
 from typing import Any
 
 from fc.config import FcConfig
+from fc.control import registry
+from fc.control.builtin import BUILTIN_LAWS
+from fc.control.law import Law, LawParam
 from fc.control.pid_smc import DISTURBANCE_ESTIMATES
 from fc.estimate import EstimatorConfig
 from fc.param_store import BackgroundWriter, atomic_write_text, clean_leftovers
@@ -55,6 +58,8 @@ class ParamSpec:
     restart: bool = False
     #: the value lives in :class:`FcOptions`, not in FcConfig.
     options: bool = False
+    #: the control law the parameter belongs to ("" for the FC's own).
+    law: str = ""
 
 
 _CHANNEL_TAGS = ("R", "P", "Y", "Z")
@@ -121,19 +126,69 @@ def _cascade_set(field: str, i: int) -> Callable[[FcConfig, float], FcConfig]:
 
 
 def _dob_get(c: FcConfig) -> float:
-    return float(DISTURBANCE_ESTIMATES.index(c.disturbance_estimate))
+    return -1.0 if c.disturbance_estimate == "auto" else float(DISTURBANCE_ESTIMATES.index(c.disturbance_estimate))
 
 
 def _dob_set(c: FcConfig, v: float) -> FcConfig:
-    return replace(c, disturbance_estimate=DISTURBANCE_ESTIMATES[int(v)])
+    return replace(c, disturbance_estimate="auto" if int(v) < 0 else DISTURBANCE_ESTIMATES[int(v)])
+
+
+def _law_names() -> tuple[str, ...]:
+    """The FC's law table: the built-ins, then the plug-ins loaded in this process."""
+    return tuple(law.name for law in registry.flight_laws())
 
 
 def _controller_get(c: FcConfig) -> float:
-    return float(FC_CONTROLLERS.index(c.controller))
+    names = _law_names()
+    name = c.controller if c.controller in names else registry.resolve(c.controller).name
+    return float(names.index(name))
 
 
 def _controller_set(c: FcConfig, v: float) -> FcConfig:
-    return replace(c, controller=FC_CONTROLLERS[int(v)])
+    return replace(c, controller=_law_names()[int(v)])
+
+
+def _controller_spec(names: tuple[str, ...]) -> ParamSpec:
+    return ParamSpec("FC_CONTROLLER", "", 0.0, float(len(names) - 1),
+                     "control law: " + ", ".join(f"{i} {n}" for i, n in enumerate(names)),
+                     _controller_get, _controller_set, is_int=True, restart=True)  # fmt: skip
+
+
+def _law_value_get(law: Law, lp: LawParam, name: str) -> Callable[[FcConfig], float]:
+    default = law.param_value(law.default_params(), lp)
+
+    def get(c: FcConfig) -> float:
+        for n, v in c.law_values:
+            if n == name:
+                return float(v)
+        return default
+
+    return get
+
+
+def _law_value_set(law: Law, lp: LawParam, name: str) -> Callable[[FcConfig, float], FcConfig]:
+    default = law.param_value(law.default_params(), lp)
+
+    def set_(c: FcConfig, v: float) -> FcConfig:
+        values = dict(c.law_values)
+        values[name] = float(v)
+        if float(v) == default:
+            del values[name]  # only values that differ are kept: a default set is the default config
+        law.params_from_values(values)  # the law's own validation (LawError, a ConfigError, names it)
+        return replace(c, law_values=tuple(sorted(values.items())))
+
+    return set_
+
+
+def law_param_specs(law: Law) -> tuple[ParamSpec, ...]:
+    """The parameters of a law that keeps its values as MAVLink values (a plug-in, sign_smc)."""
+    if law.params_of is not None:
+        return ()
+    return tuple(
+        ParamSpec(name, lp.unit, lp.lo, lp.hi, f"{law.name}: {lp.doc}", _law_value_get(law, lp, name), _law_value_set(law, lp, name),
+                  is_int=lp.is_int, law=law.name)  # fmt: skip
+        for lp, name in zip(law.param_list(), law.param_names())
+    )
 
 
 def _build() -> tuple[ParamSpec, ...]:
@@ -143,24 +198,29 @@ def _build() -> tuple[ParamSpec, ...]:
             specs.append(ParamSpec(f"SMC_{tag}_{suffix}", unit, lo, hi, f"{cname}: {doc}", _gain_get(i, field), _gain_set(i, field)))
 
     def add(name: str, path: str, lo: float, hi: float, unit: str, doc: str, scale: float = 1.0, *, is_int: bool = False,
-            restart: bool = False, cast: Callable[[float], object] = float) -> None:  # fmt: skip
+            restart: bool = False, cast: Callable[[float], object] = float, law: str = "") -> None:  # fmt: skip
         get, set_ = _attr(path, scale, cast)
-        specs.append(ParamSpec(name, unit, lo, hi, doc, get, set_, is_int=is_int, restart=restart))
+        specs.append(ParamSpec(name, unit, lo, hi, doc, get, set_, is_int=is_int, restart=restart, law=law))
 
     add("SMC_CHI0", "chi_hat0", 0.0, 100.0, "", "adaptive chi_hat(0) on every channel (applies at the next arming)")
     add("SMC_CHI_MIN", "adaptation.chi_hat_min", 0.0, 100.0, "", "chi_hat projection: lower bound")
     add("SMC_CHI_MAX", "adaptation.chi_hat_max", 0.0, 1000.0, "", "chi_hat projection: upper bound")
     add("SMC_CHI_DZ", "adaptation.dead_zone", 0.0, 10.0, "", "chi_hat grows only while |sigma| exceeds this dead zone")
     add("SMC_CHI_LEAK", "adaptation.leakage_per_s", 0.0, 10.0, "1/s", "sigma-modification pulling chi_hat back to chi_hat(0)")
+    specs[:] = [replace(sp, law="adaptive_pid_smc,pid_smc") if sp.name.startswith("SMC_") else sp for sp in specs]
+    # -- the disturbance observer, in front of any law ------------------------------------------------
     specs.append(
-        ParamSpec("SMC_DOB", "", 0.0, float(len(DISTURBANCE_ESTIMATES) - 1),
-                  "PID-SMC disturbance estimate: " + ", ".join(f"{i} {n}" for i, n in enumerate(DISTURBANCE_ESTIMATES)),
+        ParamSpec("DOB_MODE", "", -1.0, float(len(DISTURBANCE_ESTIMATES) - 1),
+                  "disturbance observer: -1 auto, " + ", ".join(f"{i} {n}" for i, n in enumerate(DISTURBANCE_ESTIMATES))
+                  + " (auto: the law's default, input for the PID-SMC, none for the others; sigma and lumped hand the"
+                  " estimate to the law, input cancels it at the law's output)",
                   _dob_get, _dob_set, is_int=True)
     )  # fmt: skip
-    add("SMC_DOB_W", "dob_bandwidth_att_radps", 1.0, 200.0, "rad/s", "disturbance observer bandwidth, roll and pitch")
-    add("SMC_DOB_WY", "dob_bandwidth_yaw_radps", 1.0, 200.0, "rad/s", "disturbance observer bandwidth, yaw")
-    add("SMC_DOB_WZ", "dob_bandwidth_z_radps", 1.0, 100.0, "rad/s", "disturbance observer bandwidth, altitude")
-    add("SMC_DOB_LAG", "dob_motor_lag", 0.0, 1.0, "", "1: the observer models the motors' lag (vehicle time constant)", is_int=True, cast=bool)
+    add("DOB_W", "dob_bandwidth_att_radps", 1.0, 200.0, "rad/s", "disturbance observer bandwidth, roll and pitch")
+    add("DOB_WY", "dob_bandwidth_yaw_radps", 1.0, 200.0, "rad/s", "disturbance observer bandwidth, yaw")
+    add("DOB_WZ", "dob_bandwidth_z_radps", 1.0, 100.0, "rad/s", "disturbance observer bandwidth, altitude")
+    add("DOB_LAG", "dob_motor_lag", 0.0, 1.0, "", "1: the observer models the motors' lag (vehicle time constant)", is_int=True, cast=bool)
+
     # -- the cascaded PID (controller cascade_pid): ArduCopter's names, this project's units -------------
     for i, (tag, cname) in enumerate(zip(("RLL", "PIT", "YAW"), _CHANNEL_NAMES)):
         for pname, fname, hi, unit, doc in (
@@ -170,16 +230,16 @@ def _build() -> tuple[ParamSpec, ...]:
             (f"ATC_RAT_{tag}_D", "kd_rate", 10.0, "", "D on the low-passed measured rate (angular acceleration per angular acceleration)"),
             (f"ATC_RAT_{tag}_IMAX", "i_max", 1000.0, "rad/s^2", "largest |I term| (integrator clamp)"),
         ):
-            specs.append(ParamSpec(pname, unit, 0.0, hi, f"cascade_pid {cname}: {doc}", _cascade_get(fname, i), _cascade_set(fname, i)))
+            specs.append(ParamSpec(pname, unit, 0.0, hi, f"cascade_pid {cname}: {doc}", _cascade_get(fname, i), _cascade_set(fname, i), law="cascade_pid"))
     for pname, fname, hi, unit, doc in (
         ("PSC_POSZ_P", "k_outer", 50.0, "1/s", "altitude error -> climb-rate command"),
         ("PSC_VELZ_P", "k_inner", 200.0, "1/s", "climb-rate error -> vertical acceleration"),
         ("PSC_VELZ_I", "ki_inner", 200.0, "1/s^2", "integral of the climb-rate error -> vertical acceleration"),
         ("PSC_VELZ_IMAX", "i_max", 20.0, "m/s^2", "largest |I term| of the climb-rate loop (integrator clamp)"),
     ):
-        specs.append(ParamSpec(pname, unit, 0.0, hi, f"cascade_pid altitude z: {doc}", _cascade_get(fname, 3), _cascade_set(fname, 3)))
-    add("ATC_RAT_FLTD", "cascade.d_filter_hz", 0.0, 500.0, "Hz", "cascade_pid: low-pass of the rate D terms (0 off)")
-    add("INS_GYRO_FILTER", "cascade.gyro_filter_hz", 0.0, 500.0, "Hz", "cascade_pid: low-pass of the rates its rate loops use (0 off)")
+        specs.append(ParamSpec(pname, unit, 0.0, hi, f"cascade_pid altitude z: {doc}", _cascade_get(fname, 3), _cascade_set(fname, 3), law="cascade_pid"))
+    add("ATC_RAT_FLTD", "cascade.d_filter_hz", 0.0, 500.0, "Hz", "cascade_pid: low-pass of the rate D terms (0 off)", law="cascade_pid")
+    add("INS_GYRO_FILTER", "cascade.gyro_filter_hz", 0.0, 500.0, "Hz", "cascade_pid: low-pass of the rates its rate loops use (0 off)", law="cascade_pid")
     # -------------------------------------------------------------------------------------------------------
     add("PSC_POS_KP", "position.kp_1ps2", 0.0, 20.0, "1/s^2", "position loop: gain on position error")
     add("PSC_VEL_KD", "position.kd_1ps", 0.0, 20.0, "1/s", "position loop: gain on velocity error")
@@ -206,16 +266,14 @@ def _build() -> tuple[ParamSpec, ...]:
     add("FS_WATCHDOG", "watchdog_s", 1.0, 600.0, "s", "stop when the simulator is silent this long (wall)")
     add("TELEM_RATE_HZ", "telemetry_rate_hz", 1.0, 50.0, "Hz", "rate of ATTITUDE, position and CHI/SIG telemetry")
     add("FC_RATE_HZ", "rate_hz", 50.0, 1000.0, "Hz", "control loop rate (must match the simulator's)", restart=True)
-    specs.append(
-        ParamSpec("FC_CONTROLLER", "", 0.0, float(len(FC_CONTROLLERS) - 1),
-                  "control law: " + ", ".join(f"{i} {n}" for i, n in enumerate(FC_CONTROLLERS)),
-                  _controller_get, _controller_set, is_int=True, restart=True)  # fmt: skip
-    )
+    specs.append(_controller_spec(FC_CONTROLLERS))
     add("FENCE_ENABLE", "fence_enable", 0.0, 1.0, "", "1: targets outside the geofence (FENCE_RADIUS, FENCE_ALT_MAX) are refused;"
         " 0: only the absolute limits hold (10 km, 500 m)", is_int=True, cast=bool)  # fmt: skip
     add("FENCE_RADIUS", "fence_radius_m", *FENCE_RADIUS_RANGE_M, "m", "geofence: largest horizontal distance of a target from home")
     add("FENCE_ALT_MAX", "fence_alt_max_m", *FENCE_ALT_MAX_RANGE_M, "m", "geofence: largest target altitude above home (take-off too)")
     add("SYSID_THISMAV", "system_id", 1.0, 255.0, "", "MAVLink system id", is_int=True, restart=True, cast=int)
+    for law in BUILTIN_LAWS:
+        specs.extend(law_param_specs(law))
     names = [s.name for s in specs]
     assert len(set(names)) == len(names) and all(len(n) <= 16 for n in names), names
     return tuple(specs)
@@ -250,12 +308,57 @@ _OPTION_PARAMS: tuple[ParamSpec, ...] = (
               lambda o: float(o.estimator.pos_timeout_s), _pos_tmo_set, options=True),  # fmt: skip
 )
 
+#: the built-in parameter table (what ``docs/parameters.md`` and ``apm.pdef.xml`` list): the FC's own,
+#: the built-in laws', the observer's; plug-in laws' parameters join it at run time (:func:`param_table`).
 PARAMS: tuple[ParamSpec, ...] = _build() + _OPTION_PARAMS
 PARAM_INDEX: dict[str, int] = {p.name: i for i, p in enumerate(PARAMS)}
 assert len(PARAM_INDEX) == len(PARAMS) and not set(PARAM_INDEX) & set(SIM_PARAM_INDEX)
-#: the simulator's parameters follow the FC's in the parameter protocol: index = this + position.
+
+
+@dataclass(frozen=True)
+class ParamTable:
+    """Every FC parameter a ground station sees, in index order, then the simulator's ``SIM_*``."""
+
+    specs: tuple[ParamSpec, ...]
+    index: dict[str, int]
+
+    @property
+    def sim_offset(self) -> int:
+        """Index of the first ``SIM_*`` parameter (they follow the FC's)."""
+        return len(self.specs)
+
+    @property
+    def count(self) -> int:
+        """Every parameter: the FC's, then the simulator's."""
+        return len(self.specs) + len(SIM_PARAMS)
+
+
+_TABLES: dict[tuple[str, ...], ParamTable] = {}
+
+
+def param_table() -> ParamTable:
+    """The parameter table of this process: the built-in one with ``FC_CONTROLLER`` ranging over the
+    laws loaded so far, then each loaded plug-in law's parameters (in load order)."""
+    plugins = registry.plugin_laws()
+    key = tuple(law.name for law in plugins)
+    table = _TABLES.get(key)
+    if table is None:
+        names = FC_CONTROLLERS + key
+        specs = [(_controller_spec(names) if p.name == "FC_CONTROLLER" else p) for p in PARAMS]
+        for law in plugins:
+            for sp in law_param_specs(law):
+                if sp.name in PARAM_INDEX or sp.name in SIM_PARAM_INDEX or any(q.name == sp.name for q in specs):
+                    raise ParamError(f"law {law.name!r}: parameter {sp.name} is already taken; choose another prefix than {law.prefix}")
+                specs.append(sp)
+        table = ParamTable(tuple(specs), {p.name: i for i, p in enumerate(specs)})
+        _TABLES[key] = table
+    return table
+
+
+#: the simulator's parameters follow the FC's in the parameter protocol (built-in table; with
+#: plug-in laws loaded see :func:`param_table`).
 SIM_PARAM_OFFSET = len(PARAMS)
-#: every parameter a ground station sees: the FC's, then the simulator's.
+#: every parameter a ground station sees: the FC's, then the simulator's (built-in table).
 PARAM_COUNT = len(PARAMS) + len(SIM_PARAMS)
 
 
@@ -265,8 +368,9 @@ def is_sim_param(name: str) -> bool:
 
 
 def spec(name: str) -> ParamSpec:
+    table = param_table()
     try:
-        return PARAMS[PARAM_INDEX[name]]
+        return table.specs[table.index[name]]
     except KeyError:
         if name in SIM_PARAM_INDEX:
             raise ParamError(
@@ -315,7 +419,7 @@ class ParamStore:
         start would run them (``pending``)."""
         d, o = FcConfig(), FcOptions()
         out = []
-        for p in PARAMS:
+        for p in param_table().specs:
             v = p.get(self.options if p.options else self.pending)
             dv = p.get(o if p.options else d)
             if v != dv:
@@ -421,7 +525,7 @@ class ParamStore:
             if name in SIM_PARAM_INDEX:
                 warnings.append(f"{self.path}:{lineno}: {name} is a live simulator parameter, not loaded (volatile)")
                 continue
-            if name not in PARAM_INDEX:
+            if name not in param_table().index:
                 warnings.append(f"{self.path}:{lineno}: unknown parameter {name} ignored")
                 continue
             try:
@@ -437,7 +541,7 @@ def render_param_file(config: FcConfig, options: FcOptions) -> str:
     """The ``.parm`` text of ``config`` and ``options`` (``NAME VALUE`` per line; the simulator's
     SIM_* are volatile and never written)."""
     lines = ["# smcpilot flight-controller parameters (NAME VALUE); written by the FC on every change"]
-    for p in PARAMS:
+    for p in param_table().specs:
         v = p.get(options if p.options else config)
         lines.append(f"{p.name} {int(v) if p.is_int else repr(float(v))}")
     return "\n".join(lines) + "\n"
@@ -466,6 +570,10 @@ def defaults_table() -> list[dict[str, object]]:
 def apply_scenario(store: ParamStore, scenario: Scenario) -> FcConfig:
     """Start-up: the scenario's controller, rate and parameter values over what ``store`` holds
     (defaults, or a loaded parameter file); restart parameters apply at once. Errors name the key."""
+    try:
+        registry.resolve(scenario.controller)  # a plug-in's parameters join the table before they are set
+    except ConfigError as exc:
+        raise ScenarioError(f"fc.controller: {exc}") from None
     base: dict[str, Any] = {"controller": scenario.controller, "rate_hz": scenario.rate_hz}
     store.config = replace(store.config, **base)
     store.pending = replace(store.pending, **base)
@@ -498,10 +606,11 @@ def param_messages(mav: Any, config: FcConfig, options: FcOptions | None = None)
     so a log says what configuration flew it (as ArduPilot's logs carry PARM records)."""
     opts = options if options is not None else FcOptions()
     out = []
-    n = PARAM_COUNT
-    for i, p in enumerate(PARAMS):
+    table = param_table()
+    n = table.count
+    for i, p in enumerate(table.specs):
         ptype = 6 if p.is_int else 9  # MAV_PARAM_TYPE_INT32 / REAL32
         out.append(mav.param_value_encode(p.name.encode(), float(p.get(opts if p.options else config)), ptype, n, i))
     for j, sp in enumerate(SIM_PARAMS):
-        out.append(mav.param_value_encode(sp.name.encode(), float(sp.default), 6 if sp.is_int else 9, n, SIM_PARAM_OFFSET + j))
+        out.append(mav.param_value_encode(sp.name.encode(), float(sp.default), 6 if sp.is_int else 9, n, table.sim_offset + j))
     return out

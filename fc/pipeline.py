@@ -27,26 +27,10 @@ from typing import NamedTuple
 
 from fc.config import FcConfig
 from fc.control import LAW_FUNCTIONS
-from fc.control.base import integrators_anti_windup
-from fc.control.cascade_pid import (
-    CascadePid,
-    CascadePidConsts,
-    cascade_pid_anti_windup,
-    cascade_pid_consts,
-    cascade_pid_step,
-)
+from fc.control.builtin import BUILTIN_FLIGHT_FUNCTIONS
+from fc.control.law import Law, LawContext, LawFunctions
 from fc.control.observer import observer_estimate, observer_reset, observer_update
-from fc.control.pid_smc import (
-    PidSmc,
-    PidSmcConsts,
-    PidSmcParams,
-    pid_smc_anti_windup,
-    pid_smc_consts,
-    pid_smc_initial_state,
-    pid_smc_integrate,
-    pid_smc_law,
-)
-from fc.control.sign_smc import SignSmc, SignSmcConsts, SignSmcParams, sign_smc_consts, sign_smc_output
+from fc.control.pid_smc import DISTURBANCE_ESTIMATES
 from fc.mixer import MixerParams, mix, mixer_params
 from fc.position import PositionLoopParams, position_step
 from fc.prefilter import prefilter_step
@@ -56,14 +40,35 @@ from smcpilot.vehicle import VehicleParams
 
 _INF = math.inf
 _NAN = math.nan
-_ZERO2 = (0.0, 0.0)
 _ZERO4 = (0.0, 0.0, 0.0, 0.0)
 _ZERO8 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
-#: :attr:`PipelineParams.law_kind` values.
-LAW_PID_SMC = 0
-LAW_CASCADE_PID = 1
-LAW_SIGN_SMC = 2
+#: :attr:`ObserverConsts.mode` values (``DOB_MODE``): no observer; the estimate handed to the law, which
+#: uses it in its sigma or lumped into its model (the PID-SMC; other laws may ignore it); cancelled at
+#: the law's output (u_cmd = u - d_hat/g), the law staying nominal.
+DOB_OFF = 0
+DOB_SIGMA = 1
+DOB_LUMPED = 2
+DOB_INPUT = 3
+#: smallest |cos phi cos theta| in the observer's and the hover trim's g_z.
+TILT_COS_MIN = 0.05
+
+
+class ObserverConsts(NamedTuple):
+    """The disturbance observer's configuration, flattened (:mod:`fc.control.observer`)."""
+
+    #: :data:`DOB_OFF`, :data:`DOB_SIGMA`, :data:`DOB_LUMPED` or :data:`DOB_INPUT`.
+    mode: int
+    #: bandwidth per channel, rad/s.
+    w: tuple[float, float, float, float]
+    #: largest |d_hat| per channel (rad/s^2 x3, m/s^2).
+    d_max: tuple[float, float, float, float]
+    #: the rotors' time constant the observer models, s (0: none).
+    tau: float
+    #: the nominal model's constants (ModelConsts order).
+    model: tuple[float | bool, ...]
+    tilt_min: float
+    inv_mass: float
 
 
 class VehicleState(NamedTuple):
@@ -100,14 +105,10 @@ class PipelineParams(NamedTuple):
     gravity_mps2: float
     position: PositionLoopParams
     mixer: MixerParams
-    #: which law runs: :data:`LAW_PID_SMC`, :data:`LAW_CASCADE_PID` or :data:`LAW_SIGN_SMC`.
-    law_kind: int
-    #: length of that law's state (12, 10 or 4).
-    law_n: int
-    #: the constants of each law (only ``law_kind``'s are used; the others are defaults).
-    smc: PidSmcConsts
-    cpid: CascadePidConsts
-    ssmc: SignSmcConsts
+    #: the disturbance observer in front of the law.
+    observer: ObserverConsts
+    #: the law's constants (whatever its ``consts`` returned: a tuple of numbers and tuples).
+    law: tuple
 
 
 class PipelineState(NamedTuple):
@@ -137,14 +138,17 @@ class PipelineState(NamedTuple):
     #: the position loop's integrators.
     int_x: float
     int_y: float
-    #: the law's state, padded with zeros to 12 floats.
-    law: tuple[float, ...]
-    #: how many entries of ``law`` are the law's (12, 10 or 4); 0: none yet (initialised on the next step).
-    law_n: int
+    #: the law's state (its own length and layout).
+    law: tuple
+    #: True: the law's state is a placeholder, initialised from the measurement on the next step
+    #: (after a change of law while armed).
+    law_init: bool
     #: time spent settled on the ground while landing, s.
     landed_s: float
     #: the disturbance observer's state (:mod:`fc.control.observer`; 8 floats, zeros when unused).
     dob: tuple[float, ...] = _ZERO8
+    #: the input the mixer realised on the previous tick (u_phi N, u_theta N, u_psi N m, u_z N).
+    u_prev: tuple[float, float, float, float] = _ZERO4
 
 
 class PipelineInputs(NamedTuple):
@@ -164,24 +168,47 @@ class PipelineInputs(NamedTuple):
 
 
 # -- start-up: validated configuration -> flat parameters ---------------------------------------------
-def law_kind_of(law: object) -> int:
-    """The :data:`LAW_PID_SMC` / :data:`LAW_CASCADE_PID` / :data:`LAW_SIGN_SMC` of a law object."""
-    if isinstance(law, PidSmc):
-        return LAW_PID_SMC
-    if isinstance(law, CascadePid):
-        return LAW_CASCADE_PID
-    if isinstance(law, SignSmc):
-        return LAW_SIGN_SMC
-    raise TypeError(f"the flight pipeline has no pure form of {type(law).__name__}")
+def observer_authority(vehicle: VehicleParams) -> tuple[float, float, float, float]:
+    """Largest |d_hat| worth estimating per channel: the angular accelerations full differential thrust
+    gives (rad/s^2) and 2 g vertically (m/s^2). Beyond that no input can cancel it anyway."""
+    v = vehicle
+    f_max = v.thrust_coeff_n_s2 * v.rotor_speed_max_radps**2
+    q_max = v.drag_coeff_n_m_s2 * v.rotor_speed_max_radps**2
+    return (
+        2.0 * v.arm_length_m * f_max / v.ixx_kg_m2,
+        2.0 * v.arm_length_m * f_max / v.iyy_kg_m2,
+        4.0 * q_max / v.izz_kg_m2,
+        2.0 * v.gravity_mps2,
+    )
 
 
-def pipeline_params(config: FcConfig, vehicle: VehicleParams, law: PidSmc | CascadePid | SignSmc) -> PipelineParams:
-    """Flatten a validated configuration, a vehicle and the law built for them (once, not per tick)."""
-    kind = law_kind_of(law)
-    model: PaperModel = law.model
-    smc = law.consts if isinstance(law, PidSmc) else pid_smc_consts(model, PidSmcParams())
-    cpid = law.consts if isinstance(law, CascadePid) else cascade_pid_consts(model, config.cascade)
-    ssmc = law.consts if isinstance(law, SignSmc) else sign_smc_consts(model, SignSmcParams())
+def observer_mode(config: FcConfig, law: Law) -> str:
+    """The observer mode in force: ``DOB_MODE``, or the law's own default where it is "auto" (-1)."""
+    return law.observer_default if config.disturbance_estimate == "auto" else config.disturbance_estimate
+
+
+def observer_consts(config: FcConfig, vehicle: VehicleParams, model: PaperModel, mode: str) -> ObserverConsts:
+    """The observer stage of ``config`` (``DOB_*``) for ``vehicle`` in ``mode``, flattened."""
+    c = config
+    wa = float(c.dob_bandwidth_att_radps)
+    return ObserverConsts(
+        mode=DISTURBANCE_ESTIMATES.index(mode),
+        w=(wa, wa, float(c.dob_bandwidth_yaw_radps), float(c.dob_bandwidth_z_radps)),
+        d_max=tuple(float(x) for x in observer_authority(vehicle)),  # type: ignore[arg-type]
+        tau=float(vehicle.motor_time_constant_s) if c.dob_motor_lag else 0.0,
+        model=tuple(model.consts()),
+        tilt_min=TILT_COS_MIN,
+        inv_mass=1.0 / model.mass_kg,
+    )
+
+
+def law_context(config: FcConfig, vehicle: VehicleParams, model: PaperModel | None = None) -> LawContext:
+    return LawContext(vehicle, model if model is not None else PaperModel.from_vehicle(vehicle), float(config.rate_hz), config)
+
+
+def pipeline_params(config: FcConfig, vehicle: VehicleParams, law: Law, law_params: object) -> PipelineParams:
+    """Flatten a validated configuration, a vehicle, the law and its parameters (once, not per tick)."""
+    model = PaperModel.from_vehicle(vehicle)
     c = config
     return PipelineParams(
         pos_filter_omega_radps=float(c.pos_filter_omega_radps),
@@ -197,31 +224,39 @@ def pipeline_params(config: FcConfig, vehicle: VehicleParams, law: PidSmc | Casc
         gravity_mps2=float(vehicle.gravity_mps2),
         position=c.position.flat(),
         mixer=mixer_params(vehicle),
-        law_kind=kind,
-        law_n=len(law.state_names),
-        smc=smc,
-        cpid=cpid,
-        ssmc=ssmc,
+        observer=observer_consts(c, vehicle, model, observer_mode(c, law)),
+        law=law.consts(law_context(c, vehicle, model), law_params),
     )
 
 
 # -- the pure functions -------------------------------------------------------------------------------
-def law_initial_state(meas: tuple[float, ...], p: PipelineParams) -> tuple[float, ...]:
-    """The law's initial state for ``meas``, padded to 12 floats."""
-    if p.law_kind == LAW_PID_SMC:
-        return pid_smc_initial_state(meas, p.smc)
-    return (0.0, 0.0, 0.0, 0.0) + _ZERO8
+def hover_input(phi: float, theta: float, ob: ObserverConsts) -> tuple[float, float, float, float]:
+    """The input that holds the nominal vehicle at this attitude: no torques, u_z = m g / (cos phi cos theta)."""
+    m = ob.model
+    return (0.0, 0.0, 0.0, m[0] * m[1] / tilt_cos(phi, theta, ob.tilt_min))  # mass_kg * gravity_mps2
 
 
-def pipeline_reset(st: VehicleState, p: PipelineParams) -> PipelineState:
-    """The state on arming at ``st``: references start where the vehicle is, the law at hover trim."""
-    law = law_initial_state((0.0, 0.0, 0.0, 0.0, st.psi_rad, 0.0, st.z_m, 0.0), p)
+def pipeline_reset(st: VehicleState, p: PipelineParams, law: LawFunctions) -> PipelineState:
+    """The state on arming at ``st``: references start where the vehicle is, the law at its initial state."""
+    law_state = law.initial_state((0.0, 0.0, 0.0, 0.0, st.psi_rad, 0.0, st.z_m, 0.0), p.law)
     meas = (st.phi_rad, st.phi_dot_radps, st.theta_rad, st.theta_dot_radps, st.psi_rad, st.psi_dot_radps, st.z_m, st.vz_mps)
-    dob = observer_reset(meas, (law[4], law[5], law[6], law[7]), p.smc.dob_w) if p.law_kind == LAW_PID_SMC else _ZERO8
+    dob = observer_reset(meas, hover_input(0.0, 0.0, p.observer), p.observer.w)
     return PipelineState(
         st.x_m, st.vx_mps, 0.0, st.y_m, st.vy_mps, 0.0, st.z_m, st.vz_mps, 0.0,
         st.phi_rad, 0.0, 0.0, st.theta_rad, 0.0, 0.0, st.psi_rad, 0.0, 0.0,
-        0.0, 0.0, law, p.law_n, 0.0, dob,
+        0.0, 0.0, law_state, False, 0.0, dob, _ZERO4,
+    )  # fmt: skip
+
+
+def pipeline_reset_full(st: VehicleState, p: PipelineParams, law: LawFunctions) -> PipelineState:
+    """:func:`pipeline_reset` for a whole-stack law (its initial state from the 12-float state)."""
+    law_state = law.initial_state((st.x_m, st.y_m, st.z_m, 0.0, 0.0, 0.0, 0.0, 0.0, st.psi_rad, 0.0, 0.0, 0.0), p.law)
+    meas = (st.phi_rad, st.phi_dot_radps, st.theta_rad, st.theta_dot_radps, st.psi_rad, st.psi_dot_radps, st.z_m, st.vz_mps)
+    dob = observer_reset(meas, hover_input(0.0, 0.0, p.observer), p.observer.w)
+    return PipelineState(
+        st.x_m, st.vx_mps, 0.0, st.y_m, st.vy_mps, 0.0, st.z_m, st.vz_mps, 0.0,
+        st.phi_rad, 0.0, 0.0, st.theta_rad, 0.0, 0.0, st.psi_rad, 0.0, 0.0,
+        0.0, 0.0, law_state, False, 0.0, dob, _ZERO4,
     )  # fmt: skip
 
 
@@ -236,10 +271,78 @@ def pipeline_off() -> PipelineOutputs:
             (_NAN, _NAN, _NAN, _NAN), False, _ZERO4)  # fmt: skip
 
 
+def observer_in(dob: tuple[float, ...], meas: tuple[float, ...], z_m: float, land_h: float, ob: ObserverConsts) -> tuple[Vec4, Vec4]:
+    """(d_hat, the share of it the law is given) before the law runs: zeros without an observer or on
+    the ground (the ground's reaction is no disturbance to cancel); the law gets it only in the
+    sigma and lumped modes."""
+    d_hat = _ZERO4
+    if ob.mode != DOB_OFF and z_m >= land_h:
+        d_hat = observer_estimate(dob, meas, ob.w, ob.d_max)
+    if ob.mode == DOB_SIGMA or ob.mode == DOB_LUMPED:
+        return d_hat, d_hat
+    return d_hat, _ZERO4
+
+
+def actuate(
+    law: LawFunctions,
+    prev: tuple,
+    new: tuple,
+    u: Vec4,
+    meas: tuple[float, ...],
+    d_hat: Vec4,
+    dob: tuple[float, ...],
+    landing: bool,
+    land_h: float,
+    p: PipelineParams,
+    dt_s: float,
+) -> tuple[Vec4, Vec4, tuple[bool, bool, bool, bool], tuple, tuple[float, ...], Vec4]:
+    """After the law: the observer's compensation at the input (``DOB_MODE`` 3), the priority mixer,
+    the law's anti-windup on what was realised, the observer's update. Returns (motors, realised u,
+    limited, the law's state, the observer's state, the input commanded to the mixer)."""
+    ob = p.observer
+    c0 = c1 = c2 = c3 = 0.0
+    if ob.mode == DOB_INPUT:
+        mm = ob.model
+        c0 = d_hat[0] / mm[13]
+        c1 = d_hat[1] / mm[14]
+        c2 = d_hat[2] / mm[15]
+        c3 = d_hat[3] / (tilt_cos(meas[0], meas[2], ob.tilt_min) * ob.inv_mass)
+        u = (u[0] - c0, u[1] - c1, u[2] - c2, u[3] - c3)
+    motors, realised, limited = mix(p.mixer, u[0], u[1], u[2], u[3])
+    if landing and meas[6] < 3.0 * land_h:
+        # Ground contact is not a disturbance to learn: freeze the z channel's integrators.
+        limited = (limited[0], limited[1], limited[2], True)
+    if limited[0] or limited[1] or limited[2] or limited[3]:
+        # the law's own share of what was realised (the compensation is not the law's state)
+        law_realised = (realised[0] + c0, realised[1] + c1, realised[2] + c2, realised[3] + c3)
+        new = law.anti_windup(prev, new, law_realised, limited, p.law)
+    if ob.mode != DOB_OFF:
+        tau = ob.tau
+        lag_a = lag_b = 0.0
+        if tau > 0.0:
+            lag_a = math.exp(-dt_s / tau)
+            lag_b = tau * (1.0 - lag_a) / dt_s
+        dob = observer_update(dob, meas, d_hat, realised, ob.model, ob.w, ob.tilt_min, ob.inv_mass, lag_a, lag_b, dt_s)
+    return motors, realised, limited, new, dob, u
+
+
+def touchdown_step(landing: bool, z_m: float, vz_m: float, landed_s: float, land_h: float, land_s: float, dt_s: float) -> tuple[float, bool]:
+    """(time settled on the ground, touched down): while landing, low and slow for ``land_s``."""
+    if landing:
+        if z_m < land_h and abs(vz_m) < 0.2:
+            landed_s += dt_s
+            if landed_s >= land_s:
+                return landed_s, True
+        else:
+            landed_s = 0.0
+    return landed_s, False
+
+
 def pipeline_step(
-    ps: PipelineState, st: VehicleState, cmd: PipelineInputs, p: PipelineParams, dt_s: float
+    ps: PipelineState, st: VehicleState, cmd: PipelineInputs, p: PipelineParams, dt_s: float, law: LawFunctions
 ) -> tuple[PipelineState, PipelineOutputs]:
-    """One control tick of ``dt_s`` seconds: (new state, outputs). Disarmed: motors stopped, state unchanged.
+    """One control tick of ``dt_s`` seconds with an attitude-stage ``law``: (new state, outputs).
+    Disarmed: motors stopped, state unchanged.
 
     The outputs are a tuple ``(motors, u, limited, s, sigma, chi_hat, u_law, u_dot, ref, touchdown, d_hat)``:
     motor commands c1..c4 in [0, 1]; the inputs the motors realise (u_phi N, u_theta N, u_psi N m,
@@ -253,14 +356,12 @@ def pipeline_step(
     if not armed:
         return ps, pipeline_off()
     (px, pvx, pax, py, pvy, pay, pz, pvz, paz, a0x, a0v, a0a, a1x, a1v, a1a, yx, yv, ya,
-     int_x, int_y, law, law_n, landed_s, dob) = ps  # fmt: skip
+     int_x, int_y, law_state, law_init, landed_s, dob, _u_prev) = ps  # fmt: skip
     (w, amax, _vxy_max, vz_max, land_speed, wa, wy, yaw_rate_max, land_h, land_s, g,
-     pos, mixp, kind, n, smc, cpid, ssmc) = p  # fmt: skip
-    if law_n == 0:
-        law = law_initial_state((phi, 0.0, theta, 0.0, psi, 0.0, z_m, 0.0), p)
-        law_n = n
-        if kind == LAW_PID_SMC:
-            dob = observer_reset((phi, phi_dot, theta, theta_dot, psi, psi_dot, z_m, vz_m), (law[4], law[5], law[6], law[7]), smc.dob_w)
+     pos, _mixp, ob, k) = p  # fmt: skip
+    if law_init:
+        law_state = law.initial_state((phi, 0.0, theta, 0.0, psi, 0.0, z_m, 0.0), k)
+        dob = observer_reset((phi, phi_dot, theta, theta_dot, psi, psi_dot, z_m, vz_m), hover_input(phi, theta, ob), ob.w)
     # 1. Position/altitude references.
     if landing:
         tz = z_m - 10.0  # keep descending until touchdown
@@ -289,78 +390,83 @@ def pipeline_step(
     phi_r, phi_v, phi_a, phi_j = prefilter_step(a0x, a0v, a0a, phi_d, wa, dt_s, _INF, _INF)
     th_r, th_v, th_a, th_j = prefilter_step(a1x, a1v, a1a, theta_d, wa, dt_s, _INF, _INF)
     psi_r, psi_v, psi_a, psi_j = prefilter_step(yx, yv, ya, psi_target, wy, dt_s, yaw_rate_max, _INF)
-    # 3. The law, on the wrapped yaw error.
+    # 3. The observer's estimate, then the law, on the wrapped yaw error.
     ref = (phi_r, phi_v, phi_a, phi_j, th_r, th_v, th_a, th_j, psi_r, psi_v, psi_a, psi_j, z_r, vz_r, az_r, jz_r)
     meas = (phi, phi_dot, theta, theta_dot, psi_r + wrap_pi(psi - psi_r), psi_dot, z_m, vz_m)
-    dob_on = kind == LAW_PID_SMC and smc.dob_mode != 0
-    d_hat = _ZERO4
-    if dob_on and z_m >= land_h:  # on the ground the ground's reaction is no disturbance to cancel
-        d_hat = observer_estimate(dob, meas, smc.dob_w, smc.dob_max)
-    if kind == LAW_PID_SMC:
-        s, sg, chi, ud, rate = pid_smc_law(meas, ref, law, smc, _ZERO4, False, d_hat)
-        new = pid_smc_integrate(law, s, ud, rate, dt_s, smc)
-        u = (new[4], new[5], new[6], new[7])
-    elif kind == LAW_CASCADE_PID:
-        u, cnew = cascade_pid_step(meas, ref, law, dt_s, cpid)
-        new = cnew + _ZERO2
-        s = sg = chi = ud = _ZERO4
-    else:
-        u, e, sg = sign_smc_output(meas, ref, law, ssmc)
-        new = (law[0] + dt_s * e[0], law[1] + dt_s * e[1], law[2] + dt_s * e[2], law[3] + dt_s * e[3]) + _ZERO8
-        s = chi = ud = _ZERO4
-    # 4. Disturbance compensation at the input ("input" estimate: u_cmd = u - d_hat/g), then the
-    #    mixer with priorities, and the realised inputs fed back (anti-windup).
-    c0 = c1 = c2 = c3 = 0.0
-    if dob_on and smc.dob_mode == 3:
-        mm = smc.model
-        c0 = d_hat[0] / mm[13]
-        c1 = d_hat[1] / mm[14]
-        c2 = d_hat[2] / mm[15]
-        c3 = d_hat[3] / (tilt_cos(phi, theta, smc.tilt_min) * smc.inv_mass)
-        u = (u[0] - c0, u[1] - c1, u[2] - c2, u[3] - c3)
-    motors, realised, limited = mix(mixp, u[0], u[1], u[2], u[3])
-    if landing and z_m < 3.0 * land_h:
-        # Ground contact is not a disturbance to learn: freeze the z channel's integrators.
-        limited = (limited[0], limited[1], limited[2], True)
-    if limited[0] or limited[1] or limited[2] or limited[3]:
-        if kind == LAW_PID_SMC:
-            # the law's own share of what was realised (the compensation is not the law's state)
-            law_realised = (realised[0] + c0, realised[1] + c1, realised[2] + c2, realised[3] + c3) if c0 or c1 or c2 or c3 else realised
-            new = pid_smc_anti_windup(law, new, law_realised, limited)
-        elif kind == LAW_CASCADE_PID:
-            new = cascade_pid_anti_windup(law, new, limited) + _ZERO2
-        else:
-            new = integrators_anti_windup(law, new, limited) + _ZERO8
-    if dob_on:
-        tau = smc.dob_tau
-        lag_a = lag_b = 0.0
-        if tau > 0.0:
-            lag_a = math.exp(-dt_s / tau)
-            lag_b = tau * (1.0 - lag_a) / dt_s
-        dob = observer_update(dob, meas, d_hat, realised, smc.model, smc.dob_w, smc.tilt_min, smc.inv_mass, lag_a, lag_b, dt_s)
+    d_hat, d_law = observer_in(dob, meas, z_m, land_h, ob)
+    u, new, diag = law.step(meas, ref, law_state, dt_s, k, d_law, ps.u_prev)
+    # 4. Compensation, mixer with priorities, anti-windup on what was realised, observer update.
+    motors, realised, limited, new, dob, u = actuate(law, law_state, new, u, meas, d_hat, dob, landing, land_h, p, dt_s)
     # 5. Touchdown while landing -> the caller disarms.
-    touchdown = False
-    if landing:
-        if z_m < land_h and abs(vz_m) < 0.2:
-            landed_s += dt_s
-            if landed_s >= land_s:
-                touchdown = True
-        else:
-            landed_s = 0.0
+    landed_s, touchdown = touchdown_step(landing, z_m, vz_m, landed_s, land_h, land_s, dt_s)
     state = PipelineState(
         x_r, vx_r, ax_r, y_r, vy_r, ay_r, z_r, vz_r, az_r, phi_r, phi_v, phi_a, th_r, th_v, th_a,
-        psi_r, psi_v, psi_a, int_x, int_y, new, law_n, landed_s, dob,
+        psi_r, psi_v, psi_a, int_x, int_y, new, False, landed_s, dob, realised,
     )  # fmt: skip
-    return state, (motors, realised, limited, s, sg, chi, u, ud, (phi_r, th_r, psi_r, z_r), touchdown, d_hat)
+    return state, (motors, realised, limited, diag[0], diag[1], diag[2], u, diag[3], (phi_r, th_r, psi_r, z_r), touchdown, d_hat)
+
+
+def pipeline_step_full(
+    ps: PipelineState, st: VehicleState, cmd: PipelineInputs, p: PipelineParams, dt_s: float, law: LawFunctions
+) -> tuple[PipelineState, PipelineOutputs]:
+    """One control tick with a whole-stack ``law`` (position set-point -> thrust and torques); the
+    same outputs as :func:`pipeline_step`, the references being the attitude the law commands.
+
+    The position and yaw prefilters shape the set-point as for any law; the position loop and the
+    attitude prefilters are the law's. In ALT_HOLD, and on the ground before take-off or while
+    landing, the horizontal references follow the vehicle (no horizontal correction); the law's
+    attitude references are stored in the attitude prefilter's slots for telemetry.
+    """
+    x_m, y_m, z_m, vx_m, vy_m, vz_m, phi, theta, psi, phi_dot, theta_dot, psi_dot = st
+    tx, ty, tz, psi_target, armed, landing, position_hold, vxy = cmd
+    if not armed:
+        return ps, pipeline_off()
+    (px, pvx, pax, py, pvy, pay, pz, pvz, paz, _a0x, _a0v, _a0a, _a1x, _a1v, _a1a, yx, yv, ya,
+     int_x, int_y, law_state, law_init, landed_s, dob, _u_prev) = ps  # fmt: skip
+    (w, amax, _vxy_max, vz_max, land_speed, _wa, wy, yaw_rate_max, land_h, land_s, _g,
+     _pos, _mixp, ob, k) = p  # fmt: skip
+    if law_init:
+        law_state = law.initial_state((x_m, y_m, z_m, 0.0, 0.0, 0.0, phi, theta, psi, 0.0, 0.0, 0.0), k)
+        dob = observer_reset((phi, phi_dot, theta, theta_dot, psi, psi_dot, z_m, vz_m), hover_input(phi, theta, ob), ob.w)
+    if landing:
+        tz = z_m - 10.0
+        vz_max = land_speed
+    if not position_hold or (z_m < land_h and (landing or pz < land_h)):
+        px, pvx, pax = x_m, vx_m, 0.0
+        py, pvy, pay = y_m, vy_m, 0.0
+        tx, ty = x_m, y_m
+    x_r, vx_r, ax_r, jx_r = prefilter_step(px, pvx, pax, tx, w, dt_s, vxy, amax)
+    y_r, vy_r, ay_r, jy_r = prefilter_step(py, pvy, pay, ty, w, dt_s, vxy, amax)
+    z_r, vz_r, az_r, jz_r = prefilter_step(pz, pvz, paz, tz, w, dt_s, vz_max, amax)
+    psi_r, psi_v, psi_a, psi_j = prefilter_step(yx, yv, ya, psi_target, wy, dt_s, yaw_rate_max, _INF)
+    psi_u = psi_r + wrap_pi(psi - psi_r)
+    ref = (x_r, vx_r, ax_r, jx_r, y_r, vy_r, ay_r, jy_r, z_r, vz_r, az_r, jz_r, psi_r, psi_v, psi_a, psi_j)
+    full = (x_m, y_m, z_m, vx_m, vy_m, vz_m, phi, theta, psi_u, phi_dot, theta_dot, psi_dot)
+    meas = (phi, phi_dot, theta, theta_dot, psi_u, psi_dot, z_m, vz_m)
+    d_hat, d_law = observer_in(dob, meas, z_m, land_h, ob)
+    u, new, diag, att = law.step(full, ref, law_state, dt_s, k, d_law, ps.u_prev)
+    motors, realised, limited, new, dob, u = actuate(law, law_state, new, u, meas, d_hat, dob, landing, land_h, p, dt_s)
+    landed_s, touchdown = touchdown_step(landing, z_m, vz_m, landed_s, land_h, land_s, dt_s)
+    state = PipelineState(
+        x_r, vx_r, ax_r, y_r, vy_r, ay_r, z_r, vz_r, az_r, att[0], 0.0, 0.0, att[1], 0.0, 0.0,
+        psi_r, psi_v, psi_a, int_x, int_y, new, False, landed_s, dob, realised,
+    )  # fmt: skip
+    return state, (motors, realised, limited, diag[0], diag[1], diag[2], u, diag[3], (att[0], att[1], psi_r, z_r), touchdown, d_hat)
 
 
 #: every function the per-tick pipeline runs (the pure hot path): what ``tests/test_compilable.py``
-#: checks against the rules above and compiles with numba's ``njit``, unchanged.
+#: checks against the rules above and compiles with numba's ``njit``, unchanged. The law's own
+#: functions arrive as the ``law`` argument (:class:`fc.control.law.LawFunctions`).
 PURE_FUNCTIONS = (
     pipeline_step,
+    pipeline_step_full,
     pipeline_reset,
+    pipeline_reset_full,
     pipeline_off,
-    law_initial_state,
+    hover_input,
+    observer_in,
+    actuate,
+    touchdown_step,
     prefilter_step,
     position_step,
     mix,
@@ -369,4 +475,5 @@ PURE_FUNCTIONS = (
     observer_estimate,
     observer_update,
     *LAW_FUNCTIONS,
+    *BUILTIN_FLIGHT_FUNCTIONS,
 )

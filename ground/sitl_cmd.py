@@ -17,6 +17,7 @@ from ground.logs.housekeeping import KEEP_PLAIN, compress_old_flights, format_by
 from ground.logs.progress import ProgressLine
 from ground.sitl import Sitl, SitlError, SitlOptions, print_connect_help
 from smcpilot.errors import ConfigError, EndpointError
+from smcpilot.lawref import law_argument
 from smcpilot.link import parse_endpoint
 from smcpilot.protocol import FC_CONTROLLERS
 from smcpilot.scenario import Scenario
@@ -40,7 +41,9 @@ def add_common(p: argparse.ArgumentParser, *, lockstep_flag: bool) -> None:
     p.add_argument("--speed", type=float, metavar="FACTOR",
                    help="lockstep: at most FACTOR x real time (a ground station needs 1); real time: clock speed")  # fmt: skip
     p.add_argument("--vehicle", type=Path, metavar="FILE", help="vehicle TOML (default: the spec's parameters)")
-    p.add_argument("--controller", choices=FC_CONTROLLERS, default=None, help="control law (default adaptive_pid_smc)")
+    p.add_argument("--controller", "--law", dest="controller", type=law_argument, default=None, metavar="LAW",
+                   help=f"control law: a built-in ({', '.join(FC_CONTROLLERS)}), an installed plug-in, path/to/file.py:NAME or"
+                   " package.module:NAME (default adaptive_pid_smc; `smcpilot laws` lists them)")
     p.add_argument("--seed", type=int, default=None, metavar="N", help="seed of sensor noise and gusts (default 0)")
     p.add_argument("--log-dir", type=Path, default=Path("logs"), metavar="DIR", help="where the .tlog goes (default logs/)")
     p.add_argument("--plant", choices=("rigid-body", "paper"), default=None, help="simulated vehicle model (default rigid-body)")

@@ -47,10 +47,10 @@ from smcpilot.fastcodec import (
     encode_local_position_ned,
 )
 from smcpilot.geo import Home
+from smcpilot.lawref import law_argument
 from smcpilot.protocol import (
     ACTUATOR_FLAG_LOCKSTEP,
     FC_COMPONENT_ID,
-    FC_CONTROLLERS,
     SIM_COMPONENT_ID,
     SMC_ARRAY_ID,
     SMC_ARRAY_NAME,
@@ -273,7 +273,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    " (default out/run/<scenario name>)")  # fmt: skip
     p.add_argument("--json", type=Path, metavar="PATH", help="write the results as JSON")
     p.add_argument("--no-plots", action="store_true", help="skip the figures")
-    p.add_argument("--controller", choices=FC_CONTROLLERS, help="fly this control law instead of the scenario's")
+    p.add_argument("--controller", "--law", dest="controller", type=law_argument, metavar="LAW",
+                   help="fly this control law instead of the scenario's: a built-in, an installed plug-in, path/to/file.py:NAME"
+                   " or package.module:NAME (`smcpilot laws` lists them)")
     p.add_argument("--seed", type=int, metavar="N", help="use this seed instead of the scenario's")
     p.add_argument("--duration", type=float, metavar="SIM_S", help="fly this many simulated seconds instead")
     p.add_argument("--quiet", action="store_true", help="print only the summary")

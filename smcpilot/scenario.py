@@ -26,7 +26,7 @@ north, east, altitude up)::
     paper_disturbance = false  # the paper's fs1..fs4
 
     [fc]
-    controller = "adaptive_pid_smc"        # pid_smc, cascade_pid
+    controller = "adaptive_pid_smc"        # pid_smc, cascade_pid, sign_smc, a plug-in, or path/to/law.py:NAME
     rate_hz = 500.0
     home = [-35.363261, 149.16523, 584.0]  # lat_deg, lon_deg, alt_m (default: ArduPilot's SITL field)
     params = { SMC_CHI_DZ = 0.3 }          # FC parameters by name, as PARAM_SET would set them
@@ -77,8 +77,8 @@ from typing import Any
 from smcpilot.errors import ConfigError, ScenarioError
 from smcpilot.faults import FaultSpec
 from smcpilot.impair import ImpairmentError, LinkImpairment
+from smcpilot.lawref import law_reference_problem
 from smcpilot.plan import PlanError, PlanStep, load_plan, parse_plan
-from smcpilot.protocol import FC_CONTROLLERS
 from smcpilot.tomlfile import read_toml
 from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
 
@@ -166,8 +166,9 @@ class Scenario:
             raise ScenarioError(f"seed must be a whole number >= 0, got {self.seed!r}")
         if self.plant not in PLANTS:
             raise ScenarioError(f"vehicle.plant must be one of {', '.join(PLANTS)}, got {self.plant!r}")
-        if self.controller not in FC_CONTROLLERS:
-            raise ScenarioError(f"fc.controller must be one of {', '.join(FC_CONTROLLERS)}, got {self.controller!r}")
+        problem = law_reference_problem(self.controller)
+        if problem:
+            raise ScenarioError(f"fc.controller: {problem}")
         if not (math.isfinite(self.rate_hz) and 0 < self.rate_hz <= 1000):
             raise ScenarioError(f"fc.rate_hz must lie in (0, 1000] Hz, got {self.rate_hz!r}")
         ratio = self.physics_hz / self.rate_hz if math.isfinite(self.physics_hz) and self.physics_hz > 0 else 0.0
@@ -359,6 +360,10 @@ def _parse(doc: Mapping[str, Any], source: str, base_dir: Path | None) -> Scenar
     _check(fc, _FC_KEYS, "fc.")
     if "controller" in fc:
         kw["controller"] = fc["controller"]
+        if isinstance(fc["controller"], str) and ":" in fc["controller"] and base_dir is not None:
+            head, name = fc["controller"].rsplit(":", 1)
+            if head.endswith(".py") and not Path(head).expanduser().is_absolute():
+                kw["controller"] = f"{(base_dir / head).resolve()}:{name}"  # a law file beside the scenario
     if "rate_hz" in fc:
         kw["rate_hz"] = _number(fc["rate_hz"], "fc.rate_hz")
     if "home" in fc:

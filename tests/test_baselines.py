@@ -132,7 +132,7 @@ def test_cascade_params_validate_and_map_to_parameters() -> None:
     # a live change reaches the flying law
     fl = FlightControl(FcConfig(controller="cascade_pid"), DEFAULT_VEHICLE)
     fl.reconfigure(store.config)
-    assert fl.params.cpid.k_outer[1] == 4.5 and fl.params.cpid.d_w_radps == 0.0 and fl.params.law_n == 10
+    assert fl.params.law.k_outer[1] == 4.5 and fl.params.law.d_w_radps == 0.0 and len(fl.pipeline_state.law) == 10
 
 
 # -- the tuning, measured --------------------------------------------------------------------------------

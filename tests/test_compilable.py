@@ -34,6 +34,7 @@ from fc import estimate
 from fc.config import FcConfig
 from fc.control import LAW_FUNCTIONS, PidSmc, PidSmcParams
 from fc.control.cascade_pid import CascadePid
+from fc.control.law import LawFunctions
 from fc.control.pid_smc import AdaptationBounds, ChannelConsts
 from fc.control.sign_smc import SignSmc
 from fc.flight import FlightControl
@@ -54,7 +55,7 @@ from smcpilot.model import ModelConsts, PaperModel
 from smcpilot.typos import TYPOS
 from smcpilot.vehicle import DEFAULT_VEHICLE
 
-FC_CONTROLLERS = ("adaptive_pid_smc", "pid_smc", "cascade_pid")
+FC_CONTROLLERS = ("adaptive_pid_smc", "pid_smc", "cascade_pid", "sign_smc")
 _ALLOWED_BUILTINS = {abs, min, max}
 _MATH = {v for v in vars(math).values() if callable(v)}
 _FORBIDDEN_NODES = (
@@ -62,6 +63,11 @@ _FORBIDDEN_NODES = (
     ast.Raise, ast.Try, ast.Assert, ast.Lambda, ast.ClassDef, ast.Global, ast.Nonlocal, ast.Yield, ast.YieldFrom,
     ast.With, ast.Await, ast.Starred, ast.Delete, ast.Import, ast.ImportFrom,
 )  # fmt: skip
+
+
+def _law_arguments(fn: types.FunctionType) -> set[str]:
+    """The parameters of ``fn`` annotated as :class:`fc.control.law.LawFunctions`."""
+    return {name for name, ann in fn.__annotations__.items() if ann in (LawFunctions, "LawFunctions")}
 
 
 def _is_namedtuple_class(v: object) -> bool:
@@ -107,6 +113,9 @@ def test_pure_function_follows_the_rules(fn: types.FunctionType) -> None:
             f = node.func
             if isinstance(f, ast.Attribute) and isinstance(f.value, ast.Name) and _resolve(fn, f.value.id) is math:
                 continue  # math.isfinite(...)
+            if (isinstance(f, ast.Attribute) and isinstance(f.value, ast.Name) and f.value.id in _law_arguments(fn)
+                    and f.attr in LawFunctions._fields and not node.keywords):  # fmt: skip
+                continue  # law.step(...): the law's own pure functions, passed in as a LawFunctions
             if not isinstance(f, ast.Name):
                 problems.append(f"{where}: call of {ast.unparse(f)} (only plain names and math functions)")
                 continue
@@ -156,11 +165,13 @@ def test_parameters_state_and_inputs_are_flat_tuples_of_numbers() -> None:
         assert isinstance(p, PipelineParams)
         sig = tuple(leaf_types(p))
         # Numbers meant as floats are floats even where the configuration gave ints; the only ints
-        # are the law's kind and state length, and how the disturbance estimate is used.
-        assert [path for path, t in sig if t is int] == [".law_kind", ".law_n", ".smc.dob_mode"], sig
-        signatures.add(tuple(t for _, t in sig))
-    # One layout and one set of leaf types for every controller: one compiled specialisation.
-    assert len(signatures) == 1
+        # are the observer's mode and how the PID-SMC uses the estimate.
+        ints = [path for path, t in sig if t is int]
+        assert ints == [".observer.mode", ".law.dob_mode"] if cfg.controller in ("adaptive_pid_smc", "pid_smc") else [".observer.mode"], sig
+        signatures.add((cfg.controller, tuple(t for _, t in sig)))
+    # One layout and one set of leaf types per law (ints given for floats change nothing): one
+    # compiled specialisation per law.
+    assert len(signatures) == len(FC_CONTROLLERS)
     for name, ctrl in (("pid_smc", PidSmc(PaperModel.from_vehicle(), PidSmcParams(typos=frozenset(TYPOS)))),
                        ("cascade", CascadePid(PaperModel.from_vehicle())), ("sign", SignSmc(PaperModel.from_vehicle()))):  # fmt: skip
         assert [path for path, t in leaf_types(ctrl.consts, name) if t is int] == (["pid_smc.dob_mode"] if name == "pid_smc" else [])
@@ -172,19 +183,20 @@ def test_parameters_state_and_inputs_are_flat_tuples_of_numbers() -> None:
 def test_state_keeps_its_types_from_tick_to_tick(controller: str) -> None:
     fl = FlightControl(FcConfig(controller=controller), DEFAULT_VEHICLE)
     st = VehicleState(*(0.0,) * 12)
-    ps = pipeline_reset(st, fl.params)
+    law = fl.law_functions
+    ps = pipeline_reset(st, fl.params, law)
     first = tuple(t for _, t in leaf_types(ps))
     cmd = PipelineInputs(0.0, 0.0, 2.0, 0.5, True, False, True, 3.0)
     assert tuple(t for _, t in leaf_types(cmd)) == (float,) * 4 + (bool,) * 3 + (float,)
     out0 = None
     for k in range(50):
-        ps, out = pipeline_step(ps, st, cmd._replace(landing=k > 25), fl.params, 0.002)
+        ps, out = pipeline_step(ps, st, cmd._replace(landing=k > 25), fl.params, 0.002, law)
         assert isinstance(ps, PipelineState) and tuple(t for _, t in leaf_types(ps)) == first
         sig = tuple(t for _, t in leaf_types(out))
         assert out0 is None or sig == out0
         out0 = sig
     # The law state not yet there (after a change of controller while armed) is filled in the same types.
-    ps, _ = pipeline_step(ps._replace(law_n=0), st, cmd, fl.params, 0.002)
+    ps, _ = pipeline_step(ps._replace(law_init=True), st, cmd, fl.params, 0.002, law)
     assert tuple(t for _, t in leaf_types(ps)) == first
 
 
@@ -221,16 +233,17 @@ def _closed_loop(controller: str) -> list[tuple]:
     cfg = FcConfig(controller=controller)
     fl = FlightControl(cfg, DEFAULT_VEHICLE)
     p = fl.params
+    law = fl.law_functions
     plant = RigidBodyPlant(DEFAULT_VEHICLE)
     st = wire_state(plant.observe())
-    ps = pipeline_reset(st, p)
+    ps = pipeline_reset(st, p, law)
     rows = []
     t = 0.0
     for k in range(700):
         st = wire_state(plant.observe())
         cmd = PipelineInputs(0.5, -0.3, 3.0, 1.2, True, k >= 500, not 400 <= k < 500, cfg.speed_max_xy_mps)
-        new, out = pipeline_step(ps, st, cmd, p, 0.002)
-        rows.append((ps, st, cmd, p, new, out))
+        new, out = pipeline_step(ps, st, cmd, p, 0.002, law)
+        rows.append((ps, st, cmd, p, new, out, law))
         ps = new
         for _ in range(2):
             plant.step(t, 0.001, out[0], True)
@@ -245,26 +258,32 @@ def test_compiled_pipeline_step_gives_the_same_bits() -> None:
     # and a touchdown on the ground
     fl = FlightControl(FcConfig(), DEFAULT_VEHICLE)
     ground = VehicleState(*(0.0,) * 12)
-    ps = pipeline_reset(ground, fl.params)
+    ps = pipeline_reset(ground, fl.params, fl.law_functions)
     cmd = PipelineInputs(0.0, 0.0, 0.0, 0.0, True, True, True, 3.0)
     rows = []
     for _ in range(300):
-        new, out = pipeline_step(ps, ground, cmd, fl.params, 0.002)
-        rows.append((ps, ground, cmd, fl.params, new, out))
+        new, out = pipeline_step(ps, ground, cmd, fl.params, 0.002, fl.law_functions)
+        rows.append((ps, ground, cmd, fl.params, new, out, fl.law_functions))
         ps = new
     assert any(r[5][9] for r in rows), "touched down"
     flights["touchdown"] = rows
     with compiled() as jit:
         step = jit[pipeline_step]
+
+        def compiled_law(law: LawFunctions) -> LawFunctions:
+            return LawFunctions(*(jit[f] for f in law))
+
         t0 = time.perf_counter()
-        step(*rows[0][:4], 0.002)
+        step(*rows[0][:4], 0.002, compiled_law(rows[0][6]))
         compile_s = time.perf_counter() - t0
         for name, rows in flights.items():
-            for k, (ps, st, cmd, p, new, out) in enumerate(rows):
-                got = step(ps, st, cmd, p, 0.002)
+            law = compiled_law(rows[0][6])
+            for k, (ps, st, cmd, p, new, out, _law) in enumerate(rows):
+                got = step(ps, st, cmd, p, 0.002, law)
                 assert bits(got) == bits((new, out)), f"{name}: tick {k} differs"
                 assert type(got[0]) is PipelineState
-        assert len(step.signatures) == 1, "one specialisation for every controller"
+        # one specialisation per law's functions (the two PID-SMC flavours share theirs)
+        assert len(step.signatures) == len({rows[0][6] for rows in flights.values()}) == 3
     print(f"\nnumba compiled pipeline_step (with everything it calls) in {compile_s:.1f} s")
 
 

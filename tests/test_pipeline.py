@@ -199,7 +199,7 @@ def _states(n: int, seed: int) -> list[VehicleState]:
     return out
 
 
-@pytest.mark.parametrize("controller", ["adaptive_pid_smc", "pid_smc", "cascade_pid"])
+@pytest.mark.parametrize("controller", ["adaptive_pid_smc", "pid_smc", "cascade_pid", "sign_smc"])
 def test_pipeline_step_is_what_flight_control_steps_and_is_pure(controller) -> None:
     cfg = FcConfig(controller=controller)
     fl = FlightControl(cfg, DEFAULT_VEHICLE)
@@ -207,7 +207,8 @@ def test_pipeline_step_is_what_flight_control_steps_and_is_pure(controller) -> N
     fl.arm(states[0])
     fl.set_target(1.0, -2.0, 3.0, 2.5)
     p = fl.params
-    ps = pipeline_reset(states[0], p)
+    law = fl.law_functions
+    ps = pipeline_reset(states[0], p, law)
     assert ps == fl.pipeline_state
     for k, s in enumerate(states):
         if k == 150:
@@ -215,24 +216,24 @@ def test_pipeline_step_is_what_flight_control_steps_and_is_pure(controller) -> N
         if k == 200:
             fl.land()
         cmd = PipelineInputs(1.0, -2.0, 3.0, fl._psi_target, True, fl.landing, fl.position_hold, cfg.speed_max_xy_mps)
-        new, out = pipeline_step(ps, s, cmd, p, 0.002)
-        again = pipeline_step(ps, s, cmd, p, 0.002)
+        new, out = pipeline_step(ps, s, cmd, p, 0.002, law)
+        again = pipeline_step(ps, s, cmd, p, 0.002, law)
         assert bits(again) == bits((new, out)), "the same inputs give the same outputs"
         assert isinstance(new, PipelineState)
         o = fl.step(s, 0.002)
         assert bits((o.motors, o.u, o.limited, o.ref)) == bits((out[0], out[1], out[2], out[8]))
         assert bits(fl.pipeline_state) == bits(new)
         assert o.diag.u == out[6]
-        assert fl.law_state == new.law[: len(fl.law.state_names)]
+        assert fl.law_state == new.law and len(new.law) == len(fl.law.state_names)
         ps = new
 
 
 def test_pipeline_disarmed_is_motors_off_and_state_unchanged() -> None:
     fl = FlightControl(FcConfig(), DEFAULT_VEHICLE)
     s = _states(1, 0)[0]
-    ps = pipeline_reset(s, fl.params)
+    ps = pipeline_reset(s, fl.params, fl.law_functions)
     cmd = PipelineInputs(0.0, 0.0, 1.0, 0.0, False, False, True, 3.0)
-    new, out = pipeline_step(ps, s, cmd, fl.params, 0.002)
+    new, out = pipeline_step(ps, s, cmd, fl.params, 0.002, fl.law_functions)
     assert new is ps and out[0] == (0.0,) * 4 and out[2] == (False,) * 4 and all(math.isnan(r) for r in out[8])
 
 
@@ -240,11 +241,11 @@ def test_pipeline_touchdown_is_reported_after_land_detect_s_on_the_ground() -> N
     cfg = FcConfig()
     fl = FlightControl(cfg, DEFAULT_VEHICLE)
     ground = VehicleState(*(0.0,) * 12)
-    ps = pipeline_reset(ground, fl.params)
+    ps = pipeline_reset(ground, fl.params, fl.law_functions)
     cmd = PipelineInputs(0.0, 0.0, 0.0, 0.0, True, True, True, 3.0)
     n = 0
     while True:
-        ps, out = pipeline_step(ps, ground, cmd, fl.params, 0.002)
+        ps, out = pipeline_step(ps, ground, cmd, fl.params, 0.002, fl.law_functions)
         n += 1
         if out[9]:
             break

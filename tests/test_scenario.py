@@ -115,7 +115,7 @@ def test_a_vehicle_file_resolves_against_the_scenario(tmp_path: Path) -> None:
         ("[environment]\nwind_force_ned_n = [1, 2]\n", "environment.wind_force_ned_n must be a list of 3 numbers"),
         ("[environment]\ngust_std_n = -0.5\n", "environment.gust_std_n must be >= 0"),
         ("[environment]\nnoise = 1\n", "environment.noise must be true or false"),
-        ('[fc]\ncontroller = "lqr"\n', "fc.controller must be one of"),
+        ('[fc]\ncontroller = "lqr"\n', "fc.controller: unknown controller 'lqr'; choose from: adaptive_pid_smc"),
         ("[fc]\nrate_hz = 300\n", "sim.physics_hz (1000.0) must be a whole multiple of fc.rate_hz (300.0)"),
         ("[fc]\nhome = [91, 0, 0]\n", "fc.home latitude/longitude out of range"),
         ('[vehicle]\nplant = "blimp"\n', "vehicle.plant must be one of"),

@@ -26,8 +26,8 @@ from ground.vehicle import HomePosition, MissionItem
 from smcpilot.errors import ConfigError
 from smcpilot.faults import FaultSpec
 from smcpilot.geo import Home, global_to_ned, ned_to_global
+from smcpilot.lawref import law_reference_problem
 from smcpilot.limits import HARD_LIMITS, TAKEOFF_ALT_MIN_M, target_refusal
-from smcpilot.protocol import FC_CONTROLLERS
 from smcpilot.scenario import EnvironmentSpec, Scenario
 from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
 
@@ -470,8 +470,9 @@ def _parse_sitl(where: _Where, raw: Any, base_dir: Path | None) -> SitlSettings:
             except ConfigError as exc:
                 raise where.error(str(exc), key) from None
         elif key == "controller":
-            if v not in FC_CONTROLLERS:
-                raise where.error(f"must be one of {', '.join(FC_CONTROLLERS)}, got {v!r}", key)
+            problem = law_reference_problem(v)
+            if problem:
+                raise where.error(problem, key)
             kw[key] = v
         elif key == "plant":
             if v not in _PLANTS:

@@ -49,7 +49,7 @@ from typing import Any
 
 from smcpilot.errors import ConfigError
 from smcpilot.faults import KIND_FIELDS
-from smcpilot.protocol import FC_CONTROLLERS
+from smcpilot.lawref import known_law_names, law_reference_problem
 from smcpilot.scenario import Scenario
 from smcpilot.tomlfile import read_toml
 from smcpilot.vehicle import VehicleParams
@@ -163,7 +163,7 @@ def _num(value: Any, where: str) -> float:
 def parse_field(text: Any, base: Scenario, where: str) -> FieldRef:
     """The :class:`FieldRef` of a field name, checked against ``base`` (unknown names suggest the
     close match)."""
-    from fc.params import PARAM_INDEX
+    from fc.params import param_table
 
     if not isinstance(text, str) or not text:
         raise CampaignError(f"{where}.field must be a scenario field name such as 'vehicle.mass_kg', got {text!r}")
@@ -205,8 +205,9 @@ def parse_field(text: Any, base: Scenario, where: str) -> FieldRef:
     if name == "fc":
         if len(parts) == 3 and parts[1] == "params":
             pname = parts[2]
-            if pname not in PARAM_INDEX:
-                raise CampaignError(f"{where}: unknown FC parameter {pname!r} in {text!r}{did_you_mean(pname, sorted(PARAM_INDEX))}")
+            index = param_table().index
+            if pname not in index:
+                raise CampaignError(f"{where}: unknown FC parameter {pname!r} in {text!r}{did_you_mean(pname, sorted(index))}")
             return FieldRef(text, "params", pname)
         if len(parts) == 2:
             key, _ = vector_index(parts[1], ("rate_hz",), "fc")
@@ -282,7 +283,23 @@ def _variation(t: Any, base: Scenario, where: str) -> Variation:
     return Variation(ref, "choice", values=tuple(values), weights=weights, relative=relative)
 
 
-def _variants(doc: Mapping[str, Any], base: Scenario, source: str) -> tuple[Variant, ...]:
+def _law(ref: Any, where: str, base_dir: Path | None) -> str:
+    """A controller reference checked and loaded (a file path made absolute against ``base_dir``):
+    its parameters are then known to ``fc.params.NAME`` fields and ``[[gain]]`` tables."""
+    from fc.control import registry
+
+    problem = law_reference_problem(ref)
+    if problem:
+        raise CampaignError(f"{where}: {problem}")
+    ref = registry.normalise_reference(ref, base_dir)
+    try:
+        registry.resolve(ref)
+    except ConfigError as exc:
+        raise CampaignError(f"{where}: {exc}") from None
+    return ref
+
+
+def _variants(doc: Mapping[str, Any], base: Scenario, source: str, base_dir: Path | None = None) -> tuple[Variant, ...]:
     if "controllers" in doc and "controller" in doc:
         raise CampaignError(f"{source}: give either controllers = [...] or [[controller]] tables, not both")
     if "controller" in doc:
@@ -297,9 +314,7 @@ def _variants(doc: Mapping[str, Any], base: Scenario, source: str) -> tuple[Vari
             unknown = sorted(set(t) - {"label", "controller", "params", "description"})
             if unknown:
                 raise CampaignError(f"{where}: unknown key {unknown[0]!r}{did_you_mean(unknown[0], ['label', 'controller', 'params', 'description'])}")
-            law = t.get("controller", base.controller)
-            if law not in FC_CONTROLLERS:
-                raise CampaignError(f"{where}: controller must be one of {', '.join(FC_CONTROLLERS)}, got {law!r}")
+            law = _law(t.get("controller", base.controller), where, base_dir)
             params = t.get("params", {})
             if not isinstance(params, dict):
                 raise CampaignError(f"{where}: params must be a table of NAME = value")
@@ -310,13 +325,13 @@ def _variants(doc: Mapping[str, Any], base: Scenario, source: str) -> tuple[Vari
     else:
         names = doc.get("controllers", [base.controller])
         if not isinstance(names, list) or not names:
-            raise CampaignError(f"{source}: controllers must be a non-empty list of {', '.join(FC_CONTROLLERS)}")
+            raise CampaignError(f"{source}: controllers must be a non-empty list of law names ({', '.join(known_law_names())})")
         out = []
         for n in names:
-            if n not in FC_CONTROLLERS:
-                raise CampaignError(f"{source}: unknown controller {n!r}; choose from {', '.join(FC_CONTROLLERS)}"
-                                    + (did_you_mean(n, FC_CONTROLLERS) if isinstance(n, str) else ""))  # fmt: skip
-            out.append(Variant(n, n))
+            if isinstance(n, str) and law_reference_problem(n) and ":" not in n:
+                raise CampaignError(f"{source}: {law_reference_problem(n)}" + did_you_mean(n, known_law_names()))
+            law = _law(n, source, base_dir)
+            out.append(Variant(n, law))
     labels = [v.label for v in out]
     if len(set(labels)) != len(labels):
         raise CampaignError(f"{source}: controller labels must differ, got {labels}")
@@ -362,6 +377,7 @@ def parse_campaign(doc: Mapping[str, Any], *, source: str = "campaign", base_dir
     timeout_s = _num(doc.get("timeout_s", 600.0), f"{source}: timeout_s")
     if timeout_s <= 0:
         raise CampaignError(f"{source}: timeout_s must be > 0 s, got {timeout_s:g}")
+    variants = _variants(doc, base, source, base_dir)  # first: a plug-in law's parameters become known
     vary = doc.get("vary", [])
     if not isinstance(vary, list):
         raise CampaignError(f"{source}: vary must be [[vary]] tables")
@@ -372,7 +388,7 @@ def parse_campaign(doc: Mapping[str, Any], *, source: str = "campaign", base_dir
     name = doc.get("name", Path(source).stem if source != "campaign" else "campaign")
     if not isinstance(name, str) or not name:
         raise CampaignError(f"{source}: name must be a non-empty string")
-    spec = CampaignSpec(name=name, base=base, variants=_variants(doc, base, source), seeds=seeds, seed=seed, variations=variations,
+    spec = CampaignSpec(name=name, base=base, variants=variants, seeds=seeds, seed=seed, variations=variations,
                         description=str(doc.get("description", "")), score_from_s=score_from_s, timeout_s=timeout_s,
                         source=source, doc=dict(doc), base_dir=base_dir)  # fmt: skip
     return spec

@@ -121,7 +121,7 @@ def apply_values(
     (None if no ``plant.*`` field was set), and the value each field got (a relative draw times the
     base value). Raises :class:`~smcpilot.errors.ConfigError` (a
     :class:`~smcpilot.scenario.ScenarioError` for a value the scenario refuses)."""
-    from fc.params import PARAM_INDEX, PARAMS, config_for
+    from fc.params import config_for, spec
 
     doc = json.loads(_template(base))
     doc["fc"]["controller"] = variant.controller
@@ -143,7 +143,7 @@ def apply_values(
             if v.relative and ref.key not in params:
                 if config is None:
                     config = config_for(base.with_changes(controller=variant.controller, params=tuple(params.items())))
-                params[ref.key] = float(PARAMS[PARAM_INDEX[ref.key]].get(config))
+                params[ref.key] = float(spec(ref.key).get(config))
             applied[ref.text] = _set(params, ref.key, ref, value, v.relative)
         elif ref.section in ("step", "fault"):
             assert ref.item is not None

@@ -101,7 +101,7 @@ def _num(v: Any, where: str) -> float:
 
 def parse_tune(doc: Mapping[str, Any], *, source: str = "tune", base_dir: Path | None = None) -> TuneSpec:
     """A :class:`TuneSpec` of a parsed tuning document (errors name ``source`` and the key)."""
-    from fc.params import PARAM_INDEX, PARAMS
+    from fc.params import param_table
     from lab.campaign.results import metric_columns
 
     campaign = parse_campaign({k: v for k, v in doc.items() if k not in _TUNE_KEYS}, source=source, base_dir=base_dir)
@@ -145,15 +145,16 @@ def parse_tune(doc: Mapping[str, Any], *, source: str = "tune", base_dir: Path |
         if unknown:
             raise CampaignError(f"{where}: unknown key {unknown[0]!r}{did_you_mean(unknown[0], ['name', 'low', 'high', 'log'])}")
         name = t.get("name")
-        if name not in PARAM_INDEX:
-            raise CampaignError(f"{where}: unknown FC parameter {name!r}" + (did_you_mean(name, sorted(PARAM_INDEX)) if isinstance(name, str) else ""))
+        index = param_table().index
+        if name not in index:
+            raise CampaignError(f"{where}: unknown FC parameter {name!r}" + (did_you_mean(name, sorted(index)) if isinstance(name, str) else ""))
         for k in ("low", "high"):
             if k not in t:
                 raise CampaignError(f"{where} ({name}): {k} is missing")
         low, high = _num(t["low"], f"{where} ({name}): low"), _num(t["high"], f"{where} ({name}): high")
         if not low < high:
             raise CampaignError(f"{where} ({name}): empty range: low ({low:g}) must be below high ({high:g})")
-        p = PARAMS[PARAM_INDEX[name]]
+        p = param_table().specs[index[name]]
         if low < p.lo or high > p.hi:
             raise CampaignError(f"{where} ({name}): the range [{low:g}, {high:g}] leaves the parameter's valid range [{p.lo:g}, {p.hi:g}]")
         log = t.get("log", False)
@@ -177,12 +178,13 @@ def load_tune(path: str | Path) -> TuneSpec:
 
 def baseline_gains(spec: TuneSpec) -> dict[str, float]:
     """The gains the base scenario flies (its first controller's), clipped into the ranges."""
-    from fc.params import PARAM_INDEX, PARAMS, config_for
+    from fc.params import config_for
+    from fc.params import spec as param_spec
 
     v = spec.campaign.variants[0]
     base = spec.campaign.base
     config = config_for(base.with_changes(controller=v.controller, params=(*base.params, *v.params)))
-    return {g.name: min(g.high, max(g.low, float(PARAMS[PARAM_INDEX[g.name]].get(config)))) for g in spec.gains}
+    return {g.name: min(g.high, max(g.low, float(param_spec(g.name).get(config)))) for g in spec.gains}
 
 
 def _open_study(spec: TuneSpec, out: Path, resume: bool) -> Any:
