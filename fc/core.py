@@ -49,7 +49,7 @@ from fc.estimate import (
     estimate_step,
     estimator_params,
 )
-from fc.flight import FlightControl, PipelineOutput, VehicleState
+from fc.flight import FlightControl, LawFault, PipelineOutput, VehicleState
 from smcpilot.geo import Home
 from smcpilot.plan import PlanRunner, PlanStep
 from smcpilot.protocol import FLAG_ARMED, FLAG_FAILSAFE, FLAG_LANDING, FLAG_POSITION_HOLD
@@ -126,6 +126,10 @@ class FlightCore:
         #: states with fields not measured (non-finite), and ticks flown on a dead-reckoned state.
         self.states_missing = 0
         self.dead_reckoning_ticks = 0
+        #: the control law failed (raised, NaN, a malformed command): the state-loss failsafe flies
+        #: until the vehicle is down and disarmed; the first failure's message.
+        self.law_failed = False
+        self.law_fault: str | None = None
 
     # -- events and configuration ---------------------------------------------------------------
     def event(self, severity: int, text: str) -> None:
@@ -277,11 +281,38 @@ class FlightCore:
                 c.land()
         c.on_tick(t_s, dt)
         was_armed = flight.armed
-        out = flight.step(st, dt)
+        if self.law_failed:
+            return self._law_failsafe(st)
+        try:
+            out = flight.step(st, dt)
+        except LawFault as exc:
+            # The law is anyone's code: counted, announced once, and the vehicle flown down open loop.
+            self.law_failed = True
+            self.law_fault = str(exc)
+            self.event(mavlink.MAV_SEVERITY_CRITICAL, f"FAILSAFE: {exc}"[:_LAW_TEXT_MAX])
+            return self._law_failsafe(st)
         if was_armed and not flight.armed:
             c.on_touchdown()
             self.event(mavlink.MAV_SEVERITY_INFO, "Landed: disarmed")
         return out
+
+
+    def _law_failsafe(self, st: VehicleState) -> PipelineOutput:
+        """After a law failure: level, a fraction of hover thrust (the state-loss failsafe), and
+        disarm once down (low and slow), with an event."""
+        flight = self.flight
+        cfg = self.config
+        if flight.armed and st.z_m < cfg.land_detect_height_m and abs(st.vz_mps) < 0.2:
+            flight.disarm()
+            self.commander.on_touchdown()
+            self.event(mavlink.MAV_SEVERITY_INFO, "Landed: disarmed (control law failed)")
+        if not flight.armed:
+            self.law_failed = False  # a new arming tries the law again
+        return flight.failsafe_step()
+
+
+#: longest law-failure STATUSTEXT (a few chunks of 50 characters at most).
+_LAW_TEXT_MAX = 150
 
 
 def _missing_name(missing: int) -> str:

@@ -55,11 +55,11 @@ def _human_name(doc: str) -> str:
     return first if len(first) <= 60 else first[:57].rstrip() + "..."
 
 
-def _rows() -> list[tuple[str, str, float, float, float, bool, bool, str, str]]:
+def _rows(specs: Sequence[ParamSpec] = PARAMS) -> list[tuple[str, str, float, float, float, bool, bool, str, str]]:
     """(name, unit, lo, hi, default, is_int, restart, doc, group) of every parameter, in order."""
     d, o = FcConfig(), FcOptions()
     out: list[tuple[str, str, float, float, float, bool, bool, str, str]] = []
-    for p in PARAMS:
+    for p in specs:
         out.append((p.name, p.unit, p.lo, p.hi, _default(p, d, o), p.is_int, p.restart, p.doc, "fc"))
     for sp in SIM_PARAMS:
         out.append((sp.name, sp.unit, sp.lo, sp.hi, sp.default, sp.is_int, False, _sim_doc(sp), "sim"))
@@ -78,14 +78,15 @@ def _num(v: float) -> str:
     return f"{v:g}"
 
 
-def pdef_xml() -> str:
-    """Every parameter in ArduPilot's ``apm.pdef.xml`` format (deterministic text)."""
+def pdef_xml(specs: Sequence[ParamSpec] = PARAMS) -> str:
+    """Every parameter in ArduPilot's ``apm.pdef.xml`` format (deterministic text); ``specs`` the
+    FC's (default: the built-in table; ``fc.params.param_table().specs`` adds loaded plug-ins')."""
     root = ET.Element("paramfile")
     vehicles = ET.SubElement(root, "vehicles")
     fc_block = ET.SubElement(vehicles, "parameters", name="ArduCopter")
     libraries = ET.SubElement(root, "libraries")
     sim_block = ET.SubElement(libraries, "parameters", name="SIM_")
-    for name, unit, lo, hi, default, is_int, restart, doc, group in _rows():
+    for name, unit, lo, hi, default, is_int, restart, doc, group in _rows(specs):
         block, full = (fc_block, f"ArduCopter:{name}") if group == "fc" else (sim_block, name)
         documentation = f"{doc}. Default {_num(default)}{' ' + unit if unit else ''}."
         el = ET.SubElement(block, "param", humanName=_human_name(doc), name=full, documentation=documentation,

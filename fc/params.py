@@ -185,7 +185,7 @@ def law_param_specs(law: Law) -> tuple[ParamSpec, ...]:
     if law.params_of is not None:
         return ()
     return tuple(
-        ParamSpec(name, lp.unit, lp.lo, lp.hi, f"{law.name}: {lp.doc}", _law_value_get(law, lp, name), _law_value_set(law, lp, name),
+        ParamSpec(name, lp.unit, lp.lo, lp.hi, lp.doc if lp.doc.startswith(law.name) else f"{law.name}: {lp.doc}", _law_value_get(law, lp, name), _law_value_set(law, lp, name),
                   is_int=lp.is_int, law=law.name)  # fmt: skip
         for lp, name in zip(law.param_list(), law.param_names())
     )

@@ -175,7 +175,21 @@ def _mission(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=missions_cli.main)
 
 
-SUBCOMMANDS = (_run, _compare, _campaign, _tune, _paper, _sitl, _demo, _bench, _plot, _log, _gcs, _mission)
+def _laws(sub: argparse._SubParsersAction) -> None:
+    from lab import laws_cmd
+
+    p = sub.add_parser(
+        "laws",
+        help="list the control laws: built-ins, installed plug-ins, laws from files; their parameters",
+        description="Every control law the flight controller can fly (built-ins, installed plug-ins of the entry-point"
+        " group smcpilot.laws, and --law files or modules), with its stage, origin and MAVLink parameters."
+        " A law that fails to load is named in one line (exit 2). docs/your-own-law.md shows how to write one.",
+    )
+    laws_cmd.add_arguments(p)
+    p.set_defaults(handler=laws_cmd.main)
+
+
+SUBCOMMANDS = (_run, _laws, _compare, _campaign, _tune, _paper, _sitl, _demo, _bench, _plot, _log, _gcs, _mission)
 
 
 def build_parser() -> argparse.ArgumentParser:

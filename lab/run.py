@@ -125,7 +125,9 @@ class _TlogRecorder:
         self.tlog.write_many(0, [m.pack(mav) for m in param_messages(mav, core.config, options)])
 
     def event(self, severity: int, text: str) -> None:
-        self.tlog.write(self.core.t_us, telemetry.statustext(self._mav, severity, text).pack(self._mav))
+        """An FC event as the FC process sends it: STATUSTEXT, in chunks when over 50 characters."""
+        mav = self._mav
+        self.tlog.write_many(self.core.t_us, [m.pack(mav) for m in telemetry.statustexts(mav, severity, text)])
 
     def sim_event(self, ev: FaultEvent) -> None:
         """A fault start/stop as the simulator sends it (its component's STATUSTEXT), at its time."""
@@ -192,6 +194,8 @@ def fly_in_process(scenario: Scenario, tlog_path: Path, *, echo=None) -> FlightR
     finally:
         wall = time.perf_counter() - t0
         recorder.close()
+    if status == "ok" and core.law_fault is not None:
+        status, message = "error", f"the control law failed in flight (the failsafe flew on): {core.law_fault}"
     sim_s = (ticks - 1) / scenario.rate_hz if ticks else 0.0
     return FlightResult(scenario, "in-process", tlog_path, ticks, sim_s, wall, status, message, events)
 

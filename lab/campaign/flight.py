@@ -138,6 +138,8 @@ def _fly_in_process(unit: Unit, row: dict[str, Any], tlog: Path | None) -> Trace
     finally:
         if recorder is not None:
             recorder.close()
+    if status == "ok" and core.law_fault is not None:
+        status, message = "error", f"the control law failed in flight: {core.law_fault}"
     row["sim_s"] = round(core.t_us * 1e-6, 6)
     a = rec.arrays()
     keep = a["t_s"] >= unit.score_from_s

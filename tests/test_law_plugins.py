@@ -1,0 +1,272 @@
+"""Laws from outside the project: a file, a module, an installed package's entry point.
+
+The example plug-in (``examples/law-plugin``, the tutorial's law) flies in-process and as the two
+processes, with the same motor commands tick for tick; installed with pip it is found through its
+entry point by real ``smcpilot`` processes. Its parameters are MAVLink parameters. Bad laws (import
+errors, bad prefixes, names taken, parameters without ranges, names too long) give one line and
+exit 2; a law that raises or returns NaN in flight is counted, flown around (failsafe, land) and
+reported, in-process and over the two processes, with the log whole.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fc.config import FcConfig
+from fc.control import registry
+from fc.control.law import LawError
+from fc.flight import FlightControl
+from fc.params import ParamStore, param_table
+from ground.logs import load_log
+from lab.run import fly
+from smcpilot.errors import ParamError
+from smcpilot.scenario import Scenario
+from smcpilot.vehicle import DEFAULT_VEHICLE
+
+ROOT = Path(__file__).resolve().parent.parent
+PLUGIN_DIR = ROOT / "examples" / "law-plugin"
+PD_FILE = PLUGIN_DIR / "smcpilot_pd_law" / "pd_law.py"
+PD_REF = f"{PD_FILE}:PD_LAW"
+SMCPILOT = str(Path(sys.executable).with_name("smcpilot"))
+
+
+def _hover(controller: str, duration_s: float = 6.0) -> Scenario:
+    sc = Scenario.from_toml(ROOT / "examples" / "scenarios" / "hover.toml")
+    return sc.with_changes(controller=controller, duration_s=duration_s)
+
+
+def _run(*args: str, env: dict[str, str] | None = None, cwd: Path = ROOT, timeout: float = 120.0) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([SMCPILOT, *args], capture_output=True, text=True, timeout=timeout, cwd=cwd, env=env, stdin=subprocess.DEVNULL)
+
+
+# -- a law from a file, flown both ways ---------------------------------------------------------------
+def test_a_law_from_a_file_flies_in_process_and_as_sitl_with_the_same_motor_commands(tmp_path: Path) -> None:
+    sc = _hover(PD_REF, 6.0)
+    a = fly(sc, tmp_path / "in")
+    b = fly(sc, tmp_path / "sitl", sitl=True)
+    assert a.status == "ok" and b.status == "ok", (a.message, b.message)
+    la, lb = load_log(a.tlog), load_log(b.tlog)
+    n = min(len(la.motors), len(lb.motors))
+    assert n > 2500
+    assert np.array_equal(la.motors[:n], lb.motors[:n]), "the same law, the same commands, tick for tick"
+    # it took off and holds 3 m
+    assert abs(la.alt_m[-1] - 3.0) < 0.05 and abs(la.north_m[-1]) < 0.05 and abs(la.east_m[-1]) < 0.05
+
+
+def test_the_file_law_is_listed_with_its_parameters_and_its_origin() -> None:
+    r = _run("laws", "--law", str(PD_FILE.relative_to(ROOT)) + ":PD_LAW", "--params")
+    assert r.returncode == 0, r.stderr
+    line = next(ln for ln in r.stdout.splitlines() if "pd_feedback" in ln and "attitude" in ln)
+    assert f"file {PD_FILE}" in line
+    for name in ("PDL_KP_ATT", "PDL_KD_ATT", "PDL_KP_YAW", "PDL_KD_YAW", "PDL_KP_Z", "PDL_KD_Z", "PDL_KI_Z"):
+        assert name in r.stdout
+    for name in ("adaptive_pid_smc", "pid_smc", "cascade_pid", "sign_smc"):
+        assert f"  {name} " in r.stdout
+
+
+def test_its_parameters_are_mavlink_parameters_settable_live_and_validated() -> None:
+    law = registry.resolve(PD_REF)
+    table = param_table()
+    assert "PDL_KP_ATT" in table.index and table.specs[table.index["FC_CONTROLLER"]].hi >= 4
+    cfg = FcConfig(controller=PD_REF)
+    store = ParamStore(cfg)
+    assert store.value("PDL_KP_ATT") == 64.0
+    fl = FlightControl(store.config, DEFAULT_VEHICLE)
+    assert fl.params.law[1] == 64.0 and fl.law is law
+    fl.reconfigure(store.set("PDL_KP_ATT", 49.0, persist=False))
+    assert fl.params.law[1] == 49.0, "a live change reaches the flying law's constants"
+    with pytest.raises(ParamError, match=r"PDL_KP_ATT out of range \[0, 1000\]"):
+        store.set("PDL_KP_ATT", 5000.0)
+    # FC_CONTROLLER names it by its place in the table, and switching back and forth works
+    idx = [lw.name for lw in registry.flight_laws()].index("pd_feedback")
+    assert store.value("FC_CONTROLLER") == idx
+    store.set("FC_CONTROLLER", 2.0, persist=False)
+    assert store.pending.controller == "cascade_pid"
+
+
+def test_a_scenario_sets_its_parameters_and_a_relative_law_file_resolves_beside_it(tmp_path: Path) -> None:
+    law_dir = tmp_path / "laws"
+    law_dir.mkdir()
+    (law_dir / "my_law.py").write_text(PD_FILE.read_text().replace('name="pd_feedback"', 'name="pd_copy"').replace('prefix="PDL"', 'prefix="PDC"'))
+    (tmp_path / "s.toml").write_text(textwrap.dedent("""
+        name = "mine"
+        duration_s = 2.0
+        [fc]
+        controller = "laws/my_law.py:PD_LAW"
+        [fc.params]
+        PDC_KP_Z = 5.0
+        [[step]]
+        t_s = 0.0
+        action = "takeoff"
+        alt_m = 1.0
+    """))
+    sc = Scenario.from_toml(tmp_path / "s.toml")
+    assert sc.controller == f"{(law_dir / 'my_law.py').resolve()}:PD_LAW"
+    from fc.params import config_for
+
+    assert dict(config_for(sc).law_values) == {"PDC_KP_Z": 5.0}
+    # the same name from another file is refused, naming the first
+    (law_dir / "other.py").write_text((law_dir / "my_law.py").read_text())
+    with pytest.raises(LawError, match="law name 'pd_copy' is already taken by file .*my_law.py"):
+        registry.resolve(f"{law_dir / 'other.py'}:PD_LAW")
+
+
+# -- installed with pip: the entry point ----------------------------------------------------------------
+@pytest.fixture(scope="module")
+def installed_plugin(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
+    """The example package installed by pip into a directory of its own (no index, no build isolation);
+    an environment whose PYTHONPATH has it, as a user's site-packages would."""
+    target = tmp_path_factory.mktemp("site")
+    r = subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-build-isolation", "--no-index",
+                        "--target", str(target), str(PLUGIN_DIR)], capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert any(p.name.startswith("smcpilot_pd_law") and p.name.endswith(".dist-info") for p in target.iterdir())
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(target) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    return env
+
+
+def test_an_installed_plugin_is_listed_through_its_entry_point(installed_plugin: dict[str, str], tmp_path: Path) -> None:
+    r = _run("laws", "--json", env=installed_plugin, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    import json
+
+    rows = {row["name"]: row for row in json.loads(r.stdout)}
+    assert rows["pd_feedback"]["origin"] == "entry point smcpilot-pd-law"
+    assert rows["pd_feedback"]["fc_controller"] == 4 and rows["pd_feedback"]["stage"] == "attitude"
+    assert [p["name"] for p in rows["pd_feedback"]["parameters"]][:2] == ["PDL_KP_ATT", "PDL_KD_ATT"]
+    pdef = tmp_path / "apm.pdef.xml"
+    assert _run("laws", "--pdef", str(pdef), env=installed_plugin, cwd=tmp_path).returncode == 0
+    assert 'name="ArduCopter:PDL_KP_ATT"' in pdef.read_text() and "4 pd_feedback" in pdef.read_text()
+
+
+def test_an_installed_plugin_flies_by_name_in_process_and_as_sitl(installed_plugin: dict[str, str], tmp_path: Path) -> None:
+    for extra in ((), ("--sitl",)):
+        out = tmp_path / ("sitl" if extra else "in")
+        r = _run("run", str(ROOT / "examples" / "scenarios" / "hover.toml"), "--controller", "pd_feedback", "--duration", "4",
+                 "--no-plots", "--quiet", "--out", str(out), *extra, env=installed_plugin, cwd=tmp_path)  # fmt: skip
+        assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+        assert "run: ok" in r.stdout
+        assert 'controller = "pd_feedback"' in (out / "hover.scenario.toml").read_text()
+
+
+# -- bad laws: one line, exit 2, nothing started --------------------------------------------------------
+_GOOD = PD_FILE.read_text()
+
+
+@pytest.mark.parametrize(
+    ("source", "needle"),
+    [
+        ("raise RuntimeError('boom')\n", "importing .* failed: RuntimeError: boom"),
+        (_GOOD.replace('prefix="PDL"', 'prefix="pd_l"'), "parameter prefix 'pd_l' must be 1-8 upper-case"),
+        (_GOOD.replace('name="pd_feedback"', 'name="cascade_pid"'), "law name 'cascade_pid' is a built-in law's"),
+        (_GOOD.replace('kp_att: float = param(64.0, lo=0.0, hi=1000.0, unit="1/s^2", doc="roll/pitch: angle error -> angular acceleration")',
+                       "kp_att: float = 64.0"), "parameter PdParams.kp_att has no range"),
+        (_GOOD.replace("param(64.0, lo=0.0,", 'param(64.0, name="KP_ATTITUDE_X", lo=0.0,'), "parameter name PDL_KP_ATTITUDE_X is longer than 16"),
+        (_GOOD.replace("param(64.0, lo=0.0,", "param(-1.0, lo=0.0,"), "PDL_KP_ATT default -1 outside its range"),
+        (_GOOD + "\nPD_LAW = 3\n", "not a fc.control.law.Law but int"),
+    ],
+    ids=["import-error", "bad-prefix", "taken-name", "no-range", "name-too-long", "default-out-of-range", "not-a-law"],
+)
+def test_a_bad_law_is_one_line_and_exit_2(tmp_path: Path, source: str, needle: str) -> None:
+    f = tmp_path / "bad_law.py"
+    f.write_text(source)
+    for args in (("laws", "--law", f"{f}:PD_LAW"), ("run", str(ROOT / "examples" / "scenarios" / "hover.toml"), "--law", f"{f}:PD_LAW",
+                                                    "--out", str(tmp_path / "out"), "--no-plots")):  # fmt: skip
+        r = _run(*args, cwd=tmp_path)
+        assert r.returncode == 2, (args, r.stdout, r.stderr)
+        lines = r.stderr.strip().splitlines()
+        assert len(lines) == 1, r.stderr
+        import re
+
+        assert re.search(needle, lines[0]), lines[0]
+        assert not (tmp_path / "out").exists(), "nothing flew"
+
+
+def test_unknown_names_list_the_choices() -> None:
+    with pytest.raises(LawError, match="unknown control law 'lqr'; choose from: adaptive_pid_smc, pid_smc, cascade_pid, sign_smc"):
+        registry.resolve("lqr")
+    with pytest.raises(LawError, match="no such file"):
+        registry.resolve("/nonexistent/law.py:LAW")
+    with pytest.raises(LawError, match="has no NOPE"):
+        registry.resolve(f"{PD_FILE}:NOPE")
+
+
+# -- a law that fails in flight ----------------------------------------------------------------------------
+_FAILING = '''
+import math
+from dataclasses import dataclass
+from fc.control.law import Law, param
+
+@dataclass(frozen=True)
+class P:
+    after: float = param(800.0, lo=1.0, hi=1e6, unit="ticks", doc="fail after this many ticks")
+
+def consts(ctx, p):
+    return (tuple(ctx.model.consts()), p.after)
+
+def init(meas, k):
+    return (0.0,)
+
+def step(meas, ref, state, dt_s, k, d_hat, u_prev):
+    m = k[0]
+    z = (0.0, 0.0, 0.0, 0.0)
+    n = state[0] + 1.0
+    if n > k[1]:
+        {failure}
+    # hover thrust with a little altitude feedback and attitude damping
+    u = (-0.05 * meas[1] - 0.2 * meas[0], -0.05 * meas[3] - 0.2 * meas[2], -0.002 * meas[5], m[0] * (m[1] + 2.0 * (ref[12] - meas[6]) - 2.0 * meas[7]))
+    return u, (n,), (z, z, z, z)
+
+LAW = Law(name="{name}", stage="attitude", prefix="{prefix}", description="fails in flight", params_class=P,
+          consts=consts, initial_state=init, step=step)
+'''
+
+
+@pytest.mark.parametrize(("kind", "failure", "why"), [
+    ("raises", "raise ZeroDivisionError('the law divided by zero')", "ZeroDivisionError: the law divided by zero"),
+    ("nan", "return (math.nan, 0.0, 0.0, 1.0), (n,), (z, z, z, z)", "non-finite command"),
+])  # fmt: skip
+@pytest.mark.parametrize("sitl", [False, True], ids=["in-process", "sitl"])
+def test_a_law_failing_in_flight_is_counted_flown_around_and_reported(tmp_path: Path, kind: str, failure: str, why: str, sitl: bool) -> None:
+    f = tmp_path / f"failing_{kind}.py"
+    mode = "sitl" if sitl else "inproc"  # law names are unique in a process: one per case
+    f.write_text(_FAILING.replace("{failure}", failure).replace("{name}", f"failing_{kind}_{mode}").replace("{prefix}", f"F{kind.upper()[:3]}{mode[0].upper()}"))
+    sc = _hover(f"{f}:LAW", 5.0)
+    result = fly(sc, tmp_path / "out", sitl=sitl)
+    log = load_log(result.tlog)
+    texts = [e.text for e in log.events]
+    assert any(t.startswith("FAILSAFE: law failing_") for t in texts), texts
+    assert sum(t.startswith("FAILSAFE: law") for t in texts) == 1, "announced once, not every tick"
+    assert any(why[:20] in t for t in texts), texts
+    assert log.act_t_s[-1] - log.act_t_s[0] > 4.9
+    assert len(log.motors) >= 0.95 * 5.0 * sc.rate_hz, "the log is whole: the loop flew on to the end"
+    if not sitl:
+        assert result.status == "error" and why in result.message, result.message
+    # after the failure the motors are the failsafe's: level, equal, below hover
+    late = log.motors[-100:]
+    assert np.allclose(late, late[:, :1], atol=1e-9) or not late.any()
+
+
+def test_a_law_failure_keeps_the_state_and_counts(tmp_path: Path) -> None:
+    f = tmp_path / "nan_law.py"
+    f.write_text(_FAILING.replace("{failure}", "return (math.nan, 0.0, 0.0, 1.0), (n,), (z, z, z, z)").replace("{name}", "nan_law").replace("{prefix}", "NANL"))
+    from fc.flight import LawFault, VehicleState
+
+    fl = FlightControl(dataclasses.replace(FcConfig(controller=f"{f}:LAW"), law_values=(("NANL_AFTER", 3.0),)), DEFAULT_VEHICLE)
+    st = VehicleState(*(0.0,) * 12)
+    fl.arm(st)
+    for _ in range(3):
+        fl.step(st, 0.002)
+    before = fl.pipeline_state
+    with pytest.raises(LawFault, match="law nan_law: non-finite command"):
+        fl.step(st, 0.002)
+    assert fl.pipeline_state is before and fl.law_faults == 1
