@@ -62,7 +62,7 @@ TABLE_METRICS = MAIN_METRICS
 VARIANTS: tuple[Variant, ...] = (
     Variant("adaptive", "adaptive_pid_smc", (), "adaptive PID-SMC, disturbance observer at the input (FC default)"),
     Variant("known-bound", "pid_smc", (), "PID-SMC with the known bound chi (Theorem 1), same observer"),
-    Variant("adaptive-paper", "adaptive_pid_smc", (("SMC_DOB", 0.0),), "adaptive PID-SMC without observer: the paper's nominal-model sigma"),
+    Variant("adaptive-paper", "adaptive_pid_smc", (("DOB_MODE", 0.0),), "adaptive PID-SMC without observer: the paper's nominal-model sigma"),
     Variant("cascade", "cascade_pid", (), "cascaded PID (angle P, rate PID)"),
 )
 

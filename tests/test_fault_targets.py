@@ -29,7 +29,7 @@ def test_one_motor_at_70_percent_at_hover_is_survived(seed: int) -> None:
 
 
 def test_the_papers_law_without_the_observer_does_not_survive_it() -> None:
-    """The comparison that motivates the observer: same fault, same seed, SMC_DOB = 0."""
+    """The comparison that motivates the observer: same fault, same seed, DOB_MODE = 0."""
     row, _ = fly_unit(Unit(CASES["motor30-hover"], VARIANT["adaptive-paper"], 0))
     assert row["crashed"], row
 

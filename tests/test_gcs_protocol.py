@@ -384,7 +384,7 @@ def test_prearm_health_bit_says_whether_arming_would_pass(fc):
 
 
 # == 3. Parameters ===================================================================================
-INT_PARAMS = {"ARMING_CHECK", "FS_GCS_ENABLE", "FC_CONTROLLER", "SYSID_THISMAV", "SYS_FAILURE_EN", "SMC_DOB", "SMC_DOB_LAG", "FENCE_ENABLE"} | {
+INT_PARAMS = {"ARMING_CHECK", "FS_GCS_ENABLE", "FC_CONTROLLER", "SYSID_THISMAV", "SYS_FAILURE_EN", "DOB_MODE", "DOB_LAG", "FENCE_ENABLE"} | {
     "SIM_ENGINE_FAIL", "SIM_MOT_OFF", "SIM_GYR_FAULT", "SIM_ACC_FAULT", "SIM_ATT_FAULT", "SIM_POS_FAULT", "SIM_VEL_FAULT", "SIM_PAPER_DIST"
 }  # fmt: skip
 

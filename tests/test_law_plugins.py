@@ -270,3 +270,35 @@ def test_a_law_failure_keeps_the_state_and_counts(tmp_path: Path) -> None:
     with pytest.raises(LawFault, match="law nan_law: non-finite command"):
         fl.step(st, 0.002)
     assert fl.pipeline_state is before and fl.law_faults == 1
+
+
+# -- the tutorial, as written -------------------------------------------------------------------------------
+TUTORIAL = (ROOT / "docs" / "your-own-law.md").read_text(encoding="utf-8")
+
+
+def _blocks(lang: str) -> list[str]:
+    import re
+
+    return re.findall(rf"```{lang}\n(.*?)```", TUTORIAL, flags=re.S)
+
+
+def test_the_tutorials_law_is_the_example_plugins_code() -> None:
+    import ast
+
+    (code,) = _blocks("python")
+    module = ast.parse(PD_FILE.read_text())
+    body = module.body[1:] if isinstance(module.body[0], ast.Expr) else module.body  # the file's docstring
+    assert ast.dump(ast.parse(code)) == ast.dump(ast.Module(body=body, type_ignores=[])), "docs/your-own-law.md and pd_law.py differ"
+    assert len(code.strip().splitlines()) <= 60
+
+
+def test_the_tutorials_fly_it_commands_run_as_written(tmp_path: Path) -> None:
+    block = next(b for b in _blocks("bash") if b.startswith("LAW="))
+    env = dict(os.environ)
+    env["PATH"] = str(Path(SMCPILOT).parent) + os.pathsep + env.get("PATH", "")
+    # as written, from the project root; the runs' output goes where the commands put it (out/run/...)
+    r = subprocess.run(["bash", "-euo", "pipefail", "-c", block.replace("--sitl", "--sitl --out " + str(tmp_path / "sitl"))
+                        .replace("--law $LAW            #", f"--law $LAW --out {tmp_path / 'in'} #")],
+                       capture_output=True, text=True, timeout=300, cwd=ROOT, env=env, stdin=subprocess.DEVNULL)  # fmt: skip
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    assert "PDL_KP_ATT" in r.stdout and r.stdout.count("run: ok") == 2

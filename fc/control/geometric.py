@@ -228,9 +228,7 @@ def geo_clamp(v: float, lim: float) -> float:
 
 
 # -- the law's pieces (pure) -------------------------------------------------------------------------
-def geo_desired_force(
-    e_x: Sequence[float], e_v: Sequence[float], integ: Sequence[float], acc_d: Sequence[float], k: GeometricConsts
-) -> tuple[Vec3, bool]:
+def geo_desired_force(e_x: Sequence[float], e_v: Sequence[float], integ: Sequence[float], acc_d: Sequence[float], k: GeometricConsts) -> tuple[Vec3, bool]:
     """(A / m, limited): the desired force per unit mass, m/s^2, z up, and whether the
     horizontal-acceleration or tilt limit cut it. Lee's ``-kx e_x - kv e_v + m x_d'' + m g e3``
     (plus ``-ki int e_x``), per unit mass."""
@@ -258,9 +256,7 @@ def geo_desired_force(
     return (ax, ay, az), limited
 
 
-def geo_desired_attitude(
-    a: Sequence[float], a1: Sequence[float], a2: Sequence[float], psi: float, psi_dot: float, psi_ddot: float
-) -> tuple[Mat3, Vec3, Vec3]:
+def geo_desired_attitude(a: Sequence[float], a1: Sequence[float], a2: Sequence[float], psi: float, psi_dot: float, psi_ddot: float) -> tuple[Mat3, Vec3, Vec3]:
     """(R_d, W_d, W_d'): Lee's desired attitude from the desired force direction ``a`` (any
     scale) and the heading psi_d, with its body rate and acceleration from ``a``'s first two
     derivatives ``a1``, ``a2`` (same scale) and psi_d', psi_d''."""
@@ -296,8 +292,13 @@ def geo_attitude_errors(r: Sequence[float], rd: Sequence[float], w: Sequence[flo
 
 
 def geo_moment(
-    r: Sequence[float], rd: Sequence[float], w: Sequence[float], wd: Sequence[float], wd_1: Sequence[float],
-    integ_r: Sequence[float], k: GeometricConsts,
+    r: Sequence[float],
+    rd: Sequence[float],
+    w: Sequence[float],
+    wd: Sequence[float],
+    wd_1: Sequence[float],
+    integ_r: Sequence[float],
+    k: GeometricConsts,
 ) -> tuple[Vec3, Vec3]:
     """(M, e_R): Lee's moment, body FLU, N m, with the attitude integral term ``-J kI int e_R``."""
     e_r, e_w, wdb = geo_attitude_errors(r, rd, w, wd)
@@ -340,8 +341,13 @@ def geo_initial_state(meas: Sequence[float], k: GeometricConsts) -> State6:
 
 
 def geo_step(
-    meas: Sequence[float], ref: Sequence[float], state: Sequence[float], dt_s: float, k: GeometricConsts,
-    d_hat: Sequence[float], u_prev: Sequence[float],
+    meas: Sequence[float],
+    ref: Sequence[float],
+    state: Sequence[float],
+    dt_s: float,
+    k: GeometricConsts,
+    d_hat: Sequence[float],
+    u_prev: Sequence[float],
 ) -> tuple[Vec4, State6, tuple[Vec4, Vec4, Vec4, Vec4], tuple[float, float]]:
     """One tick: (u, new state, diag (zeros), (phi_d, theta_d)). ``meas`` and ``ref`` as the full
     stage hands them (paper frame; Euler-angle rates; psi unwrapped next to psi_d)."""
@@ -380,9 +386,7 @@ def geo_step(
     return u, new, (_ZERO4, _ZERO4, _ZERO4, _ZERO4), geo_roll_pitch(rd)
 
 
-def geo_anti_windup(
-    prev: Sequence[float], new: Sequence[float], u_realised: Sequence[float], limited: Sequence[bool], k: GeometricConsts
-) -> State6:
+def geo_anti_windup(prev: Sequence[float], new: Sequence[float], u_realised: Sequence[float], limited: Sequence[bool], k: GeometricConsts) -> State6:
     """The mixer limited a channel: the attitude integrator of that axis keeps its value; the
     horizontal position integrators hold while roll or pitch is limited (the tilt was not
     realised), the vertical one while the thrust is."""

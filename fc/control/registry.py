@@ -26,7 +26,9 @@ from pathlib import Path
 
 from fc.control.builtin import BUILTIN_LAWS
 from fc.control.law import Law, LawError, validate_law
-from smcpilot.lawref import is_file_reference, note_loaded
+from smcpilot.lawref import is_file_reference, normalise_reference, note_loaded
+
+__all__ = ["ENTRY_POINT_GROUP", "builtin_names", "entry_points", "flight_laws", "is_file_reference", "load_installed", "normalise_reference", "plugin_laws", "resolve"]
 
 ENTRY_POINT_GROUP = "smcpilot.laws"
 _BUILTIN = {law.name: law for law in BUILTIN_LAWS}

@@ -15,7 +15,7 @@ A campaign TOML file (every path relative to the file; every key but ``scenario`
     [[controller]]                 # or labelled variants with FC parameters of their own
     label = "adaptive-no-dob"
     controller = "adaptive_pid_smc"
-    params = { SMC_DOB = 0 }
+    params = { DOB_MODE = 0 }
 
     [[vary]]                       # a distribution: one draw per seed
     field = "plant.mass_kg"        # the simulated vehicle only: the FC keeps its model
