@@ -311,7 +311,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     names = [c.name for c in study_cases()]
     p.add_argument("--cases", default="all", help=f"comma-separated cases, or all (default): {', '.join(names)}")
     p.add_argument("--controllers", default="all",
-                   help="comma-separated controllers, or all (default): " + ", ".join(f"{v.label} ({v.description})" for v in VARIANTS))
+                   help="comma-separated controllers, or all (default): " + ", ".join(f"{v.label} ({v.description})" for v in VARIANTS)
+                   + "; or any law by name or reference (sign_smc, an installed plug-in, path/to/law.py:NAME; `smcpilot laws`)")
     p.add_argument("--seeds", type=int, default=5, help="seeds per case and controller (default 5): noise and gust draws")
     p.add_argument("--duration", type=float, default=20.0, metavar="S", help="simulated seconds per flight (default 20; the event at 10 s)")
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
@@ -336,13 +337,36 @@ def _pick(spec: str, items: Sequence[Any], name: Callable[[Any], str], what: str
     return out
 
 
+def _variants(spec: str) -> list[Variant]:
+    """The study's variants by label, and any other law by name or reference (a plug-in, a file)."""
+    from fc.control import registry
+    from smcpilot.lawref import law_reference_problem, normalise_reference
+
+    known = {v.label for v in VARIANTS}
+    names = [x.strip() for x in spec.split(",") if x.strip()] if spec != "all" else []
+    out: list[Variant] = []
+    for name in names or ["all"]:
+        if name == "all" or name in known:
+            out.extend(_pick(name, VARIANTS, lambda v: v.label, "controller"))
+        elif not law_reference_problem(name):
+            ref = normalise_reference(name)
+            law = registry.resolve(ref)
+            out.append(Variant(law.name, ref, (), law.description))
+        else:
+            raise ConfigError(f"unknown controller {name!r}; choose from: {', '.join(known)}, or a law (`smcpilot laws`)")
+    labels = [v.label for v in out]
+    if len(set(labels)) != len(labels):
+        raise ConfigError(f"a controller is named twice in --controllers: {spec}")
+    return out
+
+
 def main(args: argparse.Namespace) -> int:
     if args.seeds < 1 or args.jobs < 1:
         raise ConfigError("--seeds and --jobs must be >= 1")
     if not (math.isfinite(args.duration) and args.duration > 12.0):
         raise ConfigError(f"--duration must be a finite number of seconds > 12 (the event is at 10 s), got {args.duration}")
     cases = _pick(args.cases, study_cases(args.duration), lambda c: c.name, "case")
-    variants = _pick(args.controllers, VARIANTS, lambda v: v.label, "controller")
+    variants = _variants(args.controllers)
     total = len(cases) * len(variants) * args.seeds
     cluster = ClusterOptions(workers=None if args.cluster else args.jobs, address=args.cluster)
     if not args.quiet:

@@ -49,7 +49,8 @@ def pid_smc_params_of(config: Any, adaptive: bool = True) -> PidSmcParams:
     """The PID-SMC's parameters as an :class:`fc.config.FcConfig` holds them."""
     c = config
     dob = "input" if c.disturbance_estimate == "auto" else c.disturbance_estimate
-    return PidSmcParams(gains=c.gains, adaptive=adaptive, adaptation=c.adaptation, chi_hat0=(c.chi_hat0,) * 4, disturbance_estimate=dob)
+    return PidSmcParams(gains=c.gains, adaptive=adaptive, adaptation=c.adaptation, chi_hat0=(c.chi_hat0,) * 4,
+                        disturbance_estimate=dob)  # type: ignore[arg-type]  # FcConfig validated it  # fmt: skip
 
 
 def _known_bound_params_of(config: Any) -> PidSmcParams:
