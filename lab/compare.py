@@ -321,6 +321,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=Path("out/compare"), help="output directory (default out/compare)")
     p.add_argument("--no-plots", action="store_true", help="skip the figures")
     p.add_argument("--quiet", action="store_true", help="no progress line")
+    p.add_argument("--loss-limit", action="store_true",
+                   help="instead of the cases: bisect, per controller, the largest loss of motor 1's thrust survived at hover and"
+                   " mid-step by every seed, beside the physical limit of a trim (lab/loss_limit.py); writes loss_limits.md")  # fmt: skip
 
 
 def _pick(spec: str, items: Sequence[Any], name: Callable[[Any], str], what: str) -> list[Any]:
@@ -360,13 +363,40 @@ def _variants(spec: str) -> list[Variant]:
     return out
 
 
+def _loss_limit_main(args: argparse.Namespace, variants: Sequence[Variant]) -> int:
+    import json
+
+    from lab.loss_limit import bisect_loss_limits, limits_table, trim_efficiency_min
+
+    tol = 0.025
+    cluster = ClusterOptions(workers=None if args.cluster else args.jobs, address=args.cluster)
+    echo = None if args.quiet else (lambda text: print(text, file=sys.stderr, flush=True))
+    if echo is not None:
+        echo(f"compare --loss-limit: {len(variants)} controllers x 2 conditions x {args.seeds} seeds per round, to {tol:.1%}")
+    brackets = bisect_loss_limits(variants, seeds=args.seeds, tol=tol, duration_s=args.duration, cluster=cluster, progress=echo)
+    table = limits_table(brackets, DEFAULT_VEHICLE, args.seeds, tol)
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "loss_limits.md").write_text(table, encoding="utf-8")
+    data = {
+        "seeds": args.seeds, "tolerance": tol,
+        "physical_limit": {"heading_held": 1.0 - trim_efficiency_min(DEFAULT_VEHICLE), "heading_free": 1.0 - trim_efficiency_min(DEFAULT_VEHICLE, yaw_held=False)},
+        "survived": [{"controller": b.variant.label, "condition": b.condition, "survived": b.lo, "failed": b.hi, "why": b.why} for b in brackets],
+    }  # fmt: skip
+    (args.out / "loss_limits.json").write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
+    print(table, end="")
+    print(f"written: {args.out / 'loss_limits.md'}  {args.out / 'loss_limits.json'}")
+    return 0
+
+
 def main(args: argparse.Namespace) -> int:
     if args.seeds < 1 or args.jobs < 1:
         raise ConfigError("--seeds and --jobs must be >= 1")
     if not (math.isfinite(args.duration) and args.duration > 12.0):
         raise ConfigError(f"--duration must be a finite number of seconds > 12 (the event is at 10 s), got {args.duration}")
-    cases = _pick(args.cases, study_cases(args.duration), lambda c: c.name, "case")
     variants = _variants(args.controllers)
+    if args.loss_limit:
+        return _loss_limit_main(args, variants)
+    cases = _pick(args.cases, study_cases(args.duration), lambda c: c.name, "case")
     total = len(cases) * len(variants) * args.seeds
     cluster = ClusterOptions(workers=None if args.cluster else args.jobs, address=args.cluster)
     if not args.quiet:
