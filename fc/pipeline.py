@@ -238,9 +238,9 @@ def hover_input(phi: float, theta: float, ob: ObserverConsts) -> tuple[float, fl
 
 def pipeline_reset(st: VehicleState, p: PipelineParams, law: LawFunctions) -> PipelineState:
     """The state on arming at ``st``: references start where the vehicle is, the law at its initial state."""
-    law_state = law.initial_state((0.0, 0.0, 0.0, 0.0, st.psi_rad, 0.0, st.z_m, 0.0), p.law)
     meas = (st.phi_rad, st.phi_dot_radps, st.theta_rad, st.theta_dot_radps, st.psi_rad, st.psi_dot_radps, st.z_m, st.vz_mps)
-    dob = observer_reset(meas, hover_input(0.0, 0.0, p.observer), p.observer.w)
+    law_state = law.initial_state(meas, p.law)
+    dob = observer_reset(meas, hover_input(st.phi_rad, st.theta_rad, p.observer), p.observer.w)
     return PipelineState(
         st.x_m, st.vx_mps, 0.0, st.y_m, st.vy_mps, 0.0, st.z_m, st.vz_mps, 0.0,
         st.phi_rad, 0.0, 0.0, st.theta_rad, 0.0, 0.0, st.psi_rad, 0.0, 0.0,
@@ -250,9 +250,9 @@ def pipeline_reset(st: VehicleState, p: PipelineParams, law: LawFunctions) -> Pi
 
 def pipeline_reset_full(st: VehicleState, p: PipelineParams, law: LawFunctions) -> PipelineState:
     """:func:`pipeline_reset` for a whole-stack law (its initial state from the 12-float state)."""
-    law_state = law.initial_state((st.x_m, st.y_m, st.z_m, 0.0, 0.0, 0.0, 0.0, 0.0, st.psi_rad, 0.0, 0.0, 0.0), p.law)
+    law_state = law.initial_state(st, p.law)
     meas = (st.phi_rad, st.phi_dot_radps, st.theta_rad, st.theta_dot_radps, st.psi_rad, st.psi_dot_radps, st.z_m, st.vz_mps)
-    dob = observer_reset(meas, hover_input(0.0, 0.0, p.observer), p.observer.w)
+    dob = observer_reset(meas, hover_input(st.phi_rad, st.theta_rad, p.observer), p.observer.w)
     return PipelineState(
         st.x_m, st.vx_mps, 0.0, st.y_m, st.vy_mps, 0.0, st.z_m, st.vz_mps, 0.0,
         st.phi_rad, 0.0, 0.0, st.theta_rad, 0.0, 0.0, st.psi_rad, 0.0, 0.0,
@@ -295,10 +295,11 @@ def actuate(
     land_h: float,
     p: PipelineParams,
     dt_s: float,
-) -> tuple[Vec4, Vec4, tuple[bool, bool, bool, bool], tuple, tuple[float, ...], Vec4]:
+) -> tuple[Vec4, Vec4, tuple[bool, bool, bool, bool], tuple, tuple[float, ...], Vec4, Vec4]:
     """After the law: the observer's compensation at the input (``DOB_MODE`` 3), the priority mixer,
     the law's anti-windup on what was realised, the observer's update. Returns (motors, realised u,
-    limited, the law's state, the observer's state, the input commanded to the mixer)."""
+    limited, the law's state, the observer's state, the input commanded to the mixer, the law's own
+    share of the realised input: what the law's next step gets as ``u_prev``)."""
     ob = p.observer
     c0 = c1 = c2 = c3 = 0.0
     if ob.mode == DOB_INPUT:
@@ -312,9 +313,9 @@ def actuate(
     if landing and meas[6] < 3.0 * land_h:
         # Ground contact is not a disturbance to learn: freeze the z channel's integrators.
         limited = (limited[0], limited[1], limited[2], True)
+    # the law's own share of what was realised (the compensation is not the law's)
+    law_realised = (realised[0] + c0, realised[1] + c1, realised[2] + c2, realised[3] + c3)
     if limited[0] or limited[1] or limited[2] or limited[3]:
-        # the law's own share of what was realised (the compensation is not the law's state)
-        law_realised = (realised[0] + c0, realised[1] + c1, realised[2] + c2, realised[3] + c3)
         new = law.anti_windup(prev, new, law_realised, limited, p.law)
     if ob.mode != DOB_OFF:
         tau = ob.tau
@@ -323,7 +324,7 @@ def actuate(
             lag_a = math.exp(-dt_s / tau)
             lag_b = tau * (1.0 - lag_a) / dt_s
         dob = observer_update(dob, meas, d_hat, realised, ob.model, ob.w, ob.tilt_min, ob.inv_mass, lag_a, lag_b, dt_s)
-    return motors, realised, limited, new, dob, u
+    return motors, realised, limited, new, dob, u, law_realised
 
 
 def touchdown_step(landing: bool, z_m: float, vz_m: float, landed_s: float, land_h: float, land_s: float, dt_s: float) -> tuple[float, bool]:
@@ -360,7 +361,7 @@ def pipeline_step(
     (w, amax, _vxy_max, vz_max, land_speed, wa, wy, yaw_rate_max, land_h, land_s, g,
      pos, _mixp, ob, k) = p  # fmt: skip
     if law_init:
-        law_state = law.initial_state((phi, 0.0, theta, 0.0, psi, 0.0, z_m, 0.0), k)
+        law_state = law.initial_state((phi, phi_dot, theta, theta_dot, psi, psi_dot, z_m, vz_m), k)
         dob = observer_reset((phi, phi_dot, theta, theta_dot, psi, psi_dot, z_m, vz_m), hover_input(phi, theta, ob), ob.w)
     # 1. Position/altitude references.
     if landing:
@@ -396,12 +397,12 @@ def pipeline_step(
     d_hat, d_law = observer_in(dob, meas, z_m, land_h, ob)
     u, new, diag = law.step(meas, ref, law_state, dt_s, k, d_law, ps.u_prev)
     # 4. Compensation, mixer with priorities, anti-windup on what was realised, observer update.
-    motors, realised, limited, new, dob, u = actuate(law, law_state, new, u, meas, d_hat, dob, landing, land_h, p, dt_s)
+    motors, realised, limited, new, dob, u, u_law = actuate(law, law_state, new, u, meas, d_hat, dob, landing, land_h, p, dt_s)
     # 5. Touchdown while landing -> the caller disarms.
     landed_s, touchdown = touchdown_step(landing, z_m, vz_m, landed_s, land_h, land_s, dt_s)
     state = PipelineState(
         x_r, vx_r, ax_r, y_r, vy_r, ay_r, z_r, vz_r, az_r, phi_r, phi_v, phi_a, th_r, th_v, th_a,
-        psi_r, psi_v, psi_a, int_x, int_y, new, False, landed_s, dob, realised,
+        psi_r, psi_v, psi_a, int_x, int_y, new, False, landed_s, dob, u_law,
     )  # fmt: skip
     return state, (motors, realised, limited, diag[0], diag[1], diag[2], u, diag[3], (phi_r, th_r, psi_r, z_r), touchdown, d_hat)
 
@@ -426,12 +427,15 @@ def pipeline_step_full(
     (w, amax, _vxy_max, vz_max, land_speed, _wa, wy, yaw_rate_max, land_h, land_s, _g,
      _pos, _mixp, ob, k) = p  # fmt: skip
     if law_init:
-        law_state = law.initial_state((x_m, y_m, z_m, 0.0, 0.0, 0.0, phi, theta, psi, 0.0, 0.0, 0.0), k)
+        law_state = law.initial_state(st, k)
         dob = observer_reset((phi, phi_dot, theta, theta_dot, psi, psi_dot, z_m, vz_m), hover_input(phi, theta, ob), ob.w)
     if landing:
         tz = z_m - 10.0
         vz_max = land_speed
-    if not position_hold or (z_m < land_h and (landing or pz < land_h)):
+    # ALT_HOLD, and on the ground before take-off or while landing: no horizontal correction, and the
+    # law's integrators hold (anti-windup with every channel limited), as the position loop's do.
+    hold = not position_hold or (z_m < land_h and (landing or pz < land_h))
+    if hold:
         px, pvx, pax = x_m, vx_m, 0.0
         py, pvy, pay = y_m, vy_m, 0.0
         tx, ty = x_m, y_m
@@ -445,11 +449,13 @@ def pipeline_step_full(
     meas = (phi, phi_dot, theta, theta_dot, psi_u, psi_dot, z_m, vz_m)
     d_hat, d_law = observer_in(dob, meas, z_m, land_h, ob)
     u, new, diag, att = law.step(full, ref, law_state, dt_s, k, d_law, ps.u_prev)
-    motors, realised, limited, new, dob, u = actuate(law, law_state, new, u, meas, d_hat, dob, landing, land_h, p, dt_s)
+    motors, realised, limited, new, dob, u, u_law = actuate(law, law_state, new, u, meas, d_hat, dob, landing, land_h, p, dt_s)
+    if hold:
+        new = law.anti_windup(law_state, new, u_law, (True, True, True, True), k)
     landed_s, touchdown = touchdown_step(landing, z_m, vz_m, landed_s, land_h, land_s, dt_s)
     state = PipelineState(
         x_r, vx_r, ax_r, y_r, vy_r, ay_r, z_r, vz_r, az_r, att[0], 0.0, 0.0, att[1], 0.0, 0.0,
-        psi_r, psi_v, psi_a, int_x, int_y, new, False, landed_s, dob, realised,
+        psi_r, psi_v, psi_a, int_x, int_y, new, False, landed_s, dob, u_law,
     )  # fmt: skip
     return state, (motors, realised, limited, diag[0], diag[1], diag[2], u, diag[3], (att[0], att[1], psi_r, z_r), touchdown, d_hat)
 

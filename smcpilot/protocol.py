@@ -84,9 +84,9 @@ FC_COMPONENT_ID = 1
 SIM_COMPONENT_ID = 200
 
 # -- controllers -----------------------------------------------------------------------------------
-#: The built-in control laws the flight controller flies (FC_CONTROLLER values 0..3; plug-ins follow,
+#: The built-in control laws the flight controller flies (FC_CONTROLLER values 0..5; plug-ins follow,
 #: see fc.control.registry and smcpilot.lawref).
-FC_CONTROLLERS: tuple[str, ...] = ("adaptive_pid_smc", "pid_smc", "cascade_pid", "sign_smc")
+FC_CONTROLLERS: tuple[str, ...] = ("adaptive_pid_smc", "pid_smc", "cascade_pid", "sign_smc", "se3_geometric", "indi")
 #: Every control law, in the order reports list them (the paper scenario adds the sign-SMC).
 CONTROLLER_NAMES: tuple[str, ...] = ("pid_smc", "adaptive_pid_smc", "sign_smc", "cascade_pid")
 

@@ -45,7 +45,9 @@ from fc.pipeline import (
     PipelineState,
     VehicleState,
     pipeline_reset,
+    pipeline_reset_full,
     pipeline_step,
+    pipeline_step_full,
 )
 from lab.runner import wire_state
 from sim_bridge.environment import Environment, EnvironmentParams
@@ -55,7 +57,7 @@ from smcpilot.model import ModelConsts, PaperModel
 from smcpilot.typos import TYPOS
 from smcpilot.vehicle import DEFAULT_VEHICLE
 
-FC_CONTROLLERS = ("adaptive_pid_smc", "pid_smc", "cascade_pid", "sign_smc")
+FC_CONTROLLERS = ("adaptive_pid_smc", "pid_smc", "cascade_pid", "sign_smc", "se3_geometric", "indi")
 _ALLOWED_BUILTINS = {abs, min, max}
 _MATH = {v for v in vars(math).values() if callable(v)}
 _FORBIDDEN_NODES = (
@@ -184,19 +186,20 @@ def test_state_keeps_its_types_from_tick_to_tick(controller: str) -> None:
     fl = FlightControl(FcConfig(controller=controller), DEFAULT_VEHICLE)
     st = VehicleState(*(0.0,) * 12)
     law = fl.law_functions
-    ps = pipeline_reset(st, fl.params, law)
+    reset, step = (pipeline_reset_full, pipeline_step_full) if fl.law.full_stack else (pipeline_reset, pipeline_step)
+    ps = reset(st, fl.params, law)
     first = tuple(t for _, t in leaf_types(ps))
     cmd = PipelineInputs(0.0, 0.0, 2.0, 0.5, True, False, True, 3.0)
     assert tuple(t for _, t in leaf_types(cmd)) == (float,) * 4 + (bool,) * 3 + (float,)
     out0 = None
     for k in range(50):
-        ps, out = pipeline_step(ps, st, cmd._replace(landing=k > 25), fl.params, 0.002, law)
+        ps, out = step(ps, st, cmd._replace(landing=k > 25), fl.params, 0.002, law)
         assert isinstance(ps, PipelineState) and tuple(t for _, t in leaf_types(ps)) == first
         sig = tuple(t for _, t in leaf_types(out))
         assert out0 is None or sig == out0
         out0 = sig
     # The law state not yet there (after a change of controller while armed) is filled in the same types.
-    ps, _ = pipeline_step(ps._replace(law_init=True), st, cmd, fl.params, 0.002, law)
+    ps, _ = step(ps._replace(law_init=True), st, cmd, fl.params, 0.002, law)
     assert tuple(t for _, t in leaf_types(ps)) == first
 
 
@@ -234,16 +237,17 @@ def _closed_loop(controller: str) -> list[tuple]:
     fl = FlightControl(cfg, DEFAULT_VEHICLE)
     p = fl.params
     law = fl.law_functions
+    reset, step = (pipeline_reset_full, pipeline_step_full) if fl.law.full_stack else (pipeline_reset, pipeline_step)
     plant = RigidBodyPlant(DEFAULT_VEHICLE)
     st = wire_state(plant.observe())
-    ps = pipeline_reset(st, p, law)
+    ps = reset(st, p, law)
     rows = []
     t = 0.0
     for k in range(700):
         st = wire_state(plant.observe())
         cmd = PipelineInputs(0.5, -0.3, 3.0, 1.2, True, k >= 500, not 400 <= k < 500, cfg.speed_max_xy_mps)
-        new, out = pipeline_step(ps, st, cmd, p, 0.002, law)
-        rows.append((ps, st, cmd, p, new, out, law))
+        new, out = step(ps, st, cmd, p, 0.002, law)
+        rows.append((ps, st, cmd, p, new, out, law, step))
         ps = new
         for _ in range(2):
             plant.step(t, 0.001, out[0], True)
@@ -263,27 +267,27 @@ def test_compiled_pipeline_step_gives_the_same_bits() -> None:
     rows = []
     for _ in range(300):
         new, out = pipeline_step(ps, ground, cmd, fl.params, 0.002, fl.law_functions)
-        rows.append((ps, ground, cmd, fl.params, new, out, fl.law_functions))
+        rows.append((ps, ground, cmd, fl.params, new, out, fl.law_functions, pipeline_step))
         ps = new
     assert any(r[5][9] for r in rows), "touched down"
     flights["touchdown"] = rows
     with compiled() as jit:
-        step = jit[pipeline_step]
-
         def compiled_law(law: LawFunctions) -> LawFunctions:
             return LawFunctions(*(jit[f] for f in law))
 
         t0 = time.perf_counter()
-        step(*rows[0][:4], 0.002, compiled_law(rows[0][6]))
+        jit[pipeline_step](*rows[0][:4], 0.002, compiled_law(rows[0][6]))
         compile_s = time.perf_counter() - t0
         for name, rows in flights.items():
             law = compiled_law(rows[0][6])
-            for k, (ps, st, cmd, p, new, out, _law) in enumerate(rows):
+            step = jit[rows[0][7]]
+            for k, (ps, st, cmd, p, new, out, _law, _step) in enumerate(rows):
                 got = step(ps, st, cmd, p, 0.002, law)
                 assert bits(got) == bits((new, out)), f"{name}: tick {k} differs"
                 assert type(got[0]) is PipelineState
         # one specialisation per law's functions (the two PID-SMC flavours share theirs)
-        assert len(step.signatures) == len({rows[0][6] for rows in flights.values()}) == 3
+        attitude_laws = {rows[0][6] for rows in flights.values() if rows[0][7] is pipeline_step}
+        assert len(jit[pipeline_step].signatures) == len(attitude_laws) == 4 and len(jit[pipeline_step_full].signatures) == 1
     print(f"\nnumba compiled pipeline_step (with everything it calls) in {compile_s:.1f} s")
 
 

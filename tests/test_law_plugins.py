@@ -75,7 +75,7 @@ def test_the_file_law_is_listed_with_its_parameters_and_its_origin() -> None:
 def test_its_parameters_are_mavlink_parameters_settable_live_and_validated() -> None:
     law = registry.resolve(PD_REF)
     table = param_table()
-    assert "PDL_KP_ATT" in table.index and table.specs[table.index["FC_CONTROLLER"]].hi >= 4
+    assert "PDL_KP_ATT" in table.index and table.specs[table.index["FC_CONTROLLER"]].hi >= 6
     cfg = FcConfig(controller=PD_REF)
     store = ParamStore(cfg)
     assert store.value("PDL_KP_ATT") == 64.0
@@ -141,11 +141,11 @@ def test_an_installed_plugin_is_listed_through_its_entry_point(installed_plugin:
 
     rows = {row["name"]: row for row in json.loads(r.stdout)}
     assert rows["pd_feedback"]["origin"] == "entry point smcpilot-pd-law"
-    assert rows["pd_feedback"]["fc_controller"] == 4 and rows["pd_feedback"]["stage"] == "attitude"
+    assert rows["pd_feedback"]["fc_controller"] == 6 and rows["pd_feedback"]["stage"] == "attitude"
     assert [p["name"] for p in rows["pd_feedback"]["parameters"]][:2] == ["PDL_KP_ATT", "PDL_KD_ATT"]
     pdef = tmp_path / "apm.pdef.xml"
     assert _run("laws", "--pdef", str(pdef), env=installed_plugin, cwd=tmp_path).returncode == 0
-    assert 'name="ArduCopter:PDL_KP_ATT"' in pdef.read_text() and "4 pd_feedback" in pdef.read_text()
+    assert 'name="ArduCopter:PDL_KP_ATT"' in pdef.read_text() and "6 pd_feedback" in pdef.read_text()
 
 
 def test_an_installed_plugin_flies_by_name_in_process_and_as_sitl(installed_plugin: dict[str, str], tmp_path: Path) -> None:

@@ -59,7 +59,7 @@ def test_ground_reader_agrees_with_the_table() -> None:
         m = meta[row["name"]]
         assert (m.lo, m.hi, m.unit, m.restart) == (row["min"], row["max"], row["unit"], row["restart"])
         assert m.description.startswith(str(row["description"]))
-    assert meta["FC_CONTROLLER"].values == {0: "adaptive_pid_smc", 1: "pid_smc", 2: "cascade_pid", 3: "sign_smc"}
+    assert meta["FC_CONTROLLER"].values == {0: "adaptive_pid_smc", 1: "pid_smc", 2: "cascade_pid", 3: "sign_smc", 4: "se3_geometric", 5: "indi"}
     assert meta["DOB_MODE"].values == {-1: "auto", 0: "none", 1: "sigma", 2: "lumped", 3: "input"}
     assert meta["ARMING_CHECK"].values == {0: "Disabled", 1: "Enabled"}
     assert meta["SIM_GYR_FAULT"].lo == 0.0

@@ -6,7 +6,11 @@ Each is the law module's pure functions behind the interface's signatures (:mod:
   (Theorem 2) or with the known bound chi (Theorem 1) -- :mod:`fc.control.pid_smc`;
 - ``cascade_pid``: the cascaded PID most flight stacks fly -- :mod:`fc.control.cascade_pid`;
 - ``sign_smc``: the paper's comparison, a conventional SMC whose sign(s) reaches the actuators --
-  :mod:`fc.control.sign_smc`.
+  :mod:`fc.control.sign_smc`;
+- ``se3_geometric``: geometric tracking control on SE(3) (Lee, Leok and McClamroch 2010), a
+  whole-stack law -- :mod:`fc.control.geometric`, ``docs/geometric-control.md``;
+- ``indi``: incremental nonlinear dynamic inversion (Smeur, Chu and de Croon 2016) --
+  :mod:`fc.control.indi`, ``docs/indi.md``.
 
 The PID-SMC and the cascade read their parameters from :class:`fc.config.FcConfig` (their MAVLink
 names, ``SMC_*``, ``ATC_*``, ``PSC_*Z*``, are in :mod:`fc.params`); the sign-SMC's are declared on its
@@ -27,6 +31,8 @@ from fc.control.cascade_pid import (
     cascade_pid_consts,
     cascade_pid_step,
 )
+from fc.control.geometric import GEOMETRIC_FUNCTIONS, SE3_GEOMETRIC
+from fc.control.indi import INDI, INDI_FUNCTIONS
 from fc.control.law import STAGE_ATTITUDE, Law, LawContext, LawParam
 from fc.control.pid_smc import (
     PidSmc,
@@ -183,12 +189,13 @@ SIGN_SMC = Law(
     state_names=SignSmc.state_names, diagnostics=("sigma",), params=_SIGN_PARAMS, reference="docs/paper-reproduction.md",
 )  # fmt: skip
 
-#: the built-in laws in FC_CONTROLLER order (the parameter's values 0..3).
-BUILTIN_LAWS: tuple[Law, ...] = (ADAPTIVE_PID_SMC, KNOWN_BOUND_PID_SMC, CASCADE_PID, SIGN_SMC)
+#: the built-in laws in FC_CONTROLLER order (the parameter's values 0..5; smcpilot.protocol.FC_CONTROLLERS).
+BUILTIN_LAWS: tuple[Law, ...] = (ADAPTIVE_PID_SMC, KNOWN_BOUND_PID_SMC, CASCADE_PID, SIGN_SMC, SE3_GEOMETRIC, INDI)
 
 #: the pure functions of the built-in laws' flight interface (checked and compiled by the tests).
 BUILTIN_FLIGHT_FUNCTIONS = (
     pid_smc_flight_init, pid_smc_flight_step, pid_smc_flight_anti_windup,
     cascade_flight_init, cascade_flight_step, cascade_flight_anti_windup,
     sign_flight_init, sign_flight_step, sign_flight_anti_windup,
+    *GEOMETRIC_FUNCTIONS, *INDI_FUNCTIONS,
 )  # fmt: skip

@@ -22,8 +22,8 @@ with W the body rates (from the Euler-angle rates the FC measures, ZYX kinematic
 from R_d's first two time derivatives computed analytically from the reference's derivatives
 (x_d''' and psi_d', psi_d''; the reference's snap is not available and is taken as zero, and the
 feedback terms' derivatives are left out: the feed-forward of differential flatness).
-The integral terms (``ki`` on position, ``kI`` on attitude, the latter as in Goodarzi, Lee & Leok,
-ECC 2013) are additions to the 2010 law; with both gains 0 the law is exactly Lee's.
+The integral terms (``ki`` on position, ``kI`` on attitude, the latter after Goodarzi, Lee & Leok,
+ECC 2013, integrating e_R alone) are additions to the 2010 law; with their gains 0 the law is exactly Lee's.
 
 Inputs: ``u = (M_x / l, M_y / l, M_z, f)`` -- the plant's roll torque is ``l u_phi`` about body
 +x, its pitch torque ``l u_theta`` about body +y, its yaw torque ``u_psi`` about body +z
@@ -83,11 +83,11 @@ class GeometricParams:
     acc_max: float = param(5.0, lo=0.5, hi=30.0, unit="m/s^2", doc="largest horizontal acceleration demand (norm)")
     tilt_max: float = param(0.6, lo=0.05, hi=1.4, unit="rad", doc="largest angle between the desired thrust b3_d and up")
     kr_rp: float = param(126.0, lo=0.0, hi=2000.0, unit="1/s^2", doc="roll/pitch attitude gain kR/J")
-    kr_yaw: float = param(90.0, lo=0.0, hi=2000.0, unit="1/s^2", doc="yaw attitude gain kR/J (the yaw weighting)")
+    kr_yaw: float = param(32.0, lo=0.0, hi=2000.0, unit="1/s^2", doc="yaw attitude gain kR/J (the yaw weighting)")
     kw_rp: float = param(40.0, lo=0.0, hi=200.0, unit="1/s", doc="roll/pitch angular-rate gain kW/J")
-    kw_yaw: float = param(20.0, lo=0.0, hi=200.0, unit="1/s", doc="yaw angular-rate gain kW/J")
+    kw_yaw: float = param(8.0, lo=0.0, hi=200.0, unit="1/s", doc="yaw angular-rate gain kW/J")
     kir_rp: float = param(60.0, lo=0.0, hi=2000.0, unit="1/s^3", doc="roll/pitch attitude integral gain (0: Lee's law)")
-    kir_yaw: float = param(40.0, lo=0.0, hi=2000.0, unit="1/s^3", doc="yaw attitude integral gain (0: Lee's law)")
+    kir_yaw: float = param(8.0, lo=0.0, hi=2000.0, unit="1/s^3", doc="yaw attitude integral gain (0: Lee's law)")
     imaxr_rp: float = param(50.0, lo=0.0, hi=500.0, unit="rad/s^2", doc="largest roll/pitch integral term |kI int e_R|")
     imaxr_yaw: float = param(5.0, lo=0.0, hi=500.0, unit="rad/s^2", doc="largest yaw integral term |kI int e_R|")
     ff: int = param(1, lo=0, hi=1, is_int=True, doc="1: feed W_d and W_d' forward (from the reference's jerk and yaw rate/accel); 0: W_d = W_d' = 0")

@@ -38,8 +38,10 @@ builds on the *realised* input, a limited channel winds nothing up (:func:`indi_
 keeps the state). ``d_hat`` is ignored: the measured acceleration already holds the disturbance
 (fly INDI without the observer, ``DOB_MODE`` 0 or -1; see docs/indi.md).
 
-State (28 floats, :data:`INDI_STATE_NAMES`): the previous rates (4), the modelled actuator (4),
-the acceleration filters' (y, y') (8), the actuator filters' (y, y') (8), the G ratios (4).
+State (29 floats, :data:`INDI_STATE_NAMES`): the previous rates (4), the modelled actuator (4),
+the acceleration filters' (y, y') (8), the actuator filters' (y, y') (8), the G ratios (4), and
+whether a previous rate exists (0 right after :func:`indi_initial_state`: the first tick takes no
+finite difference, since the pipeline initialises a law with the rates zeroed).
 """
 
 from __future__ import annotations
@@ -63,7 +65,7 @@ G_RATIO_MAX = 4.0
 #: regularisation of the normalised LMS (rad/s^3, m/s^3): below it the fit hardly moves.
 ADAPT_EPS = 1.0
 #: length of the law's state.
-INDI_STATE_N = 28
+INDI_STATE_N = 29
 _CH = ("phi", "theta", "psi", "z")
 INDI_STATE_NAMES: tuple[str, ...] = (
     tuple(f"{c}_dot_prev" for c in _CH)
@@ -71,6 +73,7 @@ INDI_STATE_NAMES: tuple[str, ...] = (
     + tuple(f"acc_f{d}_{c}" for c in _CH for d in ("", "d"))
     + tuple(f"act_f{d}_{c}" for c in _CH for d in ("", "d"))
     + tuple(f"g_ratio_{c}" for c in _CH)
+    + ("primed",)
 )
 
 
@@ -224,8 +227,9 @@ def indi_channel(
 
 
 def indi_initial_state(meas: Sequence[float], k: IndiConsts) -> tuple[float, ...]:
-    """At rest at the measured rates, the actuators and their filters at hover trim for the
-    measured tilt (no torques, u_z = m g / (cos phi cos theta)), G nominal."""
+    """The actuators and their filters at hover trim for the measured tilt (no torques,
+    u_z = m g / (cos phi cos theta)), no acceleration, G nominal, not primed (the first step
+    differences nothing: the rates it is given here may be placeholders)."""
     ctc = tilt_cos(meas[0], meas[2], k.tilt_min)
     uz = k.hover_n / ctc
     return (
@@ -233,7 +237,7 @@ def indi_initial_state(meas: Sequence[float], k: IndiConsts) -> tuple[float, ...
         0.0, 0.0, 0.0, uz,
         0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
         0.0, 0.0, 0.0, 0.0, 0.0, 0.0, ctc * uz, 0.0,
-        1.0, 1.0, 1.0, 1.0,
+        1.0, 1.0, 1.0, 1.0, 0.0,
     )  # fmt: skip
 
 
@@ -243,6 +247,9 @@ def indi_step(
     """One tick: (u, new state, diag). ``u_prev`` is what the mixer realised over the last tick;
     diag's u' is the command's rate of change (u - u_prev) / dt, the rest zeros."""
     s = state
+    p0, p1, p2, p3 = s[0], s[1], s[2], s[3]
+    if s[28] == 0.0:  # the first tick: no previous rate to difference
+        p0, p1, p2, p3 = meas[1], meas[3], meas[5], meas[7]
     mu_dt = k.adapt_rate * dt_s
     eps = k.adapt_eps
     la = k.lag_a
@@ -251,20 +258,20 @@ def indi_step(
     kd = k.kd
     g = k.g_nom
     u0, c0, fa0, fad0, fu0, fud0, r0 = indi_channel(
-        meas[0], meas[1], s[0], s[4], u_prev[0], 1.0, s[8], s[9], s[16], s[17], s[24],
+        meas[0], meas[1], p0, s[4], u_prev[0], 1.0, s[8], s[9], s[16], s[17], s[24],
         ref[0], ref[1], ref[2], kp[0], kd[0], g[0], k.f_rp, la, lb, mu_dt, eps, dt_s,
     )  # fmt: skip
     u1, c1, fa1, fad1, fu1, fud1, r1 = indi_channel(
-        meas[2], meas[3], s[1], s[5], u_prev[1], 1.0, s[10], s[11], s[18], s[19], s[25],
+        meas[2], meas[3], p1, s[5], u_prev[1], 1.0, s[10], s[11], s[18], s[19], s[25],
         ref[4], ref[5], ref[6], kp[1], kd[1], g[1], k.f_rp, la, lb, mu_dt, eps, dt_s,
     )  # fmt: skip
     u2, c2, fa2, fad2, fu2, fud2, r2 = indi_channel(
-        meas[4], meas[5], s[2], s[6], u_prev[2], 1.0, s[12], s[13], s[20], s[21], s[26],
+        meas[4], meas[5], p2, s[6], u_prev[2], 1.0, s[12], s[13], s[20], s[21], s[26],
         ref[8], ref[9], ref[10], kp[2], kd[2], g[2], k.f_yaw, la, lb, mu_dt, eps, dt_s,
     )  # fmt: skip
     ctc = tilt_cos(meas[0], meas[2], k.tilt_min)
     u3, c3, fa3, fad3, fu3, fud3, r3 = indi_channel(
-        meas[6], meas[7], s[3], s[7], u_prev[3], ctc, s[14], s[15], s[22], s[23], s[27],
+        meas[6], meas[7], p3, s[7], u_prev[3], ctc, s[14], s[15], s[22], s[23], s[27],
         ref[12], ref[13], ref[14], kp[3], kd[3], g[3], k.f_z, la, lb, mu_dt, eps, dt_s,
     )  # fmt: skip
     new = (
@@ -272,7 +279,7 @@ def indi_step(
         c0, c1, c2, c3,
         fa0, fad0, fa1, fad1, fa2, fad2, fa3, fad3,
         fu0, fud0, fu1, fud1, fu2, fud2, fu3, fud3,
-        r0, r1, r2, r3,
+        r0, r1, r2, r3, 1.0,
     )  # fmt: skip
     u = (u0, u1, u2, u3)
     ud = ((u0 - u_prev[0]) / dt_s, (u1 - u_prev[1]) / dt_s, (u2 - u_prev[2]) / dt_s, (u3 - u_prev[3]) / dt_s)

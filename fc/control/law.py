@@ -30,10 +30,14 @@ and also returns ``att_ref``, the (phi, theta) it commands, rad (telemetry and t
 
 Both return ``u`` = (u_phi N, u_theta N, u_psi N m, u_z N), the paper's inputs (the torques are
 l u_phi, l u_theta about x and y; u_z the total thrust), which the pipeline's priority mixer turns
-into motor commands. ``d_hat`` is the disturbance observer's estimate (rad/s^2 x3, m/s^2) when it is
+into motor commands. ``d_hat`` is the disturbance observer's estimate (Euler-angle accelerations
+phi'', theta'', psi'' in rad/s^2, not body axes; z'' in m/s^2) when it is
 configured to hand it to the law (``DOB_MODE`` 1 or 2), zeros otherwise; ``u_prev`` the input the
-motors were commanded to realise over the previous tick (after the mixer's limits; zeros after
-arming) -- what an incremental law (INDI) increments. ``diag`` is four 4-tuples, ``(S, sigma,
+motors realised over the previous tick, the law's own share (after the mixer's limits, without the
+observer's compensation; zeros after arming) -- what an incremental law (INDI) increments.
+``initial_state`` gets the measurement when the vehicle arms (or when the law takes over in flight).
+A whole-stack law's integrators are held (``anti_windup`` with every channel limited) in ALT_HOLD
+and on the ground, where the pipeline gives it no horizontal correction to make. ``diag`` is four 4-tuples, ``(S, sigma,
 chi_hat, u')`` in channel order, zeros where the law has no such quantity (:attr:`Law.diagnostics`
 names those it has: they reach telemetry as ``SIG_*``, ``CHI_*``).
 
