@@ -64,6 +64,9 @@ VARIANTS: tuple[Variant, ...] = (
     Variant("known-bound", "pid_smc", (), "PID-SMC with the known bound chi (Theorem 1), same observer"),
     Variant("adaptive-paper", "adaptive_pid_smc", (("DOB_MODE", 0.0),), "adaptive PID-SMC without observer: the paper's nominal-model sigma"),
     Variant("cascade", "cascade_pid", (), "cascaded PID (angle P, rate PID)"),
+    Variant("cascade+dob", "cascade_pid", (("DOB_MODE", 3.0),), "the same cascade with the PID-SMC's disturbance observer at its input"),
+    Variant("se3", "se3_geometric", (), "geometric tracking control on SE(3) (Lee et al. 2010), whole stack, with integral terms"),
+    Variant("indi", "indi", (), "incremental nonlinear dynamic inversion (Smeur et al. 2016)"),
 )
 
 

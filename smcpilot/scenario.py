@@ -77,7 +77,7 @@ from typing import Any
 from smcpilot.errors import ConfigError, ScenarioError
 from smcpilot.faults import FaultSpec
 from smcpilot.impair import ImpairmentError, LinkImpairment
-from smcpilot.lawref import law_reference_problem
+from smcpilot.lawref import law_reference_problem, normalise_reference
 from smcpilot.plan import PlanError, PlanStep, load_plan, parse_plan
 from smcpilot.tomlfile import read_toml
 from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
@@ -169,6 +169,9 @@ class Scenario:
         problem = law_reference_problem(self.controller)
         if problem:
             raise ScenarioError(f"fc.controller: {problem}")
+        # a law file named relative to the working directory: absolute, so that the FC process and
+        # campaign workers (other directories) find it too (a scenario file's are made relative to it)
+        object.__setattr__(self, "controller", normalise_reference(self.controller))
         if not (math.isfinite(self.rate_hz) and 0 < self.rate_hz <= 1000):
             raise ScenarioError(f"fc.rate_hz must lie in (0, 1000] Hz, got {self.rate_hz!r}")
         ratio = self.physics_hz / self.rate_hz if math.isfinite(self.physics_hz) and self.physics_hz > 0 else 0.0
