@@ -117,6 +117,9 @@ def _is_loopback(host: str) -> bool:
 #: lockstep: while the simulator is silent, the last answer is re-sent this often (wall s): it
 #: recovers a lost answer, and a dead simulator's closed port is reported on the next receive.
 LOCKSTEP_PROBE_S = 0.2
+#: real time: this many more ticks that took longer than the period than ticks that did not -> the law is failed
+#: (too slow for the control rate; the failsafe flies; fc.core.FlightCore.law_failure).
+LAW_OVERRUN_TICKS = 25
 #: the tlog is handed to the OS at least this often (simulated s of ticks).
 TLOG_FLUSH_S = 0.25
 #: real time: a state may be stamped at most this much (plus 4x the wall time since the last
@@ -504,6 +507,7 @@ class FlightControllerApp:
                 raise WatchdogError(f"simulator sent nothing within {self.startup_timeout_s:g} s; stopping")
         deadline = mono() + period
         lateness = self.stats.lateness_s
+        slow_ticks = 0
         while not self._stop:
             now = mono()
             wait = deadline - now
@@ -532,7 +536,18 @@ class FlightControllerApp:
             age = now - self._state_wall_s
             if age > self.cfg.watchdog_s:
                 raise WatchdogError(f"simulator has been silent for {age:.1f} s (real-time watchdog); stopping")
+            t_start = mono()
             self._tick(self.clock.now_us(), stale=age > self.cfg.failsafe_state_timeout_s)
+            spent = mono() - t_start
+            if spent > period and self.core.flight.armed and not self.core.law_failed:
+                # Ticks that cannot keep the rate, again and again, are a law too slow for it: the
+                # failsafe (open loop, cheap) flies instead of a loop that falls ever later. A fast
+                # tick takes one back (the state-loss failsafe a starved loop falls into is fast).
+                slow_ticks += 1
+                if slow_ticks >= LAW_OVERRUN_TICKS:
+                    self.core.law_failure(f"overran its tick {LAW_OVERRUN_TICKS} times ({spent * 1e3:.1f} ms of {period * 1e3:.1f} ms)")
+            elif slow_ticks:
+                slow_ticks -= 1
             if self.duration_s is not None and self.clock.now_s() >= self.duration_s:
                 break
 

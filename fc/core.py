@@ -287,15 +287,25 @@ class FlightCore:
             out = flight.step(st, dt)
         except LawFault as exc:
             # The law is anyone's code: counted, announced once, and the vehicle flown down open loop.
-            self.law_failed = True
-            self.law_fault = str(exc)
-            self.event(mavlink.MAV_SEVERITY_CRITICAL, f"FAILSAFE: {exc}"[:_LAW_TEXT_MAX])
+            self._law_failed(str(exc))
             return self._law_failsafe(st)
         if was_armed and not flight.armed:
             c.on_touchdown()
             self.event(mavlink.MAV_SEVERITY_INFO, "Landed: disarmed")
         return out
 
+
+    def law_failure(self, why: str) -> None:
+        """The law failed in a way the runner saw (in real time: it overran its tick again and again):
+        from the next tick on the failsafe flies, as for a law that raised."""
+        self.flight.law_faults += 1
+        self._law_failed(f"law {self.flight.law.name}: {why}")
+
+    def _law_failed(self, text: str) -> None:
+        self.law_failed = True
+        if self.law_fault is None:
+            self.law_fault = text
+        self.event(mavlink.MAV_SEVERITY_CRITICAL, f"FAILSAFE: {text}"[:_LAW_TEXT_MAX])
 
     def _law_failsafe(self, st: VehicleState) -> PipelineOutput:
         """After a law failure: level, a fraction of hover thrust (the state-loss failsafe), and

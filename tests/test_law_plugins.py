@@ -302,3 +302,21 @@ def test_the_tutorials_fly_it_commands_run_as_written(tmp_path: Path) -> None:
                        capture_output=True, text=True, timeout=300, cwd=ROOT, env=env, stdin=subprocess.DEVNULL)  # fmt: skip
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
     assert "PDL_KP_ATT" in r.stdout and r.stdout.count("run: ok") == 2
+
+
+def test_a_law_too_slow_for_the_rate_in_real_time_is_failed_and_the_failsafe_flies(tmp_path: Path) -> None:
+    """Real time at 100 Hz, a law that takes 15 ms a tick once armed: after 25 ticks (net) over the
+    10 ms period the FC announces it, and the open-loop failsafe (cheap) keeps the rate."""
+    from ground.sitl import Sitl
+    from tests.sitl_helpers import HANG_TIMEOUT_S, sitl_options
+
+    f = tmp_path / "slow_law.py"
+    f.write_text(_FAILING.replace("{failure}", "time.sleep(0.015)").replace("import math", "import math\nimport time")
+                 .replace("{name}", "slow_law").replace("{prefix}", "SLOW").replace("param(800.0,", "param(20.0,"))  # fmt: skip
+    opts = sitl_options(tmp_path, "slow", duration_s=3.0, lockstep=False, controller=f"{f}:LAW", rate_hz=100.0, physics_hz=1000.0)
+    with Sitl(opts) as sitl:
+        assert sitl.wait(timeout_s=HANG_TIMEOUT_S) == 0
+    assert opts.tlog is not None
+    texts = [e.text for e in load_log(opts.tlog).events]
+    slow = [t for t in texts if t.startswith("FAILSAFE: law slow_law: overran its tick 25 times")]
+    assert len(slow) == 1, texts
