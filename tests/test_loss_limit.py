@@ -59,7 +59,7 @@ def test_a_loss_case_changes_only_the_motors_efficiency() -> None:
 
 def test_the_bisection_brackets_the_limit_in_flight() -> None:
     """Coarse (tolerance 0.2, one seed, hover only, 14 s): the adaptive PID-SMC with its observer
-    survives 25 % (it holds 40 %: docs/robustness.md) and no law survives beyond the physical limit
+    survives 25 % (64 % with 3 seeds to 2.5 %: docs/robustness.md) and no law survives beyond the physical limit
     with the heading held by more than the bisection's width."""
     variants = [v for v in VARIANTS if v.label == "adaptive"]
     (b,) = bisect_loss_limits(variants, seeds=1, conditions=("hover",), tol=0.2, duration_s=14.0)
