@@ -320,3 +320,57 @@ def test_a_law_too_slow_for_the_rate_in_real_time_is_failed_and_the_failsafe_fli
     texts = [e.text for e in load_log(opts.tlog).events]
     slow = [t for t in texts if t.startswith("FAILSAFE: law slow_law: overran its tick 25 times")]
     assert len(slow) == 1, texts
+
+
+# -- campaigns and tuning: plug-in laws on Dask workers ------------------------------------------------------
+def test_a_campaign_flies_plugin_laws_on_workers_and_records_a_failing_law_as_an_error(tmp_path: Path) -> None:
+    """The worker processes load the law files themselves; a law that fails in flight is its unit's
+    'error' row, and the campaign goes on; a plug-in's parameter is a campaign variation."""
+    import csv
+
+    failing = tmp_path / "failing_campaign.py"
+    failing.write_text(_FAILING.replace("{failure}", "raise ValueError('bad gain')").replace("{name}", "failing_campaign")
+                       .replace("{prefix}", "FCMP").replace("param(800.0,", "param(600.0,"))  # fmt: skip
+    camp = tmp_path / "c.toml"
+    camp.write_text(textwrap.dedent(f"""
+        name = "plugins"
+        seed = 1
+        seeds = 2
+        scenario = "{ROOT / 'examples' / 'scenarios' / 'hover.toml'}"
+        duration_s = 4.0
+        [[controller]]
+        label = "pd"
+        controller = "{PD_FILE}:PD_LAW"
+        [[controller]]
+        label = "failing"
+        controller = "{failing.name}:LAW"
+        [[vary]]
+        field = "fc.params.PDL_KP_Z"
+        dist = "uniform"
+        low = 3.0
+        high = 5.0
+    """))
+    r = _run("campaign", "run", str(camp), "--out", str(tmp_path / "out"), "--workers", "1", "--quiet", "--no-plots", cwd=tmp_path, timeout=300)
+    rows = list(csv.DictReader((tmp_path / "out" / "results.csv").open()))
+    assert len(rows) == 4, (r.stdout[-2000:], r.stderr[-2000:])
+    by = {(row["controller"], row["seed_index"]): row for row in rows}
+    assert {k[0] for k in by} == {"pd", "failing"}
+    for s in ("0", "1"):
+        assert by[("pd", s)]["status"] == "ok", by[("pd", s)]
+        assert 3.0 <= float(by[("pd", s)]["fc.params.PDL_KP_Z"]) <= 5.0
+        assert by[("failing", s)]["status"] == "error" and "ValueError: bad gain" in by[("failing", s)]["message"]
+
+
+def test_a_plugin_laws_gains_are_tunable(tmp_path: Path) -> None:
+    from lab.tuning.study import parse_tune
+
+    spec = parse_tune({
+        "scenario": str(ROOT / "examples" / "scenarios" / "hover.toml"), "controllers": [PD_REF], "trials": 2,
+        "gain": [{"name": "PDL_KP_ATT", "low": 20.0, "high": 200.0, "log": True}],
+    }, source="t.toml")  # fmt: skip
+    assert [g.name for g in spec.gains] == ["PDL_KP_ATT"] and spec.campaign.variants[0].controller == PD_REF
+    from lab.campaign.spec import CampaignError
+
+    with pytest.raises(CampaignError, match=r"PDL_KP_ATT\): the range \[20, 2000\] leaves the parameter's valid range \[0, 1000\]"):
+        parse_tune({"scenario": str(ROOT / "examples" / "scenarios" / "hover.toml"), "controllers": [PD_REF], "trials": 2,
+                    "gain": [{"name": "PDL_KP_ATT", "low": 20.0, "high": 2000.0}]}, source="t.toml")  # fmt: skip
