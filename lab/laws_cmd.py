@@ -30,6 +30,7 @@ def law_rows() -> list[dict[str, Any]]:
     """Every law the FC can fly now (built-ins, then loaded plug-ins) with its parameters."""
     from fc.config import FcConfig
     from fc.control import registry
+    from fc.control.purity import law_problems
     from fc.params import param_table
 
     d = FcConfig()
@@ -44,7 +45,7 @@ def law_rows() -> list[dict[str, Any]]:
         rows.append({
             "name": law.name, "fc_controller": index, "stage": law.stage, "origin": law.origin, "prefix": law.prefix,
             "description": law.description, "state": list(law.state_names), "diagnostics": list(law.diagnostics),
-            "observer_default": law.observer_default, "compilable": law.compilable, "reference": law.reference, "parameters": params,
+            "observer_default": law.observer_default, "pure_style": not law_problems(law), "style_problems": law_problems(law)[:5], "reference": law.reference, "parameters": params,
         })  # fmt: skip
     return rows
 
@@ -69,6 +70,8 @@ def main(args: argparse.Namespace) -> int:
     print(f"{'#':>2}  {'law':<{w}}  {'stage':<8}  {'prefix':<6}  origin / description")
     for r in rows:
         print(f"{r['fc_controller']:>2}  {r['name']:<{w}}  {r['stage']:<8}  {r['prefix']:<6}  {r['origin']}: {r['description']}")
+        if r["style_problems"]:
+            print(f"    {'':<{w}}  not in the pure style (flies in CPython only): {r['style_problems'][0]}")
         if args.params:
             for p in r["parameters"]:
                 rng = f"[{p['min']:g}, {p['max']:g}]"

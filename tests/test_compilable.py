@@ -18,13 +18,10 @@ paper's disturbances.
 
 from __future__ import annotations
 
-import ast
-import builtins
 import contextlib
 import inspect
 import math
 import random
-import textwrap
 import time
 import types
 
@@ -33,9 +30,11 @@ import pytest
 from fc import estimate
 from fc.config import FcConfig
 from fc.control import LAW_FUNCTIONS, PidSmc, PidSmcParams
+from fc.control.builtin import BUILTIN_LAWS
 from fc.control.cascade_pid import CascadePid
-from fc.control.law import LawFunctions
+from fc.control.law import Law, LawFunctions
 from fc.control.pid_smc import AdaptationBounds, ChannelConsts
+from fc.control.purity import function_problems, law_problems
 from fc.control.sign_smc import SignSmc
 from fc.flight import FlightControl
 from fc.pipeline import (
@@ -58,30 +57,6 @@ from smcpilot.typos import TYPOS
 from smcpilot.vehicle import DEFAULT_VEHICLE
 
 FC_CONTROLLERS = ("adaptive_pid_smc", "pid_smc", "cascade_pid", "sign_smc", "se3_geometric", "indi")
-_ALLOWED_BUILTINS = {abs, min, max}
-_MATH = {v for v in vars(math).values() if callable(v)}
-_FORBIDDEN_NODES = (
-    ast.List, ast.ListComp, ast.Dict, ast.DictComp, ast.Set, ast.SetComp, ast.GeneratorExp, ast.JoinedStr,
-    ast.Raise, ast.Try, ast.Assert, ast.Lambda, ast.ClassDef, ast.Global, ast.Nonlocal, ast.Yield, ast.YieldFrom,
-    ast.With, ast.Await, ast.Starred, ast.Delete, ast.Import, ast.ImportFrom,
-)  # fmt: skip
-
-
-def _law_arguments(fn: types.FunctionType) -> set[str]:
-    """The parameters of ``fn`` annotated as :class:`fc.control.law.LawFunctions`."""
-    return {name for name, ann in fn.__annotations__.items() if ann in (LawFunctions, "LawFunctions")}
-
-
-def _is_namedtuple_class(v: object) -> bool:
-    return isinstance(v, type) and issubclass(v, tuple) and hasattr(v, "_fields")
-
-
-def _resolve(fn: types.FunctionType, name: str) -> object:
-    if name in fn.__globals__:
-        return fn.__globals__[name]
-    return getattr(builtins, name, None)
-
-
 PLANT_FUNCTIONS = rigid_body.PURE_FUNCTIONS
 _OTHER_PURE = PLANT_FUNCTIONS + estimate.PURE_FUNCTIONS
 ALL_PURE = PURE_FUNCTIONS + tuple(f for i, f in enumerate(_OTHER_PURE) if f not in PURE_FUNCTIONS and f not in _OTHER_PURE[:i])
@@ -95,42 +70,39 @@ def test_the_pure_functions_are_listed_once_and_cover_the_law() -> None:
 
 @pytest.mark.parametrize("fn", ALL_PURE, ids=lambda f: f"{f.__module__}.{f.__name__}")
 def test_pure_function_follows_the_rules(fn: types.FunctionType) -> None:
-    assert isinstance(fn, types.FunctionType) and fn.__qualname__ == fn.__name__, "a module-level function"
-    assert fn.__closure__ is None and not fn.__code__.co_freevars, "no closure"
-    tree = ast.parse(textwrap.dedent(inspect.getsource(fn)))
-    root = tree.body[0]
-    assert isinstance(root, ast.FunctionDef)
-    body = root.body
-    if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant):
-        body = body[1:]  # the docstring
-    pure = set(ALL_PURE)
-    problems = []
-    for node in (n for stmt in body for n in ast.walk(stmt)):
-        where = f"{fn.__name__} line {getattr(node, 'lineno', '?')}"
-        if isinstance(node, _FORBIDDEN_NODES) or (isinstance(node, ast.FunctionDef)):
-            problems.append(f"{where}: {type(node).__name__}")
-        elif isinstance(node, ast.Constant) and isinstance(node.value, (str, bytes)):
-            problems.append(f"{where}: string constant {node.value!r}")
-        elif isinstance(node, ast.Call):
-            f = node.func
-            if isinstance(f, ast.Attribute) and isinstance(f.value, ast.Name) and _resolve(fn, f.value.id) is math:
-                continue  # math.isfinite(...)
-            if (isinstance(f, ast.Attribute) and isinstance(f.value, ast.Name) and f.value.id in _law_arguments(fn)
-                    and f.attr in LawFunctions._fields and not node.keywords):  # fmt: skip
-                continue  # law.step(...): the law's own pure functions, passed in as a LawFunctions
-            if not isinstance(f, ast.Name):
-                problems.append(f"{where}: call of {ast.unparse(f)} (only plain names and math functions)")
-                continue
-            if node.keywords:
-                problems.append(f"{where}: keyword arguments in a call of {node.func.id}")
-            target = _resolve(fn, node.func.id)
-            if not (target in pure or target in _ALLOWED_BUILTINS or target in _MATH or _is_namedtuple_class(target)):
-                problems.append(f"{where}: calls {node.func.id} = {target!r}, not a pure function")
-        elif isinstance(node, ast.Name) and isinstance(node.ctx, ast.Load):
-            v = _resolve(fn, node.id)
-            if node.id not in fn.__code__.co_varnames and v is not None and isinstance(v, (list, dict, set)):
-                problems.append(f"{where}: reads the mutable global {node.id}")
+    problems = function_problems(fn, ALL_PURE)
     assert not problems, "\n".join(problems)
+
+
+@pytest.mark.parametrize("law", BUILTIN_LAWS, ids=lambda law: law.name)
+def test_every_built_in_law_is_in_the_pure_style_all_the_way_down(law: Law) -> None:
+    assert law_problems(law) == []
+
+
+def test_the_checker_names_what_breaks_the_rules() -> None:
+    def closure_maker():
+        k = 2.0
+
+        def step(meas, ref, state, dt_s, kk, d_hat, u_prev):
+            return k
+
+        return step
+
+    assert function_problems(closure_maker()) == ["step: not a module-level function (test_the_checker_names_what_breaks_the_rules.<locals>.closure_maker.<locals>.step)"]
+    assert any("Raise" in p for p in function_problems(_raising_helper))
+    assert any("string constant" in p for p in function_problems(_raising_helper))
+    assert any("calls print" in p for p in function_problems(_printing_helper))
+
+
+def _raising_helper(x: float) -> float:
+    if x < 0.0:
+        raise ValueError("negative")
+    return x
+
+
+def _printing_helper(x: float) -> float:
+    print(x)
+    return x
 
 
 # -- the rules, on the data ---------------------------------------------------------------------------

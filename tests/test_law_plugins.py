@@ -374,3 +374,18 @@ def test_a_plugin_laws_gains_are_tunable(tmp_path: Path) -> None:
     with pytest.raises(CampaignError, match=r"PDL_KP_ATT\): the range \[20, 2000\] leaves the parameter's valid range \[0, 1000\]"):
         parse_tune({"scenario": str(ROOT / "examples" / "scenarios" / "hover.toml"), "controllers": [PD_REF], "trials": 2,
                     "gain": [{"name": "PDL_KP_ATT", "low": 20.0, "high": 2000.0}]}, source="t.toml")  # fmt: skip
+
+
+def test_laws_says_which_law_is_not_in_the_pure_style(tmp_path: Path) -> None:
+    f = tmp_path / "impure_law.py"
+    f.write_text(_FAILING.replace("{failure}", "raise ValueError('no')").replace("{name}", "impure_law").replace("{prefix}", "IMPL"))
+    r = _run("laws", "--law", f"{PD_FILE}:PD_LAW", "--law", f"{f}:LAW", "--json", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    import json
+
+    rows = {row["name"]: row for row in json.loads(r.stdout)}
+    assert rows["pd_feedback"]["pure_style"] and all(rows[n]["pure_style"] for n in ("adaptive_pid_smc", "se3_geometric", "indi"))
+    assert not rows["impure_law"]["pure_style"]
+    assert any("step line" in p and "Raise" in p for p in rows["impure_law"]["style_problems"]), rows["impure_law"]["style_problems"]
+    text = _run("laws", "--law", f"{f}:LAW", cwd=tmp_path).stdout
+    assert "not in the pure style (flies in CPython only): step line" in text

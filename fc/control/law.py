@@ -49,9 +49,9 @@ step, the share of the realised input that was the law's, and which channels wer
 The constants ``k`` are whatever tuple ``consts(ctx, params)`` returns: floats, ints, bools and
 tuples of them (no objects, no lists), flattened once at start-up and on a live parameter change.
 
-A law that breaks these rules still flies in CPython (:attr:`Law.compilable` False says the fast
-path must not compile it); one that raises or returns NaN in flight is caught by the FC, which
-counts it and keeps the vehicle safe (:mod:`fc.flight`).
+A law that breaks these rules still flies, in CPython (:func:`fc.control.purity.law_problems` says
+what breaks them; ``smcpilot laws`` shows it); one that raises or returns NaN in flight is caught by
+the FC, which counts it and keeps the vehicle safe (:mod:`fc.flight`).
 """
 
 from __future__ import annotations
@@ -201,8 +201,6 @@ class Law:
     params: tuple[LawParam, ...] | None = None
     #: built-in laws: the parameter instance in an :class:`fc.config.FcConfig`.
     params_of: Callable[[Any], Any] | None = None
-    #: the functions follow the pure style (the fast path may compile them).
-    compilable: bool = True
     #: the disturbance observer's mode when ``DOB_MODE`` is -1 ("auto"): "none", "sigma", "lumped" or
     #: "input" (:mod:`fc.control.observer`; the PID-SMC flies with "input", the baselines without).
     observer_default: str = "none"
