@@ -389,3 +389,37 @@ def test_laws_says_which_law_is_not_in_the_pure_style(tmp_path: Path) -> None:
     assert any("step line" in p and "Raise" in p for p in rows["impure_law"]["style_problems"]), rows["impure_law"]["style_problems"]
     text = _run("laws", "--law", f"{f}:LAW", cwd=tmp_path).stdout
     assert "not in the pure style (flies in CPython only): step line" in text
+
+
+def test_a_mission_file_flies_a_law_file_beside_it(tmp_path: Path) -> None:
+    """``smcpilot mission run``: the mission's [sitl] controller is a law file relative to the mission."""
+    (tmp_path / "laws").mkdir()
+    (tmp_path / "laws" / "pd.py").write_text(PD_FILE.read_text().replace('name="pd_feedback"', 'name="pd_mission"').replace('prefix="PDL"', 'prefix="PDM"'))
+    mission = tmp_path / "m.toml"
+    mission.write_text(textwrap.dedent("""
+        name = "pd-mission"
+        [sitl]
+        controller = "laws/pd.py:PD_LAW"
+        max_duration_s = 60.0
+        [[item]]
+        type = "takeoff"
+        alt_m = 2.0
+        [[item]]
+        type = "waypoint"
+        north_m = 1.0
+        east_m = 0.0
+        alt_m = 2.0
+        [[item]]
+        type = "land"
+        [[expect]]
+        kind = "reach"
+        item = 2
+        within_m = 0.35
+        by_s = 20.0
+    """))
+    from ground.missions import load_mission
+
+    assert load_mission(mission).sitl.controller == f"{(tmp_path / 'laws' / 'pd.py').resolve()}:PD_LAW"
+    r = _run("mission", "run", str(mission), cwd=tmp_path, timeout=300)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-2000:]
+    assert "1/1 expectations held" in r.stdout and "FC_CONTROLLER=6" in r.stdout + r.stderr

@@ -26,7 +26,7 @@ from ground.vehicle import HomePosition, MissionItem
 from smcpilot.errors import ConfigError
 from smcpilot.faults import FaultSpec
 from smcpilot.geo import Home, global_to_ned, ned_to_global
-from smcpilot.lawref import law_reference_problem
+from smcpilot.lawref import law_reference_problem, normalise_reference
 from smcpilot.limits import HARD_LIMITS, TAKEOFF_ALT_MIN_M, target_refusal
 from smcpilot.scenario import EnvironmentSpec, Scenario
 from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
@@ -473,7 +473,7 @@ def _parse_sitl(where: _Where, raw: Any, base_dir: Path | None) -> SitlSettings:
             problem = law_reference_problem(v)
             if problem:
                 raise where.error(problem, key)
-            kw[key] = v
+            kw[key] = normalise_reference(v, base_dir)  # a law file relative to the mission file
         elif key == "plant":
             if v not in _PLANTS:
                 raise where.error(f"must be one of {', '.join(_PLANTS)}, got {v!r}", key)
