@@ -477,6 +477,8 @@ class FlightControllerApp:
             readable, _, _ = select.select(fds, (), (), timeout)
             if readable and poll_gcs is not None:
                 poll_gcs()
+            if gcs is not None:
+                self.gcs_handler.send_durable_acks()  # between ticks too (before the first state)
             if not readable:
                 now = mono()
                 if self._last_actuator is not None and now - max(last_rx, last_probe) > LOCKSTEP_PROBE_S:
@@ -503,6 +505,8 @@ class FlightControllerApp:
                 self._poll_sim()
             if self.gcs is not None and self.gcs.fileno() in readable:
                 self._poll_gcs()
+            if self.gcs is not None:
+                self.gcs_handler.send_durable_acks()
             if mono() - start > self.startup_timeout_s:
                 raise WatchdogError(f"simulator sent nothing within {self.startup_timeout_s:g} s; stopping")
         deadline = mono() + period

@@ -420,13 +420,16 @@ class GcsHandler:
     # -- parameters -----------------------------------------------------------------------------
     # Indices 0..len(PARAMS)-1 are the FC's parameters, then the simulator's SIM_* (volatile,
     # forwarded to the simulator on a change): param_table().count in all.
-    def _param_msg(self, index: int) -> mavlink.MAVLink_message:
+    def _param_msg(self, index: int, value: float | None = None) -> mavlink.MAVLink_message:
+        """PARAM_VALUE of parameter ``index``: ``value``, or the value in force."""
         if index >= param_table().sim_offset:
             sp = SIM_PARAMS[index - param_table().sim_offset]
-            name, value, is_int = sp.name, self.params.sim[sp.name], sp.is_int
+            name, is_int = sp.name, sp.is_int
+            value = self.params.sim[sp.name] if value is None else value
         else:
             p = param_table().specs[index]
-            name, value, is_int = p.name, self.params.value(p.name), p.is_int
+            name, is_int = p.name, p.is_int
+            value = self.params.value(p.name) if value is None else value
         ptype = M.MAV_PARAM_TYPE_INT32 if is_int else M.MAV_PARAM_TYPE_REAL32
         return self.mav.param_value_encode(name.encode(), float(value), ptype, param_table().count, index)
 
@@ -476,7 +479,7 @@ class GcsHandler:
             self._refuse("unknown_param", f"Param set: unknown {name}", addr)
             return
         try:
-            cfg = self.params.set(name, float(m.param_value))
+            cfg = self.params.set(name, float(m.param_value), token=(name, index))
         except ParamError as exc:
             self.rejected["param_refused"] += 1
             self._refusal_text(str(exc), str(exc))
@@ -488,7 +491,18 @@ class GcsHandler:
         self._apply_config(cfg)
         if param_table().specs[index].restart:
             self._event(M.MAV_SEVERITY_INFO, f"{name} takes effect at the next start")
-        self._broadcast(self._param_msg(index))
+        if not self.params.acks_wait_for_disk:
+            self._broadcast(self._param_msg(index))
+        # else: acknowledged by on_tick once the parameter file holding it is on disk
+
+    def send_durable_acks(self) -> None:
+        """PARAM_VALUE for every change now on disk (the value as written); a change that could not
+        be saved is undone, said so, and the value in force echoed."""
+        for (name, index), value, exc in self.params.durable_acks():
+            if exc is not None:
+                self._apply_config(self.params.config)
+                self._event(M.MAV_SEVERITY_ERROR, f"{name} not saved ({exc.strerror or exc}): kept {value:g}")
+            self._broadcast(self._param_msg(index, value))
 
     def _sim_param_set(self, name: str, value: float, addr: Address) -> None:
         """A simulator parameter: validated here (the pair of a sensor fault too), recorded,
@@ -649,6 +663,7 @@ class GcsHandler:
         """Per control tick: mission-protocol timeouts (wall clock) and the telemetry streams."""
         now = self.wall_s()
         self.mission.tick(now)
+        self.send_durable_acks()
         if self.params.write_errors:  # the writer thread could not save the parameter file
             exc = self.params.write_errors.pop()
             self.params.write_errors.clear()

@@ -8,8 +8,13 @@ temporary files of writes a kill interrupted (run at start, before the file is r
 :class:`BackgroundWriter` does those writes on a thread of its own, so that a ``PARAM_SET`` (or
 a burst of 72) costs the control loop one reference assignment, not an ``fsync``: changes apply
 at once in memory, :meth:`BackgroundWriter.submit` hands over the newest content, and the thread
-writes only the newest one (a burst coalesces into one or two writes). :meth:`close` writes what
-is pending and stops the thread (the FC calls it at exit).
+writes only the newest one (a burst coalesces into one or two writes: group commit). Each
+submission may carry a *token*; once the write that holds it is on disk (fsync of the file and of
+its directory), the token comes back through :meth:`BackgroundWriter.completed` with the content
+written, and only then does the FC acknowledge the change (a ``PARAM_VALUE``): what a ground
+station was told is saved survives a SIGKILL. A write that fails hands its tokens to the next
+write if one is pending, and back with the error if none is. :meth:`close` writes what is pending
+and stops the thread (the FC calls it at exit).
 """
 
 from __future__ import annotations
@@ -17,6 +22,7 @@ from __future__ import annotations
 import os
 import tempfile
 import threading
+from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 
@@ -87,6 +93,11 @@ class BackgroundWriter:
         self._cond = threading.Condition()
         self._pending: object | None = None
         self._has_pending = False
+        #: tokens of the submissions the pending content holds.
+        self._tokens: list[object] = []
+        #: (content written or None, its tokens, the OSError or None), appended by the writer thread
+        #: as writes end, taken by :meth:`completed` (a deque: appends and pops are thread-safe).
+        self._done: deque[tuple[object | None, list[object], OSError | None]] = deque()
         self._busy = False
         self._closed = False
         #: writes done, submissions received (writes <= submissions: a burst coalesces).
@@ -96,15 +107,27 @@ class BackgroundWriter:
         self._thread = threading.Thread(target=self._run, name=f"writer:{path.name}", daemon=True)
         self._thread.start()
 
-    def submit(self, content: object) -> None:
-        """Hand over the newest content (returns at once; replaces anything not yet written)."""
+    def submit(self, content: object, token: object | None = None) -> None:
+        """Hand over the newest content (returns at once; replaces anything not yet written); the
+        ``token`` comes back through :meth:`completed` once a write holding this content is durable."""
         with self._cond:
             if self._closed:
                 raise RuntimeError("writer closed")
             self._pending = content
             self._has_pending = True
+            if token is not None:
+                self._tokens.append(token)
             self.submissions += 1
             self._cond.notify()
+
+    def completed(self) -> list[tuple[object | None, list[object], OSError | None]]:
+        """The writes that ended since the last call, oldest first: (the content on disk now, the
+        tokens it made durable, None) or (None, the tokens that could not be made durable, the error)."""
+        out = []
+        done = self._done
+        while done:
+            out.append(done.popleft())
+        return out
 
     def flush(self, timeout_s: float | None = 10.0) -> bool:
         """Wait until everything submitted is on disk; False on timeout."""
@@ -128,14 +151,23 @@ class BackgroundWriter:
                     self._cond.notify_all()
                     return
                 content = self._pending
+                tokens = self._tokens
                 self._pending = None
+                self._tokens = []
                 self._has_pending = False
                 self._busy = True
             try:
                 atomic_write_text(self.path, self._render(content))
                 self.writes += 1
+                self._done.append((content, tokens, None))
             except OSError as exc:
                 self.errors += 1
+                with self._cond:
+                    if self._has_pending:  # the next write holds these changes too: it answers for them
+                        self._tokens[:0] = tokens
+                        tokens = []
+                if tokens:
+                    self._done.append((None, tokens, exc))
                 if self._on_error is not None:
                     self._on_error(exc)
             finally:

@@ -398,12 +398,52 @@ class ParamStore:
         self.writer: BackgroundWriter | None = None
         #: a background write failed (the FC says so once; cleared by a later good write).
         self.write_errors: list[OSError] = []
+        #: (pending config, options) as last written to disk (with the writer running).
+        self._durable: tuple[FcConfig, FcOptions] = (config, self.options)
 
     def start_writer(self) -> None:
         """From now on, :meth:`set` applies at once and the file is written on a thread of its own
-        (coalesced, atomic): the control loop never waits for the disk. :meth:`close` flushes."""
+        (coalesced, atomic): the control loop never waits for the disk, and a change is acknowledged
+        only once it is durable (:meth:`durable_acks`). :meth:`close` flushes."""
         if self.path is not None and self.writer is None:
+            self._durable = (self.pending, self.options)
             self.writer = BackgroundWriter(self.path, _render_pair, self.write_errors.append)
+
+    @property
+    def acks_wait_for_disk(self) -> bool:
+        """A change's acknowledgement waits until the file holding it is on disk (the writer runs)."""
+        return self.writer is not None
+
+    def durable_acks(self) -> list[tuple[Any, float, OSError | None]]:
+        """The changes whose fate was decided since the last call, in order: ``(token, value, None)``
+        when the file holding it is on disk (``value`` as written: a newer change may be in memory
+        already), ``(token, value in force, error)`` when it could not be made durable: the change is
+        then undone (back to the value last on disk). ``token`` is what :meth:`set` was given; its
+        first item is the parameter's name."""
+        if self.writer is None:
+            return []
+        out: list[tuple[Any, float, OSError | None]] = []
+        for content, tokens, exc in self.writer.completed():
+            if exc is None:
+                assert isinstance(content, tuple)
+                self._durable = content
+                cfg, opts = content
+                for tok in tokens:
+                    p = spec(tok[0])  # type: ignore[index]
+                    out.append((tok, float(p.get(opts if p.options else cfg)), None))
+                continue
+            dcfg, dopts = self._durable
+            for tok in tokens:
+                p = spec(tok[0])  # type: ignore[index]
+                v = float(p.get(dopts if p.options else dcfg))
+                if p.options:
+                    self.options = p.set(self.options, v)
+                else:
+                    self.pending = p.set(self.pending, v)
+                    if not p.restart:
+                        self.config = p.set(self.config, v)
+                out.append((tok, v, exc))
+        return out
 
     def close(self) -> None:
         """Write what is pending and stop the writer thread (idempotent)."""
@@ -474,8 +514,9 @@ class ParamStore:
             raise ParamError(f"{name} must be a whole number, got {value:g}")
         return p
 
-    def set(self, name: str, value: float, *, persist: bool = True) -> FcConfig:
-        """Validate and apply; return the new live config (unchanged for restart params)."""
+    def set(self, name: str, value: float, *, persist: bool = True, token: Any = None) -> FcConfig:
+        """Validate and apply; return the new live config (unchanged for restart params). With the
+        writer running, ``token`` (a tuple, the name first) comes back from :meth:`durable_acks`."""
         p = self.check(name, value)
         try:
             if p.options:
@@ -488,15 +529,15 @@ class ParamStore:
         except (ConfigError, InvalidGainError, ValueError, IndexError) as exc:
             raise ParamError(f"{name} = {value:g} refused: {exc}") from None
         if persist and self.path is not None:
-            self.save()
+            self.save(token)
         return self.config
 
-    def save(self) -> None:
+    def save(self, token: Any = None) -> None:
         """Write every parameter to the file atomically (temporary file, fsync, rename): handed
         to the writer thread if :meth:`start_writer` ran (returns at once), else here."""
         assert self.path is not None
         if self.writer is not None:
-            self.writer.submit((self.pending, self.options))  # frozen values: safe to share
+            self.writer.submit((self.pending, self.options), token)  # frozen values: safe to share
             return
         atomic_write_text(self.path, render_param_file(self.pending, self.options))
 

@@ -50,6 +50,9 @@ from pymavlink.dialects.v20 import ardupilotmega as M
 
 from ground.sitl import Sitl, SitlOptions
 
+#: end-to-end: the quick tier (`pytest -m "not slow"`) leaves this module to the full suite.
+pytestmark = pytest.mark.slow
+
 NAN = math.nan
 GUIDED, AUTO, LOITER, RTL, LAND, ALT_HOLD = (M.COPTER_MODE_GUIDED, M.COPTER_MODE_AUTO, M.COPTER_MODE_LOITER,
                                              M.COPTER_MODE_RTL, M.COPTER_MODE_LAND, M.COPTER_MODE_ALT_HOLD)  # fmt: skip
@@ -384,7 +387,7 @@ def test_prearm_health_bit_says_whether_arming_would_pass(fc):
 
 
 # == 3. Parameters ===================================================================================
-INT_PARAMS = {"ARMING_CHECK", "FS_GCS_ENABLE", "FC_CONTROLLER", "SYSID_THISMAV", "SYS_FAILURE_EN", "DOB_MODE", "DOB_LAG", "FENCE_ENABLE"} | {
+INT_PARAMS = {"ARMING_CHECK", "FS_GCS_ENABLE", "FC_CONTROLLER", "SYSID_THISMAV", "SYS_FAILURE_EN", "DOB_MODE", "DOB_LAG", "FENCE_ENABLE", "GEO_FF"} | {
     "SIM_ENGINE_FAIL", "SIM_MOT_OFF", "SIM_GYR_FAULT", "SIM_ACC_FAULT", "SIM_ATT_FAULT", "SIM_POS_FAULT", "SIM_VEL_FAULT", "SIM_PAPER_DIST"
 }  # fmt: skip
 
