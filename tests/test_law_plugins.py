@@ -234,6 +234,8 @@ LAW = Law(name="{name}", stage="attitude", prefix="{prefix}", description="fails
 @pytest.mark.parametrize(("kind", "failure", "why"), [
     ("raises", "raise ZeroDivisionError('the law divided by zero')", "ZeroDivisionError: the law divided by zero"),
     ("nan", "return (math.nan, 0.0, 0.0, 1.0), (n,), (z, z, z, z)", "non-finite command"),
+    ("inf", "return (0.0, 0.0, 0.0, math.inf), (n,), (z, z, z, z)", "non-finite command"),
+    ("short", "return (0.0, 0.0, 1.0), (n,), (z, z, z, z)", "IndexError: tuple index out of range"),
 ])  # fmt: skip
 @pytest.mark.parametrize("sitl", [False, True], ids=["in-process", "sitl"])
 def test_a_law_failing_in_flight_is_counted_flown_around_and_reported(tmp_path: Path, kind: str, failure: str, why: str, sitl: bool) -> None:
