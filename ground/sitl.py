@@ -32,6 +32,10 @@ from smcpilot.plan import load_plan
 from smcpilot.scenario import Scenario
 from smcpilot.vehicle import VehicleParams
 
+#: at the end of a run, how long the launcher waits for the other process to exit by itself (s);
+#: one it then has to stop makes the run a failure.
+END_GRACE_S = 5.0
+
 
 class SitlError(SmcpilotError):
     """SITL could not start, or a child process failed."""
@@ -321,22 +325,27 @@ class Sitl:
             first, first_rc = (self.fc, fc_rc) if fc_rc < 0 <= sim_rc else (self.sim, sim_rc)
         else:
             first, first_rc = (self.sim, sim_rc) if sim_rc is not None else (self.fc, fc_rc)
-        # One side ended. In lockstep the other ends by itself at the same simulated time: give it a
-        # moment. In real time the FC would only fly on into its state-loss failsafe: stop it now.
-        self.stop(grace_s=3.0 if self.options.lockstep else 0.0)
+        # One side ended; the other ends by itself: in lockstep at the same simulated time, in real
+        # time on the simulator's end-of-run heartbeat (the FC) or its watchdog (the simulator).
+        # A child still running after END_GRACE_S is stopped, and that is a failure of the run.
+        signalled = self.stop(grace_s=END_GRACE_S)
         fc_rc = self.fc.proc.returncode
         sim_rc = self.sim.proc.returncode
         clean = (0, -signal.SIGTERM, -signal.SIGINT)
         if first_rc not in clean:
             raise SitlError(f"{first.name} {_how(first_rc)}{self._tail(first)}")
         for child, rc in ((self.sim, sim_rc), (self.fc, fc_rc)):
+            if child.name in signalled:
+                raise SitlError(f"{child.name} did not exit by itself within {END_GRACE_S:g} s of the run's end: stopped ({_how(rc)}){self._tail(child)}")
             if rc not in clean:
                 raise SitlError(f"{child.name} {_how(rc)}{self._tail(child)}")
         return 0
 
-    def stop(self, grace_s: float = 5.0) -> None:
-        """Stop both children: let them finish for ``grace_s``, then SIGTERM, then SIGKILL."""
+    def stop(self, grace_s: float = 5.0) -> list[str]:
+        """Stop both children: let them finish for ``grace_s``, then SIGTERM, then SIGKILL. Returns
+        the names of the children that had to be signalled."""
         children = [c for c in (self.sim, self.fc) if c is not None]
+        signalled: list[str] = []
         deadline = time.monotonic() + grace_s
         for c in children:
             try:
@@ -346,6 +355,7 @@ class Sitl:
         for c in children:
             if c.proc.poll() is None:
                 c.proc.send_signal(signal.SIGTERM)
+                signalled.append(c.name)
         for c in children:
             try:
                 c.proc.wait(timeout=5.0)
@@ -357,6 +367,7 @@ class Sitl:
                 c.thread.join(timeout=2.0)
             if c.proc.stdout is not None:
                 c.proc.stdout.close()
+        return signalled
 
     def terminate(self) -> None:
         """Stop now (Ctrl-C): SIGTERM both, then wait."""
@@ -395,14 +406,20 @@ def _how(rc: int | None) -> str:
     return f"exited with code {rc}"
 
 
+#: the UDP port QGroundControl (and MAVProxy's default output) listens on out of the box.
+QGC_DEFAULT_PORT = 14550
+
+
 def print_connect_help(sitl: Sitl, out: TextIO = sys.stdout) -> None:
     o = sitl.options
     print(f"SITL running: {'lockstep' if o.lockstep else 'real time'}, controller {o.scenario.controller}, plant {o.scenario.plant},"
           f" log {sitl.tlog}", file=out)  # fmt: skip
     if o.gcs and o.gcs.startswith(("udp:", "udpout:")):
         target = o.gcs.split(":", 1)[1]
-        print(f"  telemetry goes to {target} (QGroundControl listens there by default;"
-              f" MAVProxy: mavproxy.py --master=udpin:{target})", file=out)  # fmt: skip
+        port = target.rsplit(":", 1)[-1]
+        qgc = ("QGroundControl listens there by default" if port == str(QGC_DEFAULT_PORT) else
+               f"QGroundControl listens on {QGC_DEFAULT_PORT} by default: add a UDP comm link on port {port}")  # fmt: skip
+        print(f"  telemetry goes to {target} ({qgc}; MAVProxy: mavproxy.py --master=udpin:{target})", file=out)
     if sitl.gcs_address and sitl.gcs_address != "-":
         print(f"  the FC answers on {sitl.gcs_address} (any GCS may also connect there: --master=udpout:{sitl.gcs_address})", file=out)
     if o.signing_key is not None:
