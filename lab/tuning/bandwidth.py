@@ -41,6 +41,7 @@ from fc.flight import FlightControl, PipelineOutput
 from lab.runner import state_of_wire, wire_values
 from sim_bridge.build import make_plant
 from sim_bridge.plants.rigid_body import RigidBodyPlant
+from smcpilot.lawref import law_argument
 from smcpilot.scenario import EnvironmentSpec
 from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
 
@@ -251,7 +252,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         description="Closed-loop roll bandwidth (-3 dB), step rise time and noise-to-motor RMS at hover of the FC's laws "
         "at their defaults, in-process on the rigid-body plant (docs/baselines.md).",
     )
-    ap.add_argument("--controller", action="append", choices=LAWS, help="law to measure (repeatable; default: all three)")
+    ap.add_argument("--controller", action="append", type=law_argument, metavar="LAW",
+                    help=f"law to measure (repeatable; default: {', '.join(LAWS)}): any attitude-stage law, a plug-in or"
+                    " path/to/file.py:NAME (a whole-stack law has no attitude reference to inject: refused)")
     ap.add_argument("--amplitude-deg", type=float, default=math.degrees(Hover.amplitude_rad), help="roll amplitude, deg (default %(default).2f)")
     ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE", help="an FC parameter over the defaults (repeatable)")
     ap.add_argument("--json", metavar="PATH", help="also write the results as JSON")
@@ -261,14 +264,19 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     hov = Hover(amplitude_rad=math.radians(args.amplitude_deg))
     results = []
+    from fc.control import registry
+
     for law in args.controller or LAWS:
-        store = ParamStore(FcConfig(controller=law))
         try:
+            if registry.resolve(law).full_stack:
+                raise SmcpilotError(f"{law} is a whole-stack law: its attitude reference comes from its own position loop,"
+                                    " so this harness cannot inject one (docs/geometric-control.md measures it its own way)")
+            store = ParamStore(FcConfig(controller=law))
             for item in args.param:
                 name, _, value = item.partition("=")
                 store.set(name.strip(), float(value), persist=False)
         except (SmcpilotError, ValueError) as exc:
-            print(f"error: --param: {exc}", file=sys.stderr)
+            print(f"error: {exc}", file=sys.stderr)
             return 2
         results.append(measure(store.config, hov))
     print(f"roll reference amplitude {args.amplitude_deg:.2f} deg; noise: --noise at hover 3 m, {hov.noise_s:g} s")
