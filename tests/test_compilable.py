@@ -26,6 +26,7 @@ import time
 import types
 
 import pytest
+from bits_helpers import bits
 
 from fc import estimate
 from fc.config import FcConfig
@@ -192,14 +193,6 @@ def compiled():
                 if isinstance(value, types.FunctionType) and value in _DISPATCHERS:
                     mp.setattr(mod, name, _DISPATCHERS[value])
         yield _DISPATCHERS
-
-
-def bits(x: object) -> object:
-    if isinstance(x, float):
-        return x.hex()
-    if isinstance(x, tuple):
-        return tuple(bits(v) for v in x)
-    return x
 
 
 def _closed_loop(controller: str) -> list[tuple]:

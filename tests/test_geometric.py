@@ -10,19 +10,16 @@ step, a yaw step across +-180 deg, landing, the attitude loop's bandwidth, and a
 
 from __future__ import annotations
 
-import ast
-import builtins
 import dataclasses
-import inspect
 import math
 import random
 import struct
-import textwrap
 import types
 from collections.abc import Callable, Sequence
 
 import numpy as np
 import pytest
+from bits_helpers import bits
 from scipy.spatial.transform import Rotation
 
 from fc.control import geometric as geo
@@ -39,6 +36,7 @@ from fc.control.geometric import (
     geometric_consts,
 )
 from fc.control.law import PARAM_NAME_MAX, STAGE_FULL, LawContext, validate_law
+from fc.control.purity import function_problems
 from fc.control.registry import resolve
 from fc.mixer import mix, mixer_params
 from fc.params import config_for
@@ -54,7 +52,7 @@ from smcpilot.plan import PlanStep
 from smcpilot.scenario import Scenario
 from smcpilot.vehicle import DEFAULT_VEHICLE
 
-#: the law as the tests fly it (a module reference the registry loads as a plug-in).
+#: the law by its built-in name.
 LAW = "se3_geometric"
 
 V = DEFAULT_VEHICLE
@@ -339,19 +337,6 @@ def test_integrators_integrate_the_errors_clamp_and_stop_while_saturated() -> No
 
 
 # -- (b) the pure-function rules and numba ---------------------------------------------------------
-_ALLOWED_BUILTINS = {abs, min, max}
-_MATH = {v for v in vars(math).values() if callable(v)}
-_FORBIDDEN = (
-    ast.List, ast.ListComp, ast.Dict, ast.DictComp, ast.Set, ast.SetComp, ast.GeneratorExp, ast.JoinedStr,
-    ast.Raise, ast.Try, ast.Assert, ast.Lambda, ast.ClassDef, ast.Global, ast.Nonlocal, ast.Yield, ast.YieldFrom,
-    ast.With, ast.Await, ast.Starred, ast.Delete, ast.Import, ast.ImportFrom, ast.FunctionDef,
-)  # fmt: skip
-
-
-def _is_namedtuple_class(v: object) -> bool:
-    return isinstance(v, type) and issubclass(v, tuple) and hasattr(v, "_fields")
-
-
 def test_every_pure_function_of_the_module_is_listed() -> None:
     listed: set[object] = set(GEOMETRIC_FUNCTIONS)
     mine: set[object] = {v for v in vars(geo).values() if isinstance(v, types.FunctionType) and v.__module__ == geo.__name__}
@@ -361,51 +346,13 @@ def test_every_pure_function_of_the_module_is_listed() -> None:
 
 @pytest.mark.parametrize("fn", GEOMETRIC_FUNCTIONS, ids=lambda f: f.__name__)
 def test_pure_function_follows_the_rules(fn: types.FunctionType) -> None:
-    """The rules of tests/test_compilable.py: module-level, no closure, no lists/dicts/strings/
-    exceptions/method calls; calls only pure functions by plain name, math, abs/min/max, NamedTuples."""
-    assert isinstance(fn, types.FunctionType) and fn.__qualname__ == fn.__name__
-    assert fn.__closure__ is None and not fn.__code__.co_freevars
-    root = ast.parse(textwrap.dedent(inspect.getsource(fn))).body[0]
-    assert isinstance(root, ast.FunctionDef)
-    body = root.body[1:] if isinstance(root.body[0], ast.Expr) and isinstance(root.body[0].value, ast.Constant) else root.body
-    pure = set(GEOMETRIC_FUNCTIONS)
-
-    def resolve_name(name: str) -> object:
-        return fn.__globals__[name] if name in fn.__globals__ else getattr(builtins, name, None)
-
-    problems = []
-    for node in (n for stmt in body for n in ast.walk(stmt)):
-        where = f"{fn.__name__} line {getattr(node, 'lineno', '?')}"
-        if isinstance(node, _FORBIDDEN):
-            problems.append(f"{where}: {type(node).__name__}")
-        elif isinstance(node, ast.Constant) and isinstance(node.value, (str, bytes)):
-            problems.append(f"{where}: string {node.value!r}")
-        elif isinstance(node, ast.Call):
-            f = node.func
-            if isinstance(f, ast.Attribute) and isinstance(f.value, ast.Name) and resolve_name(f.value.id) is math:
-                continue
-            if not isinstance(f, ast.Name) or node.keywords:
-                problems.append(f"{where}: call of {ast.unparse(f)}")
-                continue
-            target = resolve_name(f.id)
-            if not (target in pure or target in _ALLOWED_BUILTINS or target in _MATH or _is_namedtuple_class(target)):
-                problems.append(f"{where}: calls {f.id} = {target!r}")
-        elif isinstance(node, ast.Name) and isinstance(node.ctx, ast.Load):
-            v = resolve_name(node.id)
-            if node.id not in fn.__code__.co_varnames and isinstance(v, (list, dict, set)):
-                problems.append(f"{where}: reads the mutable global {node.id}")
+    """The rules of fc/control/purity.py (what tests/test_compilable.py holds every hot-path function to)."""
+    problems = function_problems(fn, GEOMETRIC_FUNCTIONS)
     assert not problems, "\n".join(problems)
 
 
-def _bits(x: object) -> object:
-    if isinstance(x, float):
-        return x.hex()
-    if isinstance(x, tuple):
-        return tuple(_bits(v) for v in x)
-    return x
-
-
-def test_numba_compiles_the_law_unchanged_and_gives_the_same_bits(monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.mark.slow
+def test_numba_compiles_the_law_unchanged_and_gives_the_samebits(monkeypatch: pytest.MonkeyPatch) -> None:
     numba = pytest.importorskip("numba")
     r = random.Random(5)
     consts = (K, K_LEE, geometric_consts(CTX, GeometricParams(ff=0, acc_max=2.0, tilt_max=0.3)))
@@ -425,7 +372,7 @@ def test_numba_compiles_the_law_unchanged_and_gives_the_same_bits(monkeypatch: p
     step, aw, init = jit[geo_step], jit[geo_anti_windup], jit[geo_initial_state]
     for (m, rf, s, lim, k), w in zip(cases, want):
         got = (step(m, rf, s, DT, k, ZERO4, ZERO4), aw(s, s[::-1], ZERO4, lim, k), init(m, k))
-        assert _bits(got) == _bits(w)
+        assert bits(got) == bits(w)
 
 
 # -- (c) closed-loop flights through the FC pipeline ------------------------------------------------

@@ -4,19 +4,16 @@ pipeline (take-off, hold, landing, a position and yaw step, a 30 % motor loss, s
 
 from __future__ import annotations
 
-import ast
-import builtins
 import contextlib
-import inspect
 import math
 import random
-import textwrap
 import types
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
+from bits_helpers import bits
 from scipy import signal
 
 from fc.config import FcConfig
@@ -37,6 +34,7 @@ from fc.control.indi import (
     indi_step,
 )
 from fc.control.law import PARAM_NAME_MAX, LawContext, validate_law
+from fc.control.purity import function_problems
 from fc.flight import FlightControl
 from fc.params import config_for
 from fc.pipeline import DOB_OFF
@@ -47,7 +45,7 @@ from smcpilot.model import PaperModel, tilt_cos
 from smcpilot.scenario import EnvironmentSpec, Scenario
 from smcpilot.vehicle import DEFAULT_VEHICLE
 
-#: the law as the FC loads it (a module reference; once built in, its name "indi").
+#: the law by its built-in name.
 LAW = "indi"
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = ROOT / "examples" / "scenarios"
@@ -58,14 +56,6 @@ DT = 1.0 / RATE_HZ
 
 def consts(**changes: float) -> IndiConsts:
     return INDI.consts(LawContext(DEFAULT_VEHICLE, MODEL, RATE_HZ), replace(IndiParams(), **changes))
-
-
-def bits(x: object) -> object:
-    if isinstance(x, float):
-        return x.hex()
-    if isinstance(x, tuple):
-        return tuple(bits(v) for v in x)
-    return x
 
 
 def _leaf_types(x: object) -> list[type]:
@@ -313,43 +303,13 @@ def test_anti_windup_keeps_the_state_and_the_increment_builds_on_what_was_realis
 
 
 # -- (b) the pure-function rules, and numba's bits ------------------------------------------------
-_FORBIDDEN = (
-    ast.List, ast.ListComp, ast.Dict, ast.DictComp, ast.Set, ast.SetComp, ast.GeneratorExp, ast.JoinedStr,
-    ast.Raise, ast.Try, ast.Assert, ast.Lambda, ast.ClassDef, ast.Global, ast.Nonlocal, ast.Yield, ast.YieldFrom,
-    ast.With, ast.Await, ast.Starred, ast.Delete, ast.Import, ast.ImportFrom, ast.FunctionDef,
-)  # fmt: skip
 _PURE = set(INDI_FUNCTIONS) | {tilt_cos}
 
 
 @pytest.mark.parametrize("fn", INDI_FUNCTIONS, ids=lambda f: f.__name__)
 def test_pure_function_follows_the_rules(fn: types.FunctionType) -> None:
-    """The rules of tests/test_compilable.py: module level, no closure, no containers but tuples,
-    no strings or exceptions, calls only of pure functions by plain name, math, abs/min/max and
-    NamedTuple classes."""
-    assert isinstance(fn, types.FunctionType) and fn.__qualname__ == fn.__name__ and fn.__closure__ is None
-    root = ast.parse(textwrap.dedent(inspect.getsource(fn))).body[0]
-    assert isinstance(root, ast.FunctionDef)
-    body = root.body[1:] if isinstance(root.body[0], ast.Expr) and isinstance(root.body[0].value, ast.Constant) else root.body
-    problems = []
-    for node in (n for stmt in body for n in ast.walk(stmt)):
-        if isinstance(node, _FORBIDDEN):
-            problems.append(type(node).__name__)
-        elif isinstance(node, ast.Constant) and isinstance(node.value, (str, bytes)):
-            problems.append(f"string {node.value!r}")
-        elif isinstance(node, ast.Call):
-            f = node.func
-            if isinstance(f, ast.Attribute) and isinstance(f.value, ast.Name) and fn.__globals__.get(f.value.id) is math:
-                continue
-            if not isinstance(f, ast.Name) or node.keywords:
-                problems.append(f"call {ast.unparse(f)}")
-                continue
-            target = fn.__globals__.get(f.id, getattr(builtins, f.id, None))
-            named_tuple = isinstance(target, type) and issubclass(target, tuple) and hasattr(target, "_fields")
-            if not (target in _PURE or target in (abs, min, max) or named_tuple or (callable(target) and target in vars(math).values())):
-                problems.append(f"calls {f.id}")
-        elif isinstance(node, ast.Name) and isinstance(node.ctx, ast.Load) and node.id not in fn.__code__.co_varnames:
-            if isinstance(fn.__globals__.get(node.id), (list, dict, set)):
-                problems.append(f"reads mutable {node.id}")
+    """The rules of fc/control/purity.py (what tests/test_compilable.py holds every hot-path function to)."""
+    problems = function_problems(fn, _PURE)
     assert not problems, problems
 
 

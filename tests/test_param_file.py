@@ -131,15 +131,8 @@ def test_named_file_is_loaded_and_reported(tmp_path: Path) -> None:
 # -- SIGKILL during a burst of PARAM_SET ------------------------------------------------------------
 def _burst_until(sock: socket.socket, addr: tuple[str, int], mav: mavlink.MAVLink, rng: random.Random, kill_at: float) -> list[float]:
     """PARAM_SET pairs every millisecond or so until ``kill_at`` (monotonic): the writer thread is
-    busy writing when the kill comes."""
-    sent = []
-    while time.monotonic() < kill_at:
-        v = round(rng.uniform(0.5, 20.0), 3)
-        sent.append(v)
-        sock.sendto(mav.param_set_encode(1, 1, b"SMC_Z_KP", v, mavlink.MAV_PARAM_TYPE_REAL32).pack(mav), addr)
-        sock.sendto(mav.param_set_encode(1, 1, b"PSC_SPD_XY", 1.0 + v / 10, mavlink.MAV_PARAM_TYPE_REAL32).pack(mav), addr)
-        time.sleep(0.001)
-    return sent
+    busy writing when the kill comes. The values sent (:func:`_burst_with_acks`)."""
+    return _burst_with_acks(sock, addr, mav, rng, kill_at)[0]
 
 
 def test_sigkill_during_param_burst_never_tears_the_file(tmp_path: Path) -> None:
