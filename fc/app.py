@@ -740,8 +740,8 @@ class FlightControllerApp:
     def apply_config(self, cfg: FcConfig) -> None:
         """Live parameter change, the one listener every change goes to: the core (from its next
         tick), the telemetry rates, and this process's loops."""
+        self.core.reconfigure(cfg)  # first: a law that refuses the settings (LawError) changes nothing
         self.cfg = cfg
-        self.core.reconfigure(cfg)
         self.streams.set_telemetry_rate(cfg.telemetry_rate_hz)
         estimator = self.params.options.estimator
         if estimator != self.core.estimator:

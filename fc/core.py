@@ -142,8 +142,8 @@ class FlightCore:
         """Live parameter change: takes effect from the next tick. The FC process reaches this
         through its one listener for changes (:meth:`fc.app.FlightControllerApp.apply_config`,
         which also retimes the telemetry streams)."""
+        self.flight.reconfigure(config)  # first: a law that refuses the settings (LawError) changes nothing
         self.config = config
-        self.flight.reconfigure(config)
         self._est_params = self.commander.estimate_params = estimator_params(self.estimator, config.period_s)
 
     def reconfigure_estimator(self, estimator: EstimatorConfig) -> None:

@@ -26,7 +26,7 @@ from typing import NamedTuple
 from fc.config import FcConfig
 from fc.control import registry
 from fc.control.base import Diagnostics
-from fc.control.law import Law
+from fc.control.law import Law, LawError
 from fc.mixer import Mixer, mix
 from fc.pipeline import (
     PipelineInputs,
@@ -107,23 +107,30 @@ class FlightControl:
         self.last_law_fault: str | None = None
 
     def _set_law(self, cfg: FcConfig) -> None:
+        """Resolve the law and flatten everything; on any failure nothing changes (LawError)."""
         law: Law = registry.resolve(cfg.controller)
+        law_params = law.params_of(cfg) if law.params_of is not None else law.params_from_values(dict(cfg.law_values))
+        try:
+            params = pipeline_params(cfg, self.vehicle, law, law_params)
+        except Exception as exc:  # the law's own consts(): anyone's code
+            raise LawError(f"law {law.name}: its constants could not be computed: {type(exc).__name__}: {exc}") from None
         self.law = law
-        self.law_params = law.params_of(cfg) if law.params_of is not None else law.params_from_values(dict(cfg.law_values))
+        self.law_params = law_params
         self.law_functions = law.functions
         self._full = law.full_stack
         self._step_fn = pipeline_step_full if self._full else pipeline_step
         self._reset_fn = pipeline_reset_full if self._full else pipeline_reset
         self._diag_mask = tuple(name in law.diagnostics for name in ("s", "sigma", "chi_hat", "u_dot"))
         #: the configuration, vehicle and law flattened for the pipeline.
-        self.params: PipelineParams = pipeline_params(cfg, self.vehicle, law, self.law_params)
+        self.params: PipelineParams = params
 
     def reconfigure(self, config: FcConfig) -> None:
         """Apply new settings between control steps; a law of the same name keeps its state, another
-        law starts from its initial state at the next step."""
+        law starts from its initial state at the next step. A law whose constants fail for these
+        settings raises LawError and nothing changes."""
         old_law = self.law
-        self.config = config
         self._set_law(config)
+        self.config = config
         if self.law is not old_law:
             placeholder = self._reset_fn(VehicleState(*(0.0,) * 12), self.params, self.law_functions).law
             self.pipeline_state = self.pipeline_state._replace(law=placeholder, law_init=True)

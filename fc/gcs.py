@@ -22,6 +22,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from fc import inbound, inject, telemetry
 from fc.config import FcConfig
+from fc.control.law import LawError
 from fc.core import EventSink, FlightCore
 from fc.mission import GLOBAL_FRAMES, RELATIVE_FRAMES, MissionItem, MissionProtocol
 from fc.modes import Refusal
@@ -478,17 +479,22 @@ class GcsHandler:
         if index is None:
             self._refuse("unknown_param", f"Param set: unknown {name}", addr)
             return
+        old = self.params.value(name)
         try:
-            cfg = self.params.set(name, float(m.param_value), token=(name, index))
-        except ParamError as exc:
+            cfg = self.params.set(name, float(m.param_value), persist=False)
+            self._apply_config(cfg)  # the flying law flattens its constants: it may still refuse
+        except (ParamError, LawError) as exc:
+            if isinstance(exc, LawError):
+                self.params.set(name, old, persist=False)  # undone: the law refused the value
             self.rejected["param_refused"] += 1
             self._refusal_text(str(exc), str(exc))
             self._send_to(self._param_msg(index), addr)  # the value in force, unchanged
             return
+        try:
+            if self.params.path is not None:
+                self.params.save(token=(name, index))
         except OSError as exc:
             self._event(M.MAV_SEVERITY_ERROR, f"Param file not written: {exc.strerror or exc}")
-            cfg = self.params.config
-        self._apply_config(cfg)
         if param_table().specs[index].restart:
             self._event(M.MAV_SEVERITY_INFO, f"{name} takes effect at the next start")
         if not self.params.acks_wait_for_disk:

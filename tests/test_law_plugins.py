@@ -425,3 +425,48 @@ def test_a_mission_file_flies_a_law_file_beside_it(tmp_path: Path) -> None:
     r = _run("mission", "run", str(mission), cwd=tmp_path, timeout=300)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-2000:]
     assert "1/1 expectations held" in r.stdout and "FC_CONTROLLER=6" in r.stdout + r.stderr
+
+
+def test_a_value_the_laws_constants_refuse_is_undone_and_the_fc_flies_on(tmp_path: Path) -> None:
+    """A plug-in whose consts() raises for some value (its own check): the PARAM_SET is refused with
+    the reason, the old value stays in force and in the answer, and the law keeps flying."""
+    f = tmp_path / "picky_law.py"
+    f.write_text(_FAILING.replace("{failure}", "pass").replace("{name}", "picky_law").replace("{prefix}", "PICKY")
+                 .replace("def consts(ctx, p):\n    return", "def consts(ctx, p):\n    assert p.after < 5000.0, 'after must stay below 5000'\n    return"))  # fmt: skip
+    from fc.app import FlightControllerApp  # noqa: F401  (the FC's own process code path is the gcs handler's)
+    from fc.control.law import LawError
+    from fc.flight import VehicleState
+
+    cfg = FcConfig(controller=f"{f}:LAW")
+    store = ParamStore(cfg)
+    fl = FlightControl(store.config, DEFAULT_VEHICLE)
+    fl.arm(VehicleState(*(0.0,) * 12))
+    before = fl.params
+    new = store.set("PICKY_AFTER", 6000.0, persist=False)  # in its range: the store takes it
+    with pytest.raises(LawError, match="law picky_law: its constants could not be computed: AssertionError: after must stay below 5000"):
+        fl.reconfigure(new)
+    assert fl.params is before and fl.config is cfg, "nothing changed"
+    fl.step(VehicleState(*(0.0,) * 12), 0.002)
+
+
+def test_over_mavlink_a_value_the_law_refuses_is_answered_with_the_old_one(tmp_path: Path) -> None:
+    from gcs_helpers import LOOPBACK, Gcs
+
+    from ground.sitl import Sitl, SitlOptions
+
+    f = tmp_path / "picky_law.py"
+    f.write_text(_FAILING.replace("{failure}", "pass").replace("{name}", "picky_mav").replace("{prefix}", "PICKM")
+                 .replace("def consts(ctx, p):\n    return", "def consts(ctx, p):\n    assert p.after < 5000.0, 'after must stay below 5000'\n    return"))  # fmt: skip
+    gcs = Gcs()
+    try:
+        opts = SitlOptions.of(lockstep=True, speed=5.0, gcs=f"udp:{LOOPBACK}:{gcs.port}", tlog=tmp_path / "p.tlog", log_dir=tmp_path,
+                              param_file=tmp_path / "p.parm", controller=f"{f}:LAW")  # fmt: skip
+        with Sitl(opts):
+            gcs.heartbeat()
+            mark = gcs.mark()
+            assert gcs.param_set("PICKM_AFTER", 6000.0).param_value == 800.0, "refused: the value in force"
+            gcs.wait("STATUSTEXT", lambda m: "its constants" in m.text, since=mark, what="the reason")
+            assert gcs.param_set("PICKM_AFTER", 1000.0).param_value == 1000.0, "a value it takes is taken"
+        assert "PICKM_AFTER 1000.0" in (tmp_path / "p.parm").read_text()
+    finally:
+        gcs.close()

@@ -244,7 +244,7 @@ class Law:
                     changes[p.field] = int(v) if p.is_int else float(v)
         try:
             return dataclasses.replace(base, **changes) if changes else base
-        except (TypeError, ValueError) as exc:
+        except Exception as exc:  # the parameter class's own validation: anyone's code
             raise LawError(f"law {self.name!r}: {exc}") from None
 
     def param_value(self, params: Any, p: LawParam) -> float:
