@@ -13,6 +13,7 @@ from pathlib import Path
 from fc.app import EXIT_CONFIG, FlightControllerApp, install_signal_handlers
 from fc.config import FcConfig
 from fc.control import registry
+from fc.control.purity import law_problems
 from fc.params import ParamStore, apply_scenario
 from smcpilot.errors import SmcpilotError
 from smcpilot.geo import Home
@@ -200,6 +201,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_CONFIG
     print(param_file_line(param_file, kept=kept, loaded=loaded, from_file=from_file, differences=params.differences()),
           flush=True)  # fmt: skip
+    style = law_problems(registry.resolve(params.config.controller))
+    if style:  # said once: it flies, but no compiler will take it (docs/your-own-law.md §1)
+        print(f"fc: law {params.config.controller} is not in the pure style ({style[0]}): it flies in CPython only", flush=True)
     params.start_writer()
     install_signal_handlers(app)
     return app.run()

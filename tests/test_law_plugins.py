@@ -470,3 +470,12 @@ def test_over_mavlink_a_value_the_law_refuses_is_answered_with_the_old_one(tmp_p
         assert "PICKM_AFTER 1000.0" in (tmp_path / "p.parm").read_text()
     finally:
         gcs.close()
+
+
+def test_the_fc_says_once_that_a_law_is_not_in_the_pure_style(tmp_path: Path) -> None:
+    f = tmp_path / "impure_fc.py"
+    f.write_text(_FAILING.replace("{failure}", "raise ValueError('no')").replace("{name}", "impure_fc").replace("{prefix}", "IMPF"))
+    r = _run("run", str(ROOT / "examples" / "scenarios" / "hover.toml"), "--law", f"{f}:LAW", "--sitl", "--duration", "1", "--no-plots",
+             "--out", str(tmp_path / "out"), cwd=tmp_path)  # fmt: skip
+    said = [ln for ln in (r.stdout + r.stderr).splitlines() if "is not in the pure style" in ln]
+    assert len(said) == 1 and "step line" in said[0] and "flies in CPython only" in said[0], r.stdout[-2000:]
