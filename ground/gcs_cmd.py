@@ -70,44 +70,63 @@ EXIT_USAGE = 2
 
 
 # -------------------------------------------------------------------------------------- rendering
-def _num(v: float | None, fmt: str = "{:7.2f}") -> str:
-    return "-" if v is None else fmt.format(v)
+#: what the live view shows for a value that does not exist (yet): never "nan".
+MISSING = "—"
 
 
-def _triple(v: Sequence[float] | None, fmt: str = "{:7.2f}") -> str:
-    return "-" if v is None else " ".join(fmt.format(x) for x in v)
+def _missing(v: float | None) -> bool:
+    return v is None or not math.isfinite(v)
+
+
+def _num(v: float | None, fmt: str = "{:7.2f}", missing: str = "-") -> str:
+    return missing if _missing(v) else fmt.format(v)
+
+
+def _triple(v: Sequence[float] | None, fmt: str = "{:7.2f}", missing: str = "-") -> str:
+    return missing if v is None else " ".join(_num(x, fmt, missing) for x in v)
 
 
 _CHANNELS = ("PHI", "THETA", "PSI", "Z")
 
 
+def _per_channel(values: Mapping[str, float], fmt: str, armed: bool | None, sep: str, missing: str, *, why: bool = True) -> str:
+    """The four channels' values; when none exists (the law's χ̂ and σ exist only in flight: the
+    FC sends NaN while disarmed), one word for all of them."""
+    if all(_missing(values.get(c)) for c in _CHANNELS):
+        return missing + ("" if armed or not why else " (disarmed)")
+    if sep == ",":
+        return ",".join(_num(values.get(c), fmt, missing) for c in _CHANNELS)
+    return sep.join(f"{c.lower()} {_num(values.get(c), fmt, missing)}" for c in _CHANNELS)
+
+
 def render_frame(t: Telemetry, *, url: str = "") -> list[str]:
     """The ``watch`` view of a telemetry snapshot, as lines without escapes (NED metres,
-    degrees)."""
+    degrees); a value that does not exist yet is "—", never "nan"."""
+    m = MISSING
     att = None if t.attitude_rad is None else tuple(math.degrees(a) for a in t.attitude_rad)
     last = t.last_statustext
-    sim = "-" if t.sim_time_s is None else f"{t.sim_time_s:9.2f} s"
-    chi = "  ".join(f"{c.lower()} {_num(t.chi.get(c), '{:.3f}')}" for c in _CHANNELS)
-    sig = "  ".join(f"{c.lower()} {_num(t.sigma.get(c), '{:+.3f}')}" for c in _CHANNELS)
+    sim = m if _missing(t.sim_time_s) else f"{t.sim_time_s:9.2f} s"
+    chi = _per_channel(t.chi, "{:.3f}", t.armed, "  ", m)
+    sig = _per_channel(t.sigma, "{:+.3f}", t.armed, "  ", m)
     return [
         f"smcpilot vehicle {t.system_id if t.system_id is not None else '?'}  {url}  sim time {sim}",
-        f"  state    {'ARMED' if t.armed else 'disarmed':8s}  mode {t.mode_name or '-':9s}  landed {t.landed_state_name or '-':9s}"
-        f"  prearm {'ok' if t.prearm_ok else '-' if t.prearm_ok is None else 'FAIL'}",
-        f"  position N E D  {_triple(t.position_ned_m)} m   altitude {_num(t.altitude_m)} m",
-        f"  velocity N E D  {_triple(t.velocity_ned_mps)} m/s",
-        f"  attitude r p y  {_triple(att)} deg",
-        f"  set-point NED   {_triple(t.setpoint_ned_m)} m   mission item {t.mission_current if t.mission_current is not None else '-'}",
+        f"  state    {'ARMED' if t.armed else 'disarmed':8s}  mode {t.mode_name or m:9s}  landed {t.landed_state_name or m:9s}"
+        f"  prearm {'ok' if t.prearm_ok else m if t.prearm_ok is None else 'FAIL'}",
+        f"  position N E D  {_triple(t.position_ned_m, missing=m)} m   altitude {_num(t.altitude_m, missing=m)} m",
+        f"  velocity N E D  {_triple(t.velocity_ned_mps, missing=m)} m/s",
+        f"  attitude r p y  {_triple(att, missing=m)} deg",
+        f"  set-point NED   {_triple(t.setpoint_ned_m, missing=m)} m   mission item {t.mission_current if t.mission_current is not None else m}",
         f"  chi_hat  {chi}",
         f"  sigma    {sig}",
-        f"  last msg {last.text if last else '-'}",
+        f"  last msg {last.text if last else m}",
     ]
 
 
 def render_line(t: Telemetry) -> str:
-    """One-line form of the ``watch`` view (for logs and pipes)."""
+    """One-line form of the ``watch`` view (for logs and pipes; "-" for what does not exist yet)."""
     last = t.last_statustext
-    chi = ",".join(_num(t.chi.get(c), "{:.3f}") for c in _CHANNELS)
-    sig = ",".join(_num(t.sigma.get(c), "{:+.3f}") for c in _CHANNELS)
+    chi = _per_channel(t.chi, "{:.3f}", t.armed, ",", "-", why=False)
+    sig = _per_channel(t.sigma, "{:+.3f}", t.armed, ",", "-", why=False)
     return (
         f"t={_num(t.sim_time_s, '{:.2f}')} {'ARMED' if t.armed else 'disarmed'} {t.mode_name or '-'}"
         f" ned={_triple(t.position_ned_m, '{:.2f}').replace(' ', ',')} alt={_num(t.altitude_m, '{:.2f}')}"

@@ -243,7 +243,7 @@ def sitl_main(args: argparse.Namespace) -> int:
     # The simulator's clock is the simulated time (the FC's runs from its own start in real time).
     sim_s = (sitl.sim_summary or {}).get("sim_time_s", fcs.get("sim_time_s"))
     print(
-        f"SITL ended: {sim_s if sim_s is not None else float('nan'):.2f} simulated s in {wall:.2f} wall s,"
+        f"SITL ended: {'—' if sim_s is None else f'{sim_s:.2f}'} simulated s in {wall:.2f} wall s,"
         f" {fcs.get('ticks', 0)} control ticks, {fcs.get('overruns', 0)} overruns; log {sitl.tlog}"
     )
     _tidy_log_dir(args.log_dir)

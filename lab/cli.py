@@ -10,12 +10,45 @@ import io
 import os
 import sys
 from collections.abc import Callable, Sequence
-from typing import TextIO
+from typing import Any, NoReturn, TextIO
 
 from smcpilot import __version__
 from smcpilot.errors import SmcpilotError
 
 Handler = Callable[[argparse.Namespace], int]
+
+#: the namespace attribute naming the (deepest) parser that found arguments it does not know.
+_EXTRAS_OWNER = "_smcpilot_extras_owner"
+
+
+class CliParser(argparse.ArgumentParser):
+    """The parser of ``smcpilot`` and, through ``add_subparsers`` (which makes its subparsers of
+    the parser's own class), of every subcommand at every depth.
+
+    A usage error (a missing argument, a bad value or choice, an unknown option) is one line on
+    stderr, ``smcpilot SUBCOMMAND: error: ...`` naming the subcommand whose parser found it and
+    pointing at its ``--help``, and exit 2: argparse's default prints the usage block first, and
+    reports an unknown option of a subcommand as the top level's.
+    """
+
+    def error(self, message: str) -> NoReturn:
+        text = " ".join(message.split())
+        self.exit(2, f"{self.prog}: error: {text} (see `{self.prog} --help`)\n")
+
+    def parse_known_args(self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None) -> tuple[argparse.Namespace, list[str]]:  # type: ignore[override]
+        ns, extras = super().parse_known_args(args, namespace)
+        if extras and not hasattr(ns, _EXTRAS_OWNER):
+            setattr(ns, _EXTRAS_OWNER, self)  # the innermost parser returns first: the subcommand that was given them
+        return ns, extras
+
+    def parse_args(self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None) -> argparse.Namespace:  # type: ignore[override]
+        ns, extras = self.parse_known_args(args, namespace)
+        owner: Any = getattr(ns, _EXTRAS_OWNER, self)
+        if hasattr(ns, _EXTRAS_OWNER):
+            delattr(ns, _EXTRAS_OWNER)
+        if extras:
+            owner.error(f"unrecognized arguments: {' '.join(extras)}")
+        return ns
 
 
 def _paper(sub: argparse._SubParsersAction) -> None:
@@ -140,7 +173,8 @@ def _plot(sub: argparse._SubParsersAction) -> None:
 def _log(sub: argparse._SubParsersAction) -> None:
     from ground.logs import cli as logs_cli
 
-    p = sub.add_parser("log", help="inspect flight logs (.tlog): summary", description="Inspect flight-controller .tlog files.")
+    p = sub.add_parser("log", help="flight logs (.tlog): summary, compress, clean (keep the newest N flights)",
+                       description="Inspect and tidy flight-controller .tlog files: summary, compress, clean.")
     logs_cli.add_log_arguments(p)
     p.set_defaults(handler=logs_cli.log_main)
 
@@ -193,7 +227,7 @@ SUBCOMMANDS = (_run, _laws, _compare, _campaign, _tune, _paper, _sitl, _demo, _b
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = CliParser(
         prog="smcpilot",
         description="MAVLink SITL flight controller flying the adaptive PID sliding-mode controller.",
     )

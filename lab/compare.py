@@ -41,6 +41,7 @@ from pathlib import Path
 from typing import Any
 
 from lab.campaign.engine import ClusterOptions, Engine
+from lab.campaign.figures import until_crash
 from lab.campaign.flight import Trace
 from lab.campaign.flight import fly_unit as campaign_fly_unit
 from lab.campaign.run import Progress, retrace
@@ -212,7 +213,7 @@ def summarize_study(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
 
 def markdown_table(summary: Sequence[dict[str, Any]], variants: Sequence[Variant]) -> str:
     """One row per case × controller: crashes, then the table metrics (mean ± 95 % CI half-width)."""
-    return campaign_table(summary, group_key="case", failures="crashed", metrics=TABLE_METRICS, order=[v.label for v in variants])
+    return campaign_table(summary, group_key="case", metrics=TABLE_METRICS, order=[v.label for v in variants])
 
 
 # -- files and figures --------------------------------------------------------------------------------
@@ -289,8 +290,12 @@ def write_figures(result: StudyResult, cases: Sequence[Case], variants: Sequence
                 continue
             row, tr = w
             style = styles[k % len(styles)]
-            a1.plot(tr.t_s, tr.pos_err_m, label=f"{lab} (seed {row['seed']})", **style)
-            a2.plot(tr.t_s, tr.tilt_deg, **style)
+            t, err, tilt, t_crash = until_crash(row, tr)  # a crashed flight ends at its crash (×)
+            (line,) = a1.plot(t, err, label=f"{lab} (seed {row['seed']}{', crashed' if t_crash is not None else ''})", **style)
+            a2.plot(t, tilt, color=line.get_color(), **style)
+            if t_crash is not None and t:
+                a1.plot([t[-1]], [err[-1]], "x", color=line.get_color(), ms=8, mew=2)
+                a2.plot([t[-1]], [tilt[-1]], "x", color=line.get_color(), ms=8, mew=2)
         for t_f in c.fault_starts_s:
             for ax in (a1, a2):
                 ax.axvline(t_f, color="k", ls=":", lw=0.8)
@@ -383,7 +388,7 @@ def _loss_limit_main(args: argparse.Namespace, variants: Sequence[Variant]) -> i
     data = {
         "seeds": args.seeds, "tolerance": tol,
         "physical_limit": {"heading_held": 1.0 - trim_efficiency_min(DEFAULT_VEHICLE), "heading_free": 1.0 - trim_efficiency_min(DEFAULT_VEHICLE, yaw_held=False)},
-        "survived": [{"controller": b.variant.label, "condition": b.condition, "survived": b.lo, "failed": b.hi, "why": b.why} for b in brackets],
+        "survived": [{"controller": b.variant.label, "condition": b.condition, "survived": b.lo, "not_survived": b.hi, "why": b.why} for b in brackets],
     }  # fmt: skip
     (args.out / "loss_limits.json").write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
     print(table, end="")

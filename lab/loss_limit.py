@@ -69,7 +69,7 @@ class Bracket:
     condition: str
     lo: float = 0.0
     hi: float = 1.0
-    #: why the flights at ``hi`` failed (the first failing seed's status and message).
+    #: what happened to the flights at ``hi`` (the first seed's that did not end ok: its status and message).
     why: str = ""
 
     @property
@@ -108,14 +108,14 @@ def bisect_loss_limits(
                 results[unit.index] = row
 
             engine.run(units, take)
-            failed: dict[int, str] = {}
+            lost: dict[int, str] = {}
             for b, row in zip(owner, results):
                 status = row["status"] if row is not None else "error"
-                if status != "ok" and id(b) not in failed:
-                    failed[id(b)] = f"{status}: {row.get('message', '') if row is not None else 'no result'}"
+                if status != "ok" and id(b) not in lost:
+                    lost[id(b)] = f"{status}: {row.get('message', '') if row is not None else 'no result'}"
             for b in open_:
-                if id(b) in failed:
-                    b.hi, b.why = b.mid, failed[id(b)]
+                if id(b) in lost:
+                    b.hi, b.why = b.mid, lost[id(b)]
                 else:
                     b.lo = b.mid
             if progress is not None:
@@ -133,7 +133,7 @@ def limits_table(brackets: Sequence[Bracket], vehicle: VehicleParams, seeds: int
         f"Largest loss of motor 1's thrust survived by every one of {seeds} seeds (bisected to {tol:.1%});"
         f" physical limit of a trim: {held:.1%} with the heading held, {free:.1%} without.",
         "",
-        "| controller | " + " | ".join(f"survived, {c}" for c in conditions) + " | first failure above (hover) |",
+        "| controller | " + " | ".join(f"survived, {c}" for c in conditions) + " | what ended the first flight not survived (hover) |",
         "|---|" + "---|" * len(conditions) + "---|",
     ]
     for label in dict.fromkeys(b.variant.label for b in brackets):

@@ -14,7 +14,10 @@ when they arrive on its sim link, and in the results' events.
 
 Output (``--out DIR``, default ``out/run/<scenario name>``): ``<name>.tlog``, the effective
 scenario ``<name>.scenario.toml`` (re-runnable), the figures of ``smcpilot plot``, and with
-``--json PATH`` the results.
+``--json PATH`` the results. A run owns what it writes there: it lists its files in
+``DIR/.smcpilot-run`` (:data:`RUN_FILES`), and the next run into the same directory first deletes
+the files that list names (only those: anything else in DIR is left alone), so a directory never
+mixes two runs' artefacts (a cascade run does not keep the adaptive run's ``controller.png``).
 """
 
 from __future__ import annotations
@@ -268,6 +271,47 @@ def fly(scenario: Scenario, out_dir: Path, *, sitl: bool = False, echo=None) -> 
     return result
 
 
+# -- the output directory: one run's files at a time ------------------------------------------------
+#: the list of the files the last run wrote into its output directory (relative paths, one a line).
+RUN_FILES = ".smcpilot-run"
+
+
+def clear_previous_run(out_dir: Path) -> list[Path]:
+    """Delete the files the previous run listed in ``out_dir`` (never anything it did not write,
+    never outside ``out_dir``) and the list itself; return what was deleted."""
+    listing = out_dir / RUN_FILES
+    try:
+        names = listing.read_text(encoding="utf-8").splitlines()
+    except (FileNotFoundError, NotADirectoryError):
+        return []
+    except OSError as exc:
+        raise SmcpilotError(f"cannot read {listing}: {exc.strerror}") from None
+    root = out_dir.resolve()
+    removed = []
+    for name in filter(None, (n.strip() for n in names)):
+        path = (out_dir / name).resolve()
+        if path.parent != root and root not in path.parents:
+            continue  # the list was edited by hand: never outside the directory
+        if path.is_file():
+            path.unlink()
+            removed.append(out_dir / name)
+    listing.unlink(missing_ok=True)
+    return removed
+
+
+def record_run(out_dir: Path, paths: list[Path]) -> Path:
+    """Write ``out_dir``'s :data:`RUN_FILES`: those of ``paths`` that lie inside it."""
+    root = out_dir.resolve()
+    names = []
+    for p in paths:
+        rp = p.resolve()
+        if root in rp.parents:
+            names.append(rp.relative_to(root).as_posix())
+    listing = out_dir / RUN_FILES
+    listing.write_text("".join(f"{n}\n" for n in dict.fromkeys(names)), encoding="utf-8")
+    return listing
+
+
 # -- command line --------------------------------------------------------------------------------
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("scenario", type=Path, metavar="SCENARIO.toml", help="the scenario file (see examples/scenarios/)")
@@ -308,23 +352,34 @@ def main(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(f"run: {scenario.name} ({mode}): {scenario.duration_s:g} s, {scenario.controller}, plant {scenario.plant},"
               f" seed {scenario.seed}" + (f" — {scenario.description}" if scenario.description else ""), flush=True)  # fmt: skip
+    if out_dir.exists() and not out_dir.is_dir():
+        raise SmcpilotError(f"--out {out_dir}: not a directory")
+    cleared = clear_previous_run(out_dir)
+    if cleared and not args.quiet:
+        print(f"out: {out_dir}/: deleted the previous run's {len(cleared)} files (a run owns its output directory)", flush=True)
+    written = [out_dir / f"{scenario.name}.tlog", out_dir / f"{scenario.name}.scenario.toml"]
+    out_dir.mkdir(parents=True, exist_ok=True)
+    record_run(out_dir, written)  # claimed before the flight: a run stopped half-way is cleared by the next too
     result = fly(scenario, out_dir, sitl=args.sitl, echo=echo)
     if result.summary:
         print()
         print_summary(result.summary, sys.stdout)
-    speed = result.sim_s / result.wall_s if result.wall_s > 0 else math.nan
+    speed = f"{result.sim_s / result.wall_s:.1f}× real time" if result.wall_s > 0 and result.ticks else "—× real time"
     print(f"\nrun: {result.status}{': ' + result.message if result.message else ''};"
-          f" {result.ticks} ticks, {result.sim_s:.2f} simulated s in {result.wall_s:.2f} wall s ({speed:.1f}× real time)")  # fmt: skip
+          f" {result.ticks} ticks, {result.sim_s:.2f} simulated s in {result.wall_s:.2f} wall s ({speed})")  # fmt: skip
     doc = result.as_json()
     if not args.no_plots and result.summary:
         paths = plot_log(load_log(result.tlog), out_dir)
+        written += paths
         doc["plots"] = [str(p) for p in paths]
         print(f"plots: {len(paths)} PNG files in {out_dir}/")
     print(f"log: {result.tlog}")
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(_finite(doc), indent=2, allow_nan=False) + "\n", encoding="utf-8")
+        written.append(args.json)
         print(f"results: {args.json}")
+    record_run(out_dir, written)
     return 0 if result.status == "ok" else 1
 
 
@@ -339,4 +394,4 @@ def _finite(v: Any) -> Any:
     return v
 
 
-__all__ = ["FlightResult", "MODES", "SmcpilotError", "fly", "fly_in_process", "fly_sitl"]
+__all__ = ["FlightResult", "MODES", "RUN_FILES", "SmcpilotError", "clear_previous_run", "fly", "fly_in_process", "fly_sitl", "record_run"]

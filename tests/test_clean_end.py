@@ -21,6 +21,7 @@ def test_both_processes_exit_by_themselves_with_code_0(tmp_path: Path, lockstep:
         assert (sitl.fc.proc.returncode, sitl.sim.proc.returncode) == (0, 0), "exited by themselves, not stopped"
 
 
+@pytest.mark.slow
 def test_a_process_that_does_not_end_by_itself_is_a_failed_run(tmp_path: Path) -> None:
     """The FC stopped (SIGSTOP) when the simulator ends: it cannot exit by itself; the launcher
     waits END_GRACE_S, stops it, and says so instead of reporting success."""

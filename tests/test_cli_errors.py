@@ -66,6 +66,7 @@ def test_sitl_option_errors_are_one_line_exit_2(tmp_path: Path, args: list[str],
     assert not list((tmp_path / "logs").glob("*.tlog"))
 
 
+@pytest.mark.slow
 def test_sitl_gcs_host_the_fc_cannot_resolve_is_one_line_exit_2(tmp_path: Path) -> None:
     """Found by the FC process itself at start-up (the name is only resolved there): still one line."""
     r = smcpilot("sitl", "--lockstep", "--duration", "1", "--gcs", "udp:no-such-host.invalid:14550",
@@ -95,6 +96,7 @@ def test_bad_file_contents_are_one_line_exit_2(tmp_path: Path, option: str, text
 
 
 # ------------------------------------------------------------------------------------ gcs status
+@pytest.mark.slow
 def test_gcs_status_accepts_timeout_after_the_action_and_says_it_waits(tmp_path: Path) -> None:
     """No vehicle, stderr a terminal: it says at once what it waits for, waits --timeout (given
     after the action), erases the notice and leaves one error line; exit 1."""
@@ -213,6 +215,7 @@ def test_log_summary_into_head(flight_log: Path, tmp_path: Path) -> None:
     assert rc == 0 and "Traceback" not in err, err
 
 
+@pytest.mark.slow
 def test_paper_into_a_closed_pipe_has_no_traceback_and_still_writes_its_results(tmp_path: Path) -> None:
     result = tmp_path / "p.json"
     rc, err = run_with_stdout_closed(["paper", "--controller", "pid_smc", "--no-figures", "--json", result], tmp_path)
@@ -221,6 +224,7 @@ def test_paper_into_a_closed_pipe_has_no_traceback_and_still_writes_its_results(
     assert json.loads(result.read_text(encoding="utf-8"))  # the command went on to its end
 
 
+@pytest.mark.slow
 def test_mission_run_is_not_aborted_when_stdout_goes_away(tmp_path: Path) -> None:
     mission = tmp_path / "m.toml"
     mission.write_text(

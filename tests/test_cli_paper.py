@@ -20,6 +20,9 @@ import pytest
 from lab.paper.metrics import METRICS_SCHEMA
 from smcpilot.model import CHANNELS
 
+#: end-to-end: the quick tier (`pytest -m "not slow"`) leaves this module to the full suite.
+pytestmark = pytest.mark.slow
+
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 FIGURES = ("states.png", "errors.png", "sliding.png", "inputs.png", "chi_hat.png", "rotor_speeds.png", "chattering.png")
 PAPER_OPTIONS = (

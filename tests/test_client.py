@@ -183,6 +183,7 @@ def test_bad_settings_are_config_errors() -> None:
 
 # ------------------------------------------------------------------------- the real FC: link
 @pytest.mark.parametrize("via", ["udpin", "udpout"])
+@pytest.mark.slow
 def test_connects_and_reads_heartbeat_mode_and_telemetry(tmp_path: Path, via: str) -> None:
     with sitl_vehicle(tmp_path, via=via) as (_sitl, v):
         t = v.wait_for(
@@ -204,6 +205,7 @@ def test_connects_and_reads_heartbeat_mode_and_telemetry(tmp_path: Path, via: st
         assert v.sim_time_s >= start + 2.0
 
 
+@pytest.mark.slow
 def test_subscriptions_deliver_to_queues_and_callbacks(fc: Vehicle) -> None:
     seen: list[str] = []
     with fc.subscribe("HEARTBEAT", callback=lambda m: seen.append(m.get_type())), fc.subscribe(["STATUSTEXT", "COMMAND_ACK"]) as sub:
@@ -216,6 +218,7 @@ def test_subscriptions_deliver_to_queues_and_callbacks(fc: Vehicle) -> None:
 
 
 # ------------------------------------------------------------------------ the real FC: flying
+@pytest.mark.slow
 def test_arm_takeoff_goto_land_with_waits_in_simulated_seconds(fc: Vehicle) -> None:
     t_start = fc.sim_time_s
     fc.arm()
@@ -236,6 +239,7 @@ def test_arm_takeoff_goto_land_with_waits_in_simulated_seconds(fc: Vehicle) -> N
     assert any("Armed" in x for x in texts)
 
 
+@pytest.mark.slow
 def test_goto_global_repositions_through_home(fc: Vehicle) -> None:
     take_off(fc, 2.0)
     home = fc.get_home()
@@ -247,6 +251,7 @@ def test_goto_global_repositions_through_home(fc: Vehicle) -> None:
     assert t.relative_alt_m == pytest.approx(3.0, abs=0.3)
 
 
+@pytest.mark.slow
 def test_rtl_returns_home_lands_and_disarms(fc: Vehicle) -> None:
     take_off(fc, 2.0)
     fc.goto_ned(4.0, 0.0, -2.0)
@@ -258,6 +263,7 @@ def test_rtl_returns_home_lands_and_disarms(fc: Vehicle) -> None:
     assert math.hypot(n, e) < 0.5
 
 
+@pytest.mark.slow
 def test_set_mode_waits_for_the_heartbeat(fc: Vehicle) -> None:
     take_off(fc, 2.0)
     fc.set_mode("LOITER")
@@ -267,6 +273,7 @@ def test_set_mode_waits_for_the_heartbeat(fc: Vehicle) -> None:
 
 
 # ---------------------------------------------------------------------- denials and timeouts
+@pytest.mark.slow
 def test_takeoff_while_disarmed_is_denied_with_the_fcs_reason(fc: Vehicle) -> None:
     with pytest.raises(CommandDenied) as info:
         fc.takeoff(2.0)
@@ -276,6 +283,7 @@ def test_takeoff_while_disarmed_is_denied_with_the_fcs_reason(fc: Vehicle) -> No
     assert "MAV_CMD_NAV_TAKEOFF refused with MAV_RESULT_DENIED: " in str(err)
 
 
+@pytest.mark.slow
 def test_unflyable_mode_is_denied_and_unknown_mode_never_sent(fc: Vehicle) -> None:
     with pytest.raises(CommandDenied) as info:
         fc.set_mode("STABILIZE")
@@ -285,6 +293,7 @@ def test_unflyable_mode_is_denied_and_unknown_mode_never_sent(fc: Vehicle) -> No
     assert fc.mode == "GUIDED"
 
 
+@pytest.mark.slow
 def test_raw_commands_return_the_result_instead_of_raising(fc: Vehicle) -> None:
     assert fc.command_long(mavlink.MAV_CMD_NAV_TAKEOFF, param7=2.0) == mavlink.MAV_RESULT_DENIED
     assert fc.command_long(31999) == mavlink.MAV_RESULT_UNSUPPORTED
@@ -293,6 +302,7 @@ def test_raw_commands_return_the_result_instead_of_raising(fc: Vehicle) -> None:
         fc.command_long(31999, check=True)
 
 
+@pytest.mark.slow
 def test_disarm_in_the_air_needs_force(fc: Vehicle) -> None:
     take_off(fc, 2.0)
     with pytest.raises(CommandDenied) as info:
@@ -301,6 +311,7 @@ def test_disarm_in_the_air_needs_force(fc: Vehicle) -> None:
     assert fc.armed
 
 
+@pytest.mark.slow
 def test_wait_timeout_counts_simulated_seconds_and_says_what_and_last_value(fc: Vehicle) -> None:
     start = fc.sim_time_s
     with pytest.raises(VehicleTimeout) as info:
@@ -313,6 +324,7 @@ def test_wait_timeout_counts_simulated_seconds_and_says_what_and_last_value(fc: 
     assert " m; sim time " in msg
 
 
+@pytest.mark.slow
 def test_wait_gives_up_when_the_simulator_stops(tmp_path: Path) -> None:
     with sitl_vehicle(tmp_path, vehicle_kw=dict(stall_timeout_s=1.0, ack_timeout_s=0.2, command_tries=2)) as (sitl, v):
         v.sleep_sim(0.5)
@@ -326,6 +338,7 @@ def test_wait_gives_up_when_the_simulator_stops(tmp_path: Path) -> None:
 
 
 # ------------------------------------------------------------------------------ parameters
+@pytest.mark.slow
 def test_param_get_set_round_trip_and_refusal(fc: Vehicle) -> None:
     old = fc.get_param("WP_RADIUS_M")
     assert isinstance(old, float)
@@ -340,6 +353,7 @@ def test_param_get_set_round_trip_and_refusal(fc: Vehicle) -> None:
     assert fc.get_param("WP_RADIUS_M") == pytest.approx(0.75)
 
 
+@pytest.mark.slow
 def test_unknown_param_fails_fast_with_the_fcs_word(fc: Vehicle) -> None:
     t0 = time.monotonic()
     with pytest.raises(ParamError, match="NO_SUCH_PARAM"):
@@ -349,6 +363,7 @@ def test_unknown_param_fails_fast_with_the_fcs_word(fc: Vehicle) -> None:
         fc.get_param("A_VERY_LONG_PARAMETER_NAME")
 
 
+@pytest.mark.slow
 def test_list_params_returns_every_parameter_in_index_order(fc: Vehicle) -> None:
     params = fc.list_params()
     assert len(params) > 20
@@ -370,6 +385,7 @@ def _mission(home_lat: float, home_lon: float) -> list[MissionItem]:
     ]
 
 
+@pytest.mark.slow
 def test_mission_round_trip_inserts_and_strips_home(fc: Vehicle) -> None:
     home = fc.get_home()
     items = _mission(home.lat_deg, home.lon_deg)
@@ -386,6 +402,7 @@ def test_mission_round_trip_inserts_and_strips_home(fc: Vehicle) -> None:
     assert fc.download_mission() == []
 
 
+@pytest.mark.slow
 def test_refused_mission_item_raises_with_the_mission_result(fc: Vehicle) -> None:
     home = fc.get_home()
     good = _mission(home.lat_deg, home.lon_deg)
@@ -396,6 +413,7 @@ def test_refused_mission_item_raises_with_the_mission_result(fc: Vehicle) -> Non
     assert len(fc.download_mission()) == len(good), "a refused upload keeps the stored mission"
 
 
+@pytest.mark.slow
 def test_mission_flies_in_auto_and_set_current_item(fc: Vehicle) -> None:
     home = fc.get_home()
     fc.upload_mission(_mission(home.lat_deg, home.lon_deg))
@@ -531,6 +549,7 @@ def test_mission_count_is_resent_until_the_vehicle_requests(lossy: tuple[LossyVe
 
 
 # ------------------------------------------------------------------------------ faults, end to end
+@pytest.mark.slow
 def test_live_sim_parameters_and_inject_failure_reach_the_real_simulator(fc: Vehicle) -> None:
     """FC and simulator processes in lockstep: a ground station's SIM_* change and a
     MAV_CMD_INJECT_FAILURE are forwarded to the simulator, which announces the fault (relayed to

@@ -20,6 +20,7 @@ def _run(out: Path, jobs: int) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
+@pytest.mark.slow
 def test_study_files_and_results_do_not_depend_on_the_workers(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     one = _run(tmp_path / "one", 1)
     two = _run(tmp_path / "two", 2)

@@ -221,6 +221,7 @@ def _closed_loop(controller: str) -> list[tuple]:
     return rows
 
 
+@pytest.mark.slow
 def test_compiled_pipeline_step_gives_the_same_bits() -> None:
     pytest.importorskip("numba")
     flights = {c: _closed_loop(c) for c in FC_CONTROLLERS}

@@ -7,6 +7,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
+#: end-to-end: the quick tier (`pytest -m "not slow"`) leaves this module to the full suite.
+pytestmark = pytest.mark.slow
+
 
 def test_demo_flies_and_writes_results(tmp_path: Path) -> None:
     out = tmp_path / "plots"

@@ -19,6 +19,9 @@ import pytest
 from gcs_helpers import HOME_LAT, HOME_LON, LOOPBACK, download_mission, latlon_to_ne, ne_to_latlon, sitl_run
 from pymavlink.dialects.v20 import ardupilotmega as M
 
+#: end-to-end: the quick tier (`pytest -m "not slow"`) leaves this module to the full suite.
+pytestmark = pytest.mark.slow
+
 LOITER_MODE = M.COPTER_MODE_LOITER
 
 

@@ -34,6 +34,7 @@ def test_the_papers_law_without_the_observer_does_not_survive_it() -> None:
     assert row["crashed"], row
 
 
+@pytest.mark.slow
 def test_chi_hat_rises_at_the_fault_and_stays_bounded_in_noise() -> None:
     from fc.core import FlightCore
     from fc.params import config_for

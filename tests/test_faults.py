@@ -612,6 +612,7 @@ def _f32(x: float) -> float:
     return float(np.float32(x))
 
 
+@pytest.mark.slow
 def test_live_param_set_over_udp_to_the_simulator_process(tmp_path: Path) -> None:
     sc = Scenario(duration_s=0.2, faults=(FaultSpec("sensor", start_s=0.05, stop_s=0.1, sensor="velocity", mode="bias", value=(0.5, 0.0, 0.0)),))
     path = sc.save(tmp_path / "s.toml")
@@ -692,6 +693,7 @@ def _actuators(tlog: Path) -> list[tuple[int, tuple[float, ...]]]:
     return [(m.time_usec, tuple(m.controls[:4])) for _, m in read_tlog(tlog) if m.get_type() == "HIL_ACTUATOR_CONTROLS"]
 
 
+@pytest.mark.slow
 def test_faults_fly_the_same_in_process_and_as_sitl_and_are_logged(tmp_path: Path) -> None:
     faults = (
         FaultSpec("gust", start_s=1.0, force_std_n=0.2, torque_std_n_m=0.002),

@@ -403,6 +403,7 @@ def print_report(clean: Run, fuzzed: Run, fuzzer: Fuzzer) -> None:
 
 
 # -- the checks -----------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_flight_under_fuzz_is_bit_identical_to_the_clean_one(flights) -> None:
     clean, fuzzed, _ = flights
     a, b = flight_records(clean.tlog), flight_records(fuzzed.tlog)
@@ -412,6 +413,7 @@ def test_flight_under_fuzz_is_bit_identical_to_the_clean_one(flights) -> None:
     assert first_diff is None, f"record {first_diff} differs: {a[first_diff]} vs {b[first_diff]}"
 
 
+@pytest.mark.slow
 def test_no_nan_reached_a_motor_or_the_plant(flights) -> None:
     _, fuzzed, _ = flights
     n = 0
@@ -424,6 +426,7 @@ def test_no_nan_reached_a_motor_or_the_plant(flights) -> None:
     assert n > DURATION_S * 400
 
 
+@pytest.mark.slow
 def test_every_rejected_packet_is_counted(flights) -> None:
     clean, fuzzed, fuzzer = flights
     sent = fuzzer.sent
@@ -461,6 +464,7 @@ def test_every_rejected_packet_is_counted(flights) -> None:
     assert summarize(load_log(clean.tlog))["comm_errors"] == dict.fromkeys(("errors_comm", "drop_rate_comm", "errors_count1", "errors_count2", "errors_count3", "errors_count4"), 0)
 
 
+@pytest.mark.slow
 def test_a_station_that_commanded_keeps_its_telemetry_through_the_heartbeat_flood(flights) -> None:
     clean, fuzzed, fuzzer = flights
     assert fuzzer.sent[("gcs", "heartbeat_flood")] >= FLOOD_SYSTEMS * FLOOD_RATE_HZ * DURATION_S * 0.5
@@ -472,6 +476,7 @@ def test_a_station_that_commanded_keeps_its_telemetry_through_the_heartbeat_floo
     assert fuzzed.fc_summary["links"]["gcs"]["peers_rejected"] > 0  # the flood was refused places
 
 
+@pytest.mark.slow
 def test_drop_rate_is_reported_while_the_fuzz_lasts(flights) -> None:
     clean, fuzzed, _ = flights
     assert clean.max_drop_rate == 0
@@ -479,6 +484,7 @@ def test_drop_rate_is_reported_while_the_fuzz_lasts(flights) -> None:
 
 
 # -- what other branches deliver -----------------------------------------------------------------------
+@pytest.mark.slow
 def test_huge_finite_targets_and_other_components_are_not_flown(tmp_path: Path) -> None:
     enc = M.MAVLink(None, srcSystem=250, srcComponent=190)
     packets = [
@@ -503,6 +509,7 @@ def test_huge_finite_targets_and_other_components_are_not_flown(tmp_path: Path) 
     assert flight_records(fuzzed.tlog) == flight_records(clean.tlog)
 
 
+@pytest.mark.slow
 def test_valid_states_forged_from_another_address_are_not_flown(tmp_path: Path) -> None:
     forged = M.MAVLink(None, srcSystem=FC_SYSID, srcComponent=SIM_COMPONENT_ID)
 
@@ -521,6 +528,7 @@ def test_valid_states_forged_from_another_address_are_not_flown(tmp_path: Path) 
     assert flight_records(fuzzed.tlog) == flight_records(clean.tlog)
 
 
+@pytest.mark.slow
 def test_real_time_loop_under_fuzz_keeps_flying_and_counts_everything(realtime_flights) -> None:
     """Real time: the figures are printed (speed is measured, not asserted); the checks are that
     the fuzzed flight kept its motors finite, ended cleanly and counted what it rejected."""

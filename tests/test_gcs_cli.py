@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 
 from ground.client import StatusText, Telemetry
-from ground.gcs_cmd import render_frame, render_line
+from ground.gcs_cmd import render_frame, render_line, render_status
 from ground.missions import load_mission
 from ground.sitl import Sitl, SitlOptions
 from lab.cli import build_parser
@@ -182,6 +182,7 @@ def test_status_text(fc_url: str) -> None:
     assert "mode GUIDED" in r.stdout and "disarmed" in r.stdout and "home" in r.stdout
 
 
+@pytest.mark.slow
 def test_param_get_set_list(fc_url: str) -> None:
     r = gcs("param", "get", "WP_RADIUS_M", "--json", connect=fc_url)
     assert r.returncode == 0, r.stderr
@@ -202,18 +203,21 @@ def test_param_get_set_list(fc_url: str) -> None:
     assert len(lines) == len(params) and "ARMING_CHECK 1" in lines
 
 
+@pytest.mark.slow
 def test_unknown_param_exits_1(fc_url: str) -> None:
     r = gcs("param", "get", "NO_SUCH_PARAM", connect=fc_url)
     assert r.returncode == 1
     assert r.stderr.startswith("smcpilot gcs: error: ") and "NO_SUCH_PARAM" in r.stderr
 
 
+@pytest.mark.slow
 def test_takeoff_while_disarmed_exits_1_with_the_reason(fc_url: str) -> None:
     r = gcs("takeoff", "2", connect=fc_url)
     assert r.returncode == 1
     assert r.stderr.strip() == "smcpilot gcs: error: MAV_CMD_NAV_TAKEOFF refused with MAV_RESULT_DENIED: Takeoff: arm first"
 
 
+@pytest.mark.slow
 def test_watch_once_prints_one_frame(fc_url: str) -> None:
     r = gcs("watch", "--once", connect=fc_url)
     assert r.returncode == 0, r.stderr
@@ -231,6 +235,7 @@ def _ctrl_c_reaches_the_child() -> None:
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
+@pytest.mark.slow
 def test_watch_without_a_tty_prints_one_line_per_update_and_ends_on_ctrl_c(fc_url: str) -> None:
     proc = subprocess.Popen(
         [sys.executable, "-m", "lab.cli", "gcs", "--connect", fc_url, "watch", "--rate-hz", "20"],
@@ -254,6 +259,7 @@ def test_watch_without_a_tty_prints_one_line_per_update_and_ends_on_ctrl_c(fc_ur
 
 
 # ------------------------------------------------------------------- flights and missions
+@pytest.mark.slow
 def test_fly_from_the_command_line(fresh_fc_url: str) -> None:
     url = fresh_fc_url
     r = gcs("arm", connect=url)
@@ -276,6 +282,7 @@ def test_fly_from_the_command_line(fresh_fc_url: str) -> None:
     assert "landed and disarmed" in r.stdout
 
 
+@pytest.mark.slow
 def test_mission_upload_download_start(fresh_fc_url: str, tmp_path: Path) -> None:
     url = fresh_fc_url
     mission = tmp_path / "mission.toml"
@@ -332,7 +339,8 @@ def test_render_frame_and_line_show_state_position_setpoint_gains_and_last_text(
     assert "1.00   -2.00   -3.00" in frame[2] and "altitude    3.00 m" in frame[2]
     assert "90.00 deg" in frame[4]
     assert "phi 0.500" in frame[6] and "z 0.800" in frame[6]
-    assert "theta -0.020" in frame[7] and "psi +nan" in frame[7]
+    assert "theta -0.020" in frame[7] and "psi —" in frame[7]  # no value yet: never "nan"
+    assert "nan" not in text
     assert "Takeoff to 3.0 m" in text and "12.50 s" in frame[0]
     line = render_line(t)
     assert "\n" not in line
@@ -341,10 +349,22 @@ def test_render_frame_and_line_show_state_position_setpoint_gains_and_last_text(
 
 
 def test_render_handles_empty_telemetry() -> None:
-    assert all("-" in line for line in render_frame(Telemetry())[1:])
+    assert all("—" in line for line in render_frame(Telemetry())[1:])
     assert render_line(Telemetry()).startswith("t=- disarmed -")
 
 
+def test_disarmed_status_says_so_instead_of_nan() -> None:
+    """Disarmed, the FC sends χ̂ and σ as NaN (the law's state exists only in flight)."""
+    nan = float("nan")
+    t = Telemetry(sim_time_s=3.0, system_id=1, armed=False, mode_number=4, position_ned_m=(0.0, 0.0, 0.0),
+                  chi=dict.fromkeys(("PHI", "THETA", "PSI", "Z"), nan), sigma=dict.fromkeys(("PHI", "THETA", "PSI", "Z"), nan))  # fmt: skip
+    text = render_status(t)
+    assert "nan" not in text.lower(), text
+    assert "chi_hat  — (disarmed)" in text and "sigma    — (disarmed)" in text
+    assert "nan" not in render_line(t).lower()
+
+
+@pytest.mark.slow
 @pytest.mark.skipif(not hasattr(os, "openpty"), reason="needs a pseudo-terminal")
 def test_watch_on_a_tty_redraws_in_place(fc_url: str) -> None:
     master, slave = os.openpty()

@@ -42,6 +42,7 @@ def _one_line_error(r: subprocess.CompletedProcess[str]) -> str:
     return lines[0]
 
 
+@pytest.mark.slow
 def test_goto_while_disarmed_exits_1_with_the_reason(fc_url: str) -> None:
     r = gcs("goto", "2", "0", "-2", connect=fc_url)
     assert r.returncode == 1, (r.stdout, r.stderr)
@@ -63,6 +64,7 @@ def test_impossible_targets_are_usage_errors_with_the_shared_rule(args: tuple[st
     assert _one_line_error(r) == f"smcpilot gcs: error: {reason}"
 
 
+@pytest.mark.slow
 def test_the_vehicles_fence_refusal_arrives_whole(fc_url: str) -> None:
     """Beyond 50 characters: the FC sends STATUSTEXT chunks, the client joins them."""
     r = gcs("takeoff", "200", connect=fc_url)
@@ -75,6 +77,7 @@ def test_the_vehicles_fence_refusal_arrives_whole(fc_url: str) -> None:
     assert _one_line_error(r) == "smcpilot gcs: error: set-point refused: 400 m from home is outside fence FENCE_RADIUS 300 m"
 
 
+@pytest.mark.slow
 def test_status_says_why_arming_would_fail(fc_url: str) -> None:
     assert gcs("mode", "RTL", connect=fc_url).returncode == 0
     try:
@@ -103,6 +106,7 @@ def _watch(url: str) -> Iterator[subprocess.Popen[str]]:
         proc.communicate(timeout=10)
 
 
+@pytest.mark.slow
 def test_watch_and_command_through_the_fcs_own_ground_port(tmp_path: Path) -> None:
     """The FC sends telemetry to the watcher's port and answers on a known port of its own."""
     watch_port, fc_port = _free_port(), _free_port()
@@ -134,6 +138,7 @@ def _ports_free(*ports: int) -> bool:
     return True
 
 
+@pytest.mark.slow
 def test_out_of_the_box_watch_then_arm(tmp_path: Path) -> None:
     """The defaults: `smcpilot sitl` (telemetry to 14550, FC on 14551), `gcs watch` holds 14550,
     `gcs arm` finds it taken and talks to the FC's own port."""
@@ -150,6 +155,7 @@ def test_out_of_the_box_watch_then_arm(tmp_path: Path) -> None:
             assert gcs("disarm").returncode == 0
 
 
+@pytest.mark.slow
 def test_param_list_prints_units_ranges_and_descriptions(fc_url: str) -> None:
     r = gcs("param", "list", connect=fc_url)
     assert r.returncode == 0, r.stderr

@@ -48,6 +48,7 @@ def _run(*args: str, env: dict[str, str] | None = None, cwd: Path = ROOT, timeou
 
 
 # -- a law from a file, flown both ways ---------------------------------------------------------------
+@pytest.mark.slow
 def test_a_law_from_a_file_flies_in_process_and_as_sitl_with_the_same_motor_commands(tmp_path: Path) -> None:
     sc = _hover(PD_REF, 6.0)
     a = fly(sc, tmp_path / "in")
@@ -134,6 +135,7 @@ def installed_plugin(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]
     return env
 
 
+@pytest.mark.slow
 def test_an_installed_plugin_is_listed_through_its_entry_point(installed_plugin: dict[str, str], tmp_path: Path) -> None:
     r = _run("laws", "--json", env=installed_plugin, cwd=tmp_path)
     assert r.returncode == 0, r.stderr
@@ -148,6 +150,7 @@ def test_an_installed_plugin_is_listed_through_its_entry_point(installed_plugin:
     assert 'name="ArduCopter:PDL_KP_ATT"' in pdef.read_text() and "6 pd_feedback" in pdef.read_text()
 
 
+@pytest.mark.slow
 def test_an_installed_plugin_flies_by_name_in_process_and_as_sitl(installed_plugin: dict[str, str], tmp_path: Path) -> None:
     for extra in ((), ("--sitl",)):
         out = tmp_path / ("sitl" if extra else "in")
@@ -231,6 +234,7 @@ LAW = Law(name="{name}", stage="attitude", prefix="{prefix}", description="fails
 '''
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("kind", "failure", "why"), [
     ("raises", "raise ZeroDivisionError('the law divided by zero')", "ZeroDivisionError: the law divided by zero"),
     ("nan", "return (math.nan, 0.0, 0.0, 1.0), (n,), (z, z, z, z)", "non-finite command"),
@@ -294,6 +298,7 @@ def test_the_tutorials_law_is_the_example_plugins_code() -> None:
     assert len(code.strip().splitlines()) <= 60
 
 
+@pytest.mark.slow
 def test_the_tutorials_fly_it_commands_run_as_written(tmp_path: Path) -> None:
     block = next(b for b in _blocks("bash") if b.startswith("LAW="))
     env = dict(os.environ)
@@ -306,6 +311,7 @@ def test_the_tutorials_fly_it_commands_run_as_written(tmp_path: Path) -> None:
     assert "PDL_KP_ATT" in r.stdout and r.stdout.count("run: ok") == 2
 
 
+@pytest.mark.slow
 def test_a_law_too_slow_for_the_rate_in_real_time_is_failed_and_the_failsafe_flies(tmp_path: Path) -> None:
     """Real time at 100 Hz, a law that takes 15 ms a tick once armed: after 25 ticks (net) over the
     10 ms period the FC announces it, and the open-loop failsafe (cheap) keeps the rate."""
@@ -325,6 +331,7 @@ def test_a_law_too_slow_for_the_rate_in_real_time_is_failed_and_the_failsafe_fli
 
 
 # -- campaigns and tuning: plug-in laws on Dask workers ------------------------------------------------------
+@pytest.mark.slow
 def test_a_campaign_flies_plugin_laws_on_workers_and_records_a_failing_law_as_an_error(tmp_path: Path) -> None:
     """The worker processes load the law files themselves; a law that fails in flight is its unit's
     'error' row, and the campaign goes on; a plug-in's parameter is a campaign variation."""
@@ -363,6 +370,7 @@ def test_a_campaign_flies_plugin_laws_on_workers_and_records_a_failing_law_as_an
         assert by[("failing", s)]["status"] == "error" and "ValueError: bad gain" in by[("failing", s)]["message"]
 
 
+@pytest.mark.slow
 def test_a_plugin_laws_gains_are_tunable(tmp_path: Path) -> None:
     from lab.tuning.study import parse_tune
 
@@ -393,6 +401,7 @@ def test_laws_says_which_law_is_not_in_the_pure_style(tmp_path: Path) -> None:
     assert "not in the pure style (flies in CPython only): step line" in text
 
 
+@pytest.mark.slow
 def test_a_mission_file_flies_a_law_file_beside_it(tmp_path: Path) -> None:
     """``smcpilot mission run``: the mission's [sitl] controller is a law file relative to the mission."""
     (tmp_path / "laws").mkdir()
@@ -449,6 +458,7 @@ def test_a_value_the_laws_constants_refuse_is_undone_and_the_fc_flies_on(tmp_pat
     fl.step(VehicleState(*(0.0,) * 12), 0.002)
 
 
+@pytest.mark.slow
 def test_over_mavlink_a_value_the_law_refuses_is_answered_with_the_old_one(tmp_path: Path) -> None:
     from gcs_helpers import LOOPBACK, Gcs
 
@@ -472,6 +482,7 @@ def test_over_mavlink_a_value_the_law_refuses_is_answered_with_the_old_one(tmp_p
         gcs.close()
 
 
+@pytest.mark.slow
 def test_the_fc_says_once_that_a_law_is_not_in_the_pure_style(tmp_path: Path) -> None:
     f = tmp_path / "impure_fc.py"
     f.write_text(_FAILING.replace("{failure}", "raise ValueError('no')").replace("{name}", "impure_fc").replace("{prefix}", "IMPF"))

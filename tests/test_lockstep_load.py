@@ -20,6 +20,9 @@ from sitl_helpers import sitl_options
 
 from ground.sitl import Sitl, SitlOptions
 
+#: end-to-end: the quick tier (`pytest -m "not slow"`) leaves this module to the full suite.
+pytestmark = pytest.mark.slow
+
 DURATION_S = 2.0
 _BUSY = "import time\nend = time.monotonic() + 300\nwhile time.monotonic() < end:\n    pass\n"
 

@@ -54,6 +54,7 @@ def summary_json(log: Path, cwd: Path) -> dict:
 
 
 # ----------------------------------------------------------------------------- summary vs the run
+@pytest.mark.slow
 def test_log_summary_agrees_with_the_lockstep_run(flight, tmp_path: Path) -> None:
     r, log = flight
     m = ENDED.search(r.stdout)
@@ -64,6 +65,7 @@ def test_log_summary_agrees_with_the_lockstep_run(flight, tmp_path: Path) -> Non
     assert s["message_counts"]["HIL_ACTUATOR_CONTROLS"] == int(m.group(2))
 
 
+@pytest.mark.slow
 def test_log_summary_agrees_with_a_real_time_run(tmp_path: Path) -> None:
     r, log = fly(tmp_path, tmp_path / "logs", duration_s=2.0)
     m = ENDED.search(r.stdout)
@@ -75,6 +77,7 @@ def test_log_summary_agrees_with_a_real_time_run(tmp_path: Path) -> None:
 
 
 # ------------------------------------------------------------------------------------ compression
+@pytest.mark.slow
 def test_compressed_log_is_smaller_and_reads_the_same(flight, tmp_path: Path) -> None:
     _, original = flight
     plain = tmp_path / original.name
@@ -96,6 +99,7 @@ def test_compressed_log_is_smaller_and_reads_the_same(flight, tmp_path: Path) ->
     assert (tmp_path / f"{flight_stem(gz)}-plots" / "track.png").is_file()
 
 
+@pytest.mark.slow
 def test_plain_log_is_read_by_pymavlink_and_mavlogdump(flight, tmp_path: Path) -> None:
     _, log = flight
     conn = mavutil.mavlink_connection(str(log))
@@ -124,6 +128,7 @@ def copies(src: Path, directory: Path, n: int, *, age_s: float) -> list[Path]:
     return out
 
 
+@pytest.mark.slow
 def test_sitl_compresses_older_flights_and_keeps_the_newest_plain(flight, tmp_path: Path) -> None:
     _, src = flight
     logs = tmp_path / "logs"
@@ -137,6 +142,7 @@ def test_sitl_compresses_older_flights_and_keeps_the_newest_plain(flight, tmp_pa
     assert (logs / "fc-params.parm").read_text(encoding="utf-8") == "SMC_Z_KP 6\n"
 
 
+@pytest.mark.slow
 def test_a_log_still_being_written_is_never_compressed(flight, tmp_path: Path) -> None:
     _, src = flight
     logs = tmp_path / "logs"
@@ -145,6 +151,7 @@ def test_a_log_still_being_written_is_never_compressed(flight, tmp_path: Path) -
     assert len(compress_old_flights(logs, now_s=time.time() + 3600)) == 3
 
 
+@pytest.mark.slow
 def test_log_clean_deletes_all_but_the_newest(flight, tmp_path: Path) -> None:
     _, src = flight
     logs = tmp_path / "logs"
@@ -167,11 +174,13 @@ def test_log_clean_deletes_all_but_the_newest(flight, tmp_path: Path) -> None:
 
 
 # ------------------------------------------------------------------------------------ progress
+@pytest.mark.slow
 def test_no_progress_line_in_a_ci_log_unless_asked(flight) -> None:
     r, _ = flight  # stderr was a pipe, not a terminal
     assert "progress" not in r.stderr and "\r" not in r.stderr + r.stdout and "\x1b" not in r.stderr + r.stdout
 
 
+@pytest.mark.slow
 def test_progress_when_asked_is_plain_lines(tmp_path: Path) -> None:
     r, _ = fly(tmp_path, tmp_path / "logs", "--lockstep", "--speed", "5", "--progress", duration_s=30.0)  # >= 6 wall s
     lines = [ln for ln in r.stderr.splitlines() if ln.startswith("progress: ")]
@@ -182,6 +191,7 @@ def test_progress_when_asked_is_plain_lines(tmp_path: Path) -> None:
     assert 0 < float(m.group(1)) <= 30.0 and 0.5 < float(m.group(2)) < 8.0  # paced at 5x
 
 
+@pytest.mark.slow
 def test_progress_line_on_a_terminal_is_redrawn_and_erased(tmp_path: Path) -> None:
     """stderr is a real pseudo-terminal: the line is drawn in place with \\r and erased at the end."""
     master, slave = pty.openpty()

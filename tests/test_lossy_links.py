@@ -110,6 +110,7 @@ def test_outage_drops_everything_in_its_window() -> None:
 
 
 # -- lockstep: recovery from lost, duplicated, reordered and late datagrams ----------------------------------
+@pytest.mark.slow
 def test_lockstep_recovers_and_logs_the_same_bytes(tmp_path: Path) -> None:
     logs = []
     for name, spec in (("clean", LinkImpairment()),
@@ -136,6 +137,7 @@ def _longest_state_gap_s(tlog: Path) -> float:
     return max(np.diff(stamps)) * 1e-6 if len(stamps) > 1 else math.inf
 
 
+@pytest.mark.slow
 def test_real_time_500hz_with_20_percent_sim_link_loss_holds_position(tmp_path: Path) -> None:
     for attempt in range(2):
         opts = sitl_options(tmp_path, f"rt-loss-{attempt}", duration_s=9.0, lockstep=False, sim_link=LinkImpairment(loss=0.2))
@@ -164,6 +166,7 @@ def test_real_time_500hz_with_20_percent_sim_link_loss_holds_position(tmp_path: 
     assert err.max() < 0.10, f"position error {err.max():.3f} m with 20 % loss"
 
 
+@pytest.mark.slow
 def test_half_second_outage_gives_failsafe_then_state_back(tmp_path: Path) -> None:
     opts = sitl_options(tmp_path, "rt-outage", duration_s=9.0, lockstep=False,
                         sim_link=LinkImpairment(outage_at_s=5.0, outage_s=0.5))  # fmt: skip
@@ -187,6 +190,7 @@ def test_half_second_outage_gives_failsafe_then_state_back(tmp_path: Path) -> No
 
 
 # -- the ground link ----------------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_ground_protocols_complete_with_30_percent_loss(tmp_path: Path) -> None:
     spec = LinkImpairment(loss=0.3)
     opts = SitlOptions.of(lockstep=True, speed=1.0, gcs=f"udpin:{LOOPBACK}:0", log_dir=tmp_path, tlog=tmp_path / "g.tlog",
@@ -219,6 +223,7 @@ def test_ground_protocols_complete_with_30_percent_loss(tmp_path: Path) -> None:
     assert fcs_imp["rx"]["lost"] > 10 and fcs_imp["tx"]["lost"] > 10
 
 
+@pytest.mark.slow
 def test_lockstep_last_state_survives_a_lossy_link(tmp_path: Path) -> None:
     """The final state (at the duration) is re-sent like any other until answered: with half the
     datagrams lost, every run still flies every tick and ends exactly at its duration."""

@@ -438,6 +438,7 @@ def test_a_divergence_event_in_the_log_is_a_crash(tmp_path: Path) -> None:
     assert m["crashed"] is True and m["crash_reason"] == "diverged" and m["crash_t_s"] == pytest.approx(9.98)
 
 
+@pytest.mark.slow
 def test_sitl_divergence_note_is_appended_to_the_fc_log(tmp_path: Path) -> None:
     from lab.run import _note_divergence_in_tlog
 
@@ -480,6 +481,7 @@ def test_an_in_process_divergence_is_logged_and_is_a_crash(tmp_path: Path, monke
 
 
 # -- end to end ---------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_run_json_and_log_summary_report_the_same_plausible_metrics(tmp_path: Path) -> None:
     out_json = tmp_path / "out.json"
     r = subprocess.run(

@@ -514,6 +514,7 @@ within_m = 0.5
 """
 
 
+@pytest.mark.slow
 def test_short_mission_passes_and_writes_json_and_plots(tmp_path: Path) -> None:
     mission = write(tmp_path, SHORT, "short.toml")
     out, report = tmp_path / "out", tmp_path / "report.json"
@@ -538,6 +539,7 @@ def test_short_mission_passes_and_writes_json_and_plots(tmp_path: Path) -> None:
     assert [str(p) for p in pngs] == sorted(data["plots"])
 
 
+@pytest.mark.slow
 def test_impossible_expectation_exits_1_and_names_it(tmp_path: Path) -> None:
     text = SHORT + '\n[[expect]]\nkind = "max_tilt"\nmax_deg = 0.5\n'
     mission = write(tmp_path, text, "impossible.toml")
@@ -565,6 +567,7 @@ def test_usage_error_exits_2(tmp_path: Path) -> None:
     assert run_cli("fly", "x.toml", cwd=tmp_path).returncode == 2
 
 
+@pytest.mark.slow
 def test_connect_flies_a_running_vehicle_and_judges_from_telemetry(tmp_path: Path) -> None:
     mission = write(tmp_path, SHORT + '\n[[expect]]\nkind = "max_error_after"\nt_s = 6.0\nuntil_s = 10.0\nmax_m = 0.3\n', "short.toml")
     opts = SitlOptions.of(gcs="udpin:127.0.0.1:0", log_dir=tmp_path, tlog=tmp_path / "sitl.tlog", param_file=tmp_path / "p.parm")
@@ -579,6 +582,7 @@ def test_connect_flies_a_running_vehicle_and_judges_from_telemetry(tmp_path: Pat
     assert data["tlog"].endswith("short-telemetry.tlog") and (tmp_path / "out" / "plots" / "track.png").is_file()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("path", EXAMPLES, ids=[p.name for p in EXAMPLES])
 def test_example_flies_and_passes(tmp_path: Path, path: Path) -> None:
     """Each example is 35-55 simulated seconds: 5-10 s wall in lockstep."""

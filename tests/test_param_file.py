@@ -135,6 +135,7 @@ def _burst_until(sock: socket.socket, addr: tuple[str, int], mav: mavlink.MAVLin
     return _burst_with_acks(sock, addr, mav, rng, kill_at)[0]
 
 
+@pytest.mark.slow
 def test_sigkill_during_param_burst_never_tears_the_file(tmp_path: Path) -> None:
     """Kill the FC at random moments of a PARAM_SET burst, restart it on the same file each time:
     it always starts (the file parses in full, every value consistent), leftovers are removed."""
@@ -206,6 +207,7 @@ def _burst_with_acks(sock: socket.socket, addr: tuple[str, int], mav: mavlink.MA
     return sent, acked
 
 
+@pytest.mark.slow
 def test_sigkill_never_loses_an_acknowledged_value(tmp_path: Path) -> None:
     """PARAM_VALUE answers a PARAM_SET only once the file holding it is on disk: kill the FC at
     random instants of a burst, restart it: the value on disk is the last one acknowledged or one

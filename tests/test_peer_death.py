@@ -24,6 +24,9 @@ from sitl_helpers import children_of, cmdline, sitl_options
 from ground.sitl import Sitl, SitlError
 from smcpilot.tlog import read_tlog
 
+#: end-to-end: the quick tier (`pytest -m "not slow"`) leaves this module to the full suite.
+pytestmark = pytest.mark.slow
+
 #: The survivor must be gone this soon after the kill (wall seconds; the target).
 EXIT_WITHIN_S = 2.0
 

@@ -11,6 +11,9 @@ import pytest
 
 pytest_plugins = ("pytester",)
 
+#: end-to-end: the quick tier (`pytest -m "not slow"`) leaves this module to the full suite.
+pytestmark = pytest.mark.slow
+
 USER_TESTS = '''
 import pytest
 from ground.client import MissionItem

@@ -3,6 +3,7 @@ and its pytest example passes."""
 
 from __future__ import annotations
 
+import functools
 import re
 import subprocess
 import sys
@@ -46,6 +47,12 @@ def _smcpilot_invocations() -> list[list[str]]:
 
 
 def _help(path: list[str]) -> str:
+    return _help_of(tuple(path))
+
+
+@functools.cache
+def _help_of(path: tuple[str, ...]) -> str:
+    """``smcpilot PATH --help`` as a user runs it (once per path: README repeats its commands)."""
     r = subprocess.run([sys.executable, "-m", "lab.cli", *path, "--help"], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, (path, r.stderr)
     return r.stdout
@@ -88,6 +95,7 @@ def test_option_tables_match_each_commands_help() -> None:
     assert checked >= 15
 
 
+@pytest.mark.slow
 def test_readme_pytest_example_passes(pytester: pytest.Pytester) -> None:
     examples = [b for b in _code_blocks("python") if "def test_" in b and "(sitl)" in b]
     assert examples, "README has no pytest example"
@@ -96,6 +104,7 @@ def test_readme_pytest_example_passes(pytester: pytest.Pytester) -> None:
     result.assert_outcomes(passed=1)
 
 
+@pytest.mark.slow
 def test_readme_client_example_flies(tmp_path: Path) -> None:
     """The README's `Vehicle` example, run against a real lockstep SITL (on a free port)."""
     import socket

@@ -178,6 +178,7 @@ def _motors(tlog: Path) -> dict[int, tuple[float, ...]]:
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("path", EXAMPLES, ids=lambda p: p.stem)
 def test_each_example_flies_the_same_in_process_and_as_sitl(tmp_path: Path, path: Path) -> None:
     sc = Scenario.from_toml(path)
@@ -238,6 +239,7 @@ def test_smcpilot_run_refuses_a_broken_scenario_in_one_line(tmp_path: Path) -> N
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "gust_std_n must be >= 0" in r.stderr, r.stderr
 
 
+@pytest.mark.slow
 def test_smcpilot_sitl_flies_a_scenario_and_flags_change_it(tmp_path: Path) -> None:
     r = subprocess.run(
         [sys.executable, "-m", "lab.cli", "sitl", "--scenario", str(ROOT / "examples" / "scenarios" / "gusty-hold.toml"),

@@ -301,6 +301,7 @@ def fc_address(sitl: Sitl) -> tuple[str, int]:
     return host, int(port)
 
 
+@pytest.mark.slow
 def test_fc_and_pymavlink_setup_signing_exchange_signed_traffic_both_ways(tmp_path: Path) -> None:
     key_file = tmp_path / "gcs.key"
     key_file.write_text("correct horse battery staple\n", encoding="utf-8")
@@ -340,6 +341,7 @@ def test_fc_and_pymavlink_setup_signing_exchange_signed_traffic_both_ways(tmp_pa
             intruder.close()
 
 
+@pytest.mark.slow
 def test_setup_signing_sets_the_key_when_none_is_set_and_never_logs_it(tmp_path: Path) -> None:
     gcs = Gcs()
     gcs.conn.auto_mavlink_version(b"\xfd")
@@ -366,6 +368,7 @@ def test_setup_signing_sets_the_key_when_none_is_set_and_never_logs_it(tmp_path:
         gcs.close()
 
 
+@pytest.mark.slow
 def test_vehicle_client_and_gcs_cli_talk_to_a_signed_fc(tmp_path: Path) -> None:
     key_file = tmp_path / "gcs.key"
     key_file.write_text(KEY.hex() + "\n", encoding="utf-8")
@@ -433,6 +436,7 @@ def test_a_bad_key_file_is_a_one_line_error_with_exit_2(tmp_path: Path) -> None:
         assert len(lines) == 1 and "bad.key" in lines[0] and "2 non-empty lines" in lines[0], out.stderr
 
 
+@pytest.mark.slow
 def test_the_pytest_fixture_signs_with_the_option_or_the_marker(pytester: pytest.Pytester, tmp_path: Path) -> None:
     key_file = tmp_path / "fixture.key"
     key_file.write_text("fixture passphrase\n", encoding="utf-8")

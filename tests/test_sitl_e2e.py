@@ -78,6 +78,7 @@ def takeoff_flight(tmp_path_factory: pytest.TempPathFactory) -> Flight:
     return f
 
 
+@pytest.mark.slow
 def test_takeoff_and_hold_at_3m(takeoff_flight: Flight) -> None:
     f = takeoff_flight
     assert f.t[-1] == pytest.approx(TAKEOFF_S)
@@ -91,6 +92,7 @@ def test_takeoff_and_hold_at_3m(takeoff_flight: Flight) -> None:
     assert np.degrees(np.abs(f.yaw)).max() < 1.0
 
 
+@pytest.mark.slow
 def test_sitl_flight_equals_inprocess_flight(takeoff_flight: Flight) -> None:
     """The processes add nothing to the physics or the control: the in-process pipeline (same
     FlightControl, plan runner and plant, float32 wire round trip) gives the same trajectory."""
@@ -111,6 +113,7 @@ STEP_END = 17.0
 TARGET = (4.0, -3.0, 3.0)
 
 
+@pytest.mark.slow
 def test_step_and_heading_change_across_180_takes_the_short_way(tmp_path: Path) -> None:
     n, e, alt = TARGET
     plan = (
@@ -172,6 +175,7 @@ def _state_payloads(path: Path) -> list[bytes]:
     ]
 
 
+@pytest.mark.slow
 def test_lockstep_runs_are_deterministic_and_seeded(tmp_path: Path) -> None:
     a = sitl_options(tmp_path, "a", duration_s=DET_S, noise=True, seed=7)
     b = sitl_options(tmp_path, "b", duration_s=DET_S, noise=True, seed=7)
@@ -187,6 +191,7 @@ def test_lockstep_runs_are_deterministic_and_seeded(tmp_path: Path) -> None:
 
 
 # -- 4. simulator killed ----------------------------------------------------------------------
+@pytest.mark.slow
 def test_fc_stops_on_its_own_when_the_simulator_dies(tmp_path: Path) -> None:
     opts = sitl_options(tmp_path, "kill", duration_s=600.0, watchdog_s=1.0)
     with Sitl(opts) as sitl:  # returns after FC_READY
@@ -220,6 +225,7 @@ def _chi_growth(f: Flight, t0: float, t1: float) -> np.ndarray:
     return chi[i1] - chi[i0]
 
 
+@pytest.mark.slow
 def test_noisy_hover_keeps_chi_hat_bounded(noisy_hover: Flight) -> None:
     f = noisy_hover
     chi = f.chi_hat
@@ -239,6 +245,7 @@ def test_noisy_hover_keeps_chi_hat_bounded(noisy_hover: Flight) -> None:
     assert rms < 0.03, f"noisy hover position rms {rms * 100:.1f} cm"
 
 
+@pytest.mark.slow
 def test_noisy_hover_chi_hat_does_not_integrate_noise(noisy_hover: Flight) -> None:
     """In a settled hover the disturbance is constant (none here) and what is left in sigma is
     sensor noise; the dead zone exists so that noise alone does not adapt chi_hat (without noise
@@ -259,6 +266,7 @@ def test_noisy_hover_chi_hat_does_not_integrate_noise(noisy_hover: Flight) -> No
     )
 
 
+@pytest.mark.slow
 def test_noise_free_hover_does_not_adapt(takeoff_flight: Flight) -> None:
     """Counterpart of the noisy case: without noise, chi_hat is flat once the vehicle hovers."""
     f = takeoff_flight
@@ -273,6 +281,7 @@ WIND_S = 15.0
 WIND_SETTLE_S = 12.0
 
 
+@pytest.mark.slow
 def test_constant_wind_leaves_no_steady_offset(tmp_path: Path) -> None:
     _, f = fly_sitl(tmp_path, "wind", WIND_S, wind_force_ned_n=WIND_NED_N)
     m = f.window(WIND_SETTLE_S)
@@ -289,6 +298,7 @@ def test_constant_wind_leaves_no_steady_offset(tmp_path: Path) -> None:
 
 
 # -- 7. the paper plant ---------------------------------------------------------------------------
+@pytest.mark.slow
 def test_paper_plant_takeoff_and_hold(tmp_path: Path) -> None:
     _, f = fly_sitl(tmp_path, "paper", TAKEOFF_S, plant="paper")
     assert f.alt[f.window(0.0, 1.0)].max() > 0.3, "the paper plant did not climb"
@@ -318,6 +328,7 @@ def test_smcpilot_sitl_lockstep_duration_exits_0_and_names_the_log(tmp_path: Pat
     assert f.t[-1] == pytest.approx(2.0)
 
 
+@pytest.mark.slow
 def test_smcpilot_sitl_sigterm_stops_everything(tmp_path: Path) -> None:
     logs = tmp_path / "rt-logs"
     proc = subprocess.Popen(
@@ -370,6 +381,7 @@ GCS_TARGET = (1.5, 1.0, 3.0)  # north, east, altitude
 NAMED = ("CHI_PHI", "CHI_THETA", "CHI_PSI", "CHI_Z", "SIG_PHI", "SIG_THETA", "SIG_PSI", "SIG_Z")
 
 
+@pytest.mark.slow
 def test_gcs_telemetry_and_position_target(tmp_path: Path) -> None:
     gcs = udp_socket(timeout_s=0.2)
     port = gcs.getsockname()[1]

@@ -37,6 +37,7 @@ def test_segments_and_trend_helpers() -> None:
     assert math.isnan(slope_per_hour([(0.0, 1), (1.0, 2)]))
 
 
+@pytest.mark.slow
 def test_short_soak_flies_every_segment_and_checks_its_log(tmp_path: Path) -> None:
     cfg = SoakConfig(sim_hours=24.0 / 3600.0, segment_s=12.0, seed=3, sample_s=0.2, keep_logs=tmp_path / "logs")
     lines: list[str] = []
@@ -51,6 +52,7 @@ def test_short_soak_flies_every_segment_and_checks_its_log(tmp_path: Path) -> No
     assert len(lines) == 2 and all(" ok " in ln for ln in lines), lines
 
 
+@pytest.mark.slow
 def test_soak_command_line(tmp_path: Path) -> None:
     proc = subprocess.run(
         [sys.executable, "-m", "lab.cli", "bench", "soak", "--sim-hours", str(8.0 / 3600.0), "--segment-s", "8", "--seed", "1"],

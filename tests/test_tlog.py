@@ -240,6 +240,7 @@ CHILD = textwrap.dedent(
 )
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 def test_sigterm_loses_nothing_when_the_owner_closes_in_finally(tmp_path: Path) -> None:
     path = tmp_path / "term.tlog"

@@ -54,6 +54,7 @@ def _trials(out: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
+@pytest.mark.slow
 def test_a_tiny_study_improves_a_detuned_gain_and_resumes(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     tune = tmp_path / "tune.toml"
     tune.write_text(TUNE, encoding="utf-8")

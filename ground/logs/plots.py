@@ -140,7 +140,8 @@ def plot_log(
 ) -> list[Path]:
     """Write PNG figures of ``log`` into ``out_dir`` (created if needed); return their paths.
 
-    Figures (each skipped when the log has no data for it): ``position.png`` (north, east,
+    Figures (each skipped, and an older file of its name in ``out_dir`` deleted, when the log
+    has no data for it): ``position.png`` (north, east,
     altitude vs set-point and altitude reference, and the position error), ``attitude.png`` (roll,
     pitch, yaw vs the law's references and the heading set-point), ``motors.png`` (motor commands
     with armed stretches shaded, and mixer saturation), ``controller.png`` (sigma and chi_hat per
@@ -174,6 +175,9 @@ def plot_log(
     paths: list[Path] = []
     for i, (name, fig) in enumerate(figures):
         if fig is None:
+            # No data for it in this log: an earlier log's figure of that name must not stay
+            # beside this one's (a cascade_pid log has no controller.png).
+            (out / name).unlink(missing_ok=True)
             continue
         path = out / name
         try:

@@ -330,7 +330,7 @@ def format_metrics(m: dict[str, Any], time_note: str = "") -> list[tuple[str, st
         ("Metrics", f"over {_fmt(m.get('flight_time_s'), '.2f', ' s')} in flight (armed, not landing),"
                     f" {_fmt(m.get('armed_time_s'), '.2f', ' s')} armed{time_note}"),
         ("  position error", f"IAE {_fmt(m.get('iae_pos_m_s'), '.4g', ' m s')}, ISE {_fmt(m.get('ise_pos_m2_s'), '.4g', ' m^2 s')},"
-                             f" ITAE {_fmt(m.get('itae_pos_m_s2'), '.4g', ' m s^2')}, max {_fmt(m.get('max_pos_err_m'), '.3g', ' m')}"),
+                             f" ITAE {_fmt(m.get('itae_pos_m_s2'), '.4g', ' m s^2')}, in-flight max {_fmt(m.get('max_pos_err_m'), '.3g', ' m')}"),
         ("  attitude error", f"IAE {_fmt(m.get('iae_att_rad_s'), '.4g', ' rad s')}, ISE {_fmt(m.get('ise_att_rad2_s'), '.4g', ' rad^2 s')},"
                              f" ITAE {_fmt(m.get('itae_att_rad_s2'), '.4g', ' rad s^2')}"),
         ("  motor effort", f"int sum c^2 {_fmt(m.get('effort_u2_s'), '.4g', ' s')}, total variation {_fmt(m.get('motor_tv'), '.4g')}"
@@ -374,17 +374,19 @@ def print_summary(summary: dict[str, Any], file: TextIO | None = None) -> None:
         line("Tracking", f"no settled flight (needs SMC set-points held >= {settle:g} s while armed)")
     else:
         line("Tracking", f"{s['settled_time_s']:.1f} s of settled flight (>= {settle:g} s after a set-point change)")
+    # Two windows hold a "max position error": settled flight here, all flight under Metrics;
+    # each number says which.
     line(
         "  position error",
-        f"final {_fmt(s.get('position_error_final_m'), '.3g', ' m')}, RMS {_fmt(s.get('position_error_rms_m'), '.3g', ' m')},"
-        f" max {_fmt(s.get('position_error_max_m'), '.3g', ' m')}",
+        f"final {_fmt(s.get('position_error_final_m'), '.3g', ' m')}; settled RMS {_fmt(s.get('position_error_rms_m'), '.3g', ' m')},"
+        f" settled max {_fmt(s.get('position_error_max_m'), '.3g', ' m')}",
     )
     ned = s.get("position_error_final_ned_m")
     if ned:
         line("    final N/E/alt", "  ".join(_fmt(ned[k], "+.3g", " m") for k in ("north", "east", "alt")))
     line(
         "  yaw error",
-        f"final {_fmt(s.get('yaw_error_final_deg'), '+.3g', ' deg')}, RMS {_fmt(s.get('yaw_error_rms_deg'), '.3g', ' deg')}",
+        f"final {_fmt(s.get('yaw_error_final_deg'), '+.3g', ' deg')}; settled RMS {_fmt(s.get('yaw_error_rms_deg'), '.3g', ' deg')}",
     )
     chans = s.get("channels", list(CHANNELS))
     chi = s.get("chi_hat_final")

@@ -35,10 +35,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                        description="Fly the campaign (base scenario × controllers × seeds × variations; format in"
                        " docs/campaigns.md) on a Dask cluster and write DIR/results.csv (one row per flight, appended as"
                        " each finishes), summary.json, table.md, worst.md and figures/. Exit codes: 0 flown (even if"
-                       " flights failed: their status says so), 2 a broken file, option or unreachable scheduler, 130 interrupted (--resume flies the rest).")  # fmt: skip
+                       " vehicles crashed or flights ended in an error: each row's status says so), 2 a broken file, option or"
+                       " unreachable scheduler, 130 interrupted (--resume flies the rest).")  # fmt: skip
     r.add_argument("campaign", type=Path, metavar="CAMPAIGN.toml", help="the campaign file (examples/campaigns/)")
     r.add_argument("--out", type=Path, required=True, metavar="DIR", help="the results directory")
-    r.add_argument("--resume", action="store_true", help="fly only the units DIR/results.csv does not hold yet (after a crash or Ctrl-C)")
+    r.add_argument("--resume", action="store_true", help="fly only the units DIR/results.csv does not hold yet (after Ctrl-C or a killed run)")
     r.add_argument("--sitl", action="store_true", help="fly each unit as the real FC and simulator processes over UDP (lockstep, free ports)")
     r.add_argument("--worst", type=int, default=5, metavar="N", help="list (and plot) the N worst runs (default 5)")
     r.add_argument("--no-plots", action="store_true", help="skip the figures")

@@ -48,7 +48,7 @@ def _wide(values: Sequence[Sequence[float]]) -> bool:
 
 def write_distribution_figures(rows: Sequence[dict[str, Any]], fig_dir: Path, *, group_key: str = "group", title: str = "") -> list[Path]:
     """``ecdf_<metric>.png`` and ``box_<metric>.png`` of each figure metric: one panel per group,
-    one line or box per controller. Failed flights count in the ECDF only where they have a value."""
+    one line or box per controller. Crashed flights and flights with an error count in the ECDF only where they have a value."""
     plt = _plt()
     fig_dir.mkdir(parents=True, exist_ok=True)
     groups, ctrls = _order(rows, group_key), _order(rows, "controller")
@@ -91,17 +91,41 @@ def write_distribution_figures(rows: Sequence[dict[str, Any]], fig_dir: Path, *,
     return paths
 
 
+def until_crash(row: dict[str, Any], trace: Trace) -> tuple[list[float], list[float], list[float], float | None]:
+    """(t, position error, tilt) of a trace up to and including its crash (``crash_t_s`` of the
+    row), and the crash time (None without one): what a vehicle did after it crashed is not flight."""
+    t_crash = row.get("crash_t_s") if row.get("crashed") else None
+    if not (isinstance(t_crash, (int, float)) and not isinstance(t_crash, bool) and math.isfinite(t_crash)):
+        return list(trace.t_s), list(trace.pos_err_m), list(trace.tilt_deg), None
+    n = next((i + 1 for i, t in enumerate(trace.t_s) if t >= t_crash), len(trace.t_s))
+    return list(trace.t_s[:n]), list(trace.pos_err_m[:n]), list(trace.tilt_deg[:n]), float(t_crash)
+
+
 def write_worst_figure(worst: Sequence[tuple[dict[str, Any], Trace]], path: Path, *, title: str = "worst runs", score_from_s: float = 0.0) -> Path:
     """Position error and tilt against time of the worst runs (one line each, labelled with the
-    unit); the part before ``score_from_s`` (not scored: the take-off) shaded."""
+    unit); a crashed run ends at its crash, marked ×; the part before ``score_from_s`` (not
+    scored: the take-off) shaded; the axes end where the data do."""
     plt = _plt()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig, (a1, a2) = plt.subplots(2, 1, figsize=(11.5, 5.5), sharex=True)
-    fault_shown = False
+    legend_rows = (len(worst) + 3 + 1) // 2  # the runs, crash, fault start, not scored; two columns
+    height = 5.5 + 0.17 * legend_rows
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(11.5, height), sharex=True)
+    fault_shown = crash_shown = False
+    t_end, err_top, tilt_top = 0.0, 0.0, 0.0
     for row, tr in worst:
+        t, err, tilt, t_crash = until_crash(row, tr)
         lab = f"unit {row['unit']}: {row['controller']}, {row['group']}, seed {row['seed_index']} ({row['status']})"
-        a1.plot(tr.t_s, tr.pos_err_m, lw=1, label=lab)
-        a2.plot(tr.t_s, tr.tilt_deg, lw=1)
+        (line,) = a1.plot(t, err, lw=1, label=lab)
+        a2.plot(t, tilt, lw=1, color=line.get_color())
+        if t:
+            t_end = max(t_end, t[-1])
+            err_top = max([err_top, *(e for e in err if math.isfinite(e))])
+            tilt_top = max([tilt_top, *(x for x in tilt if math.isfinite(x))])
+        if t_crash is not None and t:
+            for ax, ys in ((a1, err), (a2, tilt)):
+                ax.plot([t[-1]], [ys[-1]], "x", color=line.get_color(), ms=8, mew=2,
+                        label="crash" if ax is a1 and not crash_shown else None)  # fmt: skip
+            crash_shown = True
         start = row.get("fault_start_s")
         if isinstance(start, (int, float)) and math.isfinite(start):
             for ax in (a1, a2):
@@ -112,14 +136,20 @@ def write_worst_figure(worst: Sequence[tuple[dict[str, Any], Trace]], path: Path
             ax.axvspan(0.0, score_from_s, color="0.85", alpha=0.6, lw=0, label="not scored (take-off)" if ax is a1 else None)
     a1.set_ylabel("position error (m)")
     a1.set_yscale("symlog", linthresh=0.1)
-    a1.set_ylim(bottom=0.0)
+    a1.set_ylim(0.0, max(err_top, 0.1) * 1.3)
     a1.grid(alpha=0.3)
     a2.set_ylabel("tilt (°)")
+    a2.set_ylim(0.0, max(tilt_top, 1.0) * 1.1)
     a2.set_xlabel("simulated time (s)")
     a2.grid(alpha=0.3)
+    if t_end > 0:
+        a2.set_xlim(0.0, t_end)
     a1.set_title(title, fontsize=9)
-    a1.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
-    fig.tight_layout()
+    # Below the axes, across the figure: the axes keep the full width (a legend beside them
+    # left an empty column under it).
+    handles, labels = a1.get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=2, fontsize=7, frameon=False)
+    fig.tight_layout(rect=(0.0, 0.17 * legend_rows / height + 0.01, 1.0, 1.0))
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

@@ -197,12 +197,30 @@ def _fly_sitl(unit: Unit, row: dict[str, Any], tlog: Path | None) -> Trace | Non
     return None
 
 
+#: statuses of a flight the vehicle did not survive: the metrics' crash detection, or the plant
+#: left its valid region (also a crash in the metrics). Words for the vehicle.
+CRASH_STATUSES = ("crashed", "diverged")
+#: statuses of a flight the software did not fly to its end: an exception (the law's, the
+#: simulator's, ours) or the wall-clock limit. Words for the software.
+ERROR_STATUSES = ("error", "timed out")
+
+
 def is_failure(row: dict[str, Any]) -> bool:
-    """A flight that did not end well: any status but ok."""
+    """A flight that did not end well: any status but ok (a crash or an error)."""
     return row.get("status") != "ok"
 
 
+def is_crash(row: dict[str, Any]) -> bool:
+    """The vehicle crashed (status crashed or diverged, or the metrics say so)."""
+    return row.get("status") in CRASH_STATUSES or row.get("crashed") is True or row.get("crashed") == "True"
+
+
+def is_error(row: dict[str, Any]) -> bool:
+    """The software did not fly the unit to its end (status error or timed out)."""
+    return row.get("status") in ERROR_STATUSES
+
+
 def badness(row: dict[str, Any]) -> tuple[int, float]:
-    """Sort key of the worst runs: failures first, then the largest max position error."""
+    """Sort key of the worst runs: crashes and errors first, then the largest max position error."""
     v = row.get("max_pos_err_m")
     return (1 if is_failure(row) else 0, float(v) if isinstance(v, (int, float)) and math.isfinite(v) else math.inf)

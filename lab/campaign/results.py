@@ -93,7 +93,7 @@ class ResultsWriter:
 
 
 def _drop_partial_last_line(path: Path) -> None:
-    """Cut a last line left without its newline by a crash mid-write (appending would glue to it)."""
+    """Cut a last line left without its newline by a process killed mid-write (appending would glue to it)."""
     data = path.read_bytes()
     if data and not data.endswith(b"\n"):
         with path.open("r+b") as f:
@@ -122,7 +122,7 @@ def _value(text: str) -> Any:
 
 def read_rows(path: Path) -> list[dict[str, Any]]:
     """The rows of a results file, values typed back (numbers, booleans, lists, None for empty).
-    A last line cut short by a crash mid-write is dropped."""
+    A last line cut short by a process killed mid-write is dropped."""
     if not path.exists():
         return []
     with path.open(encoding="utf-8", newline="") as f:

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from lab.campaign.engine import ClusterOptions, Engine
-from lab.campaign.flight import Trace, fly_unit, is_failure
+from lab.campaign.flight import Trace, fly_unit, is_crash, is_error
 from lab.campaign.results import ResultsWriter, columns, finished_units, read_rows
 from lab.campaign.spec import CampaignError, CampaignSpec, parse_campaign
 from lab.campaign.summary import markdown_table, summarize, worst, worst_markdown
@@ -46,11 +46,13 @@ def fingerprint(units: Sequence[Unit]) -> str:
 
 
 class Progress:
-    """One live line on a terminal (tqdm): done / total, failed, flights per second, ETA; without a
-    terminal (a log file, CI), the same as a plain line every ``every_s`` seconds and at the end."""
+    """One live line on a terminal (tqdm): done / total, crashed (the vehicle), errors (the
+    software: an exception or the time limit), flights per second, ETA; without a terminal (a log
+    file, CI), the same as a plain line every ``every_s`` seconds and at the end."""
 
     def __init__(self, total: int, done: int = 0, *, label: str = "campaign", quiet: bool = False, every_s: float = 10.0) -> None:
-        self.failed = 0
+        self.crashed = 0
+        self.errors = 0
         self.total, self.done, self.start_done = total, done, done
         self.label, self.quiet, self.every_s = label, quiet, every_s
         self.t0 = self.last = time.perf_counter()
@@ -61,10 +63,11 @@ class Progress:
             self.bar = tqdm(total=total, initial=done, desc=label, unit="flight", file=sys.stderr, dynamic_ncols=True, smoothing=0.1)
 
     def update(self, row: dict[str, Any]) -> None:
-        self.failed += is_failure(row)
+        self.crashed += is_crash(row) and not is_error(row)
+        self.errors += is_error(row)
         self.done += 1
         if self.bar is not None:
-            self.bar.set_postfix_str(f"{self.failed} failed", refresh=False)
+            self.bar.set_postfix_str(self.outcomes(), refresh=False)
             self.bar.update(1)
         elif not self.quiet:
             now = time.perf_counter()
@@ -75,8 +78,12 @@ class Progress:
     def line(self, now: float) -> str:
         rate = (self.done - self.start_done) / (now - self.t0) if now > self.t0 else 0.0
         eta = (self.total - self.done) / rate if rate > 0 else math.inf
-        return (f"{self.label}: {self.done}/{self.total} flights, {self.failed} failed, {rate:.2f} flights/s, "
+        return (f"{self.label}: {self.done}/{self.total} flights, {self.outcomes()}, {rate:.2f} flights/s, "
                 + (f"ETA {eta:.0f} s" if math.isfinite(eta) else "ETA –"))  # fmt: skip
+
+    def outcomes(self) -> str:
+        """``N crashed, M errors``: the vehicle's end and the software's, never one word for both."""
+        return f"{self.crashed} crashed, {self.errors} error{'' if self.errors == 1 else 's'}"
 
     def note(self, text: str) -> None:
         if self.quiet:

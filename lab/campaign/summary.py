@@ -1,5 +1,6 @@
 """Campaign summaries: per controller × scenario group, the mean and 95 % interval of the main
-metrics and the failure rate; the N worst runs with the command that replays each."""
+metrics, the crash rate (the vehicle) and the error rate (the software); the N worst runs with
+the command that replays each."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from lab.campaign.flight import badness, is_failure
+from lab.campaign.flight import badness, is_crash, is_error
 
 #: the metrics the tables report, in order, with their labels.
 MAIN_METRICS = (
@@ -42,8 +43,9 @@ def ci95(values: Sequence[Any]) -> tuple[float, float, float] | None:
 
 
 def summarize(rows: Sequence[dict[str, Any]], *, group_key: str = "group", metrics: Sequence[tuple[str, str]] = MAIN_METRICS) -> list[dict[str, Any]]:
-    """Per (group, controller), in first-seen order: flights, failures (any status but ok), the
-    failure and crash rates, the count of each status, and the mean / 95 % interval of ``metrics``
+    """Per (group, controller), in first-seen order: flights; crashes (the vehicle: status crashed
+    or diverged, or the metrics' crash detection) and errors (the software: status error or timed
+    out), with their rates; the count of each status; and the mean / 95 % interval of ``metrics``
     (over the flights with a value)."""
     groups: dict[tuple[Any, Any], list[dict[str, Any]]] = {}
     for r in rows:
@@ -53,10 +55,12 @@ def summarize(rows: Sequence[dict[str, Any]], *, group_key: str = "group", metri
         statuses: dict[str, int] = {}
         for r in rs:
             statuses[str(r.get("status"))] = statuses.get(str(r.get("status")), 0) + 1
-        entry: dict[str, Any] = {group_key: group, "controller": ctrl, "flights": len(rs), "failures": sum(is_failure(r) for r in rs),
+        errors = sum(is_error(r) for r in rs)
+        crashes = sum(is_crash(r) and not is_error(r) for r in rs)
+        entry: dict[str, Any] = {group_key: group, "controller": ctrl, "flights": len(rs), "crashes": crashes, "errors": errors,
                                  "statuses": statuses}  # fmt: skip
-        entry["failure_rate"] = entry["failures"] / len(rs)
-        entry["crash_rate"] = sum(bool(r.get("crashed")) for r in rs) / len(rs)
+        entry["crash_rate"] = crashes / len(rs)
+        entry["error_rate"] = errors / len(rs)
         for key, _label in metrics:
             ci = ci95([r.get(key) for r in rs])
             entry[key] = None if ci is None else {"mean": ci[0], "ci95": [ci[1], ci[2]]}
@@ -64,22 +68,37 @@ def summarize(rows: Sequence[dict[str, Any]], *, group_key: str = "group", metri
     return out
 
 
+#: fewer flights than this per row, and the table says its intervals are rough.
+FEW_FLIGHTS = 5
+#: the mark of a cell whose 95 % interval is wider than its mean.
+WIDE = "†"
+
+
+def _wide(v: dict[str, Any]) -> bool:
+    mean, (lo, hi) = v["mean"], v["ci95"]
+    return max(hi - mean, mean - lo) > abs(mean)
+
+
 def cell(entry: dict[str, Any], key: str) -> str:
-    """``mean ± half-width`` of a summary entry's metric (– without values)."""
+    """``mean ± half-width`` of a summary entry's metric (– without values; † when the interval
+    is wider than the mean: too few flights to tell)."""
     v = entry.get(key)
     if v is None:
         return "–"
     mean, (lo, hi) = v["mean"], v["ci95"]
     digits = 1 if key == "max_tilt_deg" else 2 if abs(mean) >= 1 else 3
-    return f"{mean:.{digits}f} ± {max(hi - mean, mean - lo):.{digits}f}"
+    return f"{mean:.{digits}f} ± {max(hi - mean, mean - lo):.{digits}f}" + (f" {WIDE}" if _wide(v) else "")
 
 
-def markdown_table(summary: Sequence[dict[str, Any]], *, group_key: str = "group", failures: str = "failed",
-                   metrics: Sequence[tuple[str, str]] = MAIN_METRICS, order: Sequence[str] = ()) -> str:  # fmt: skip
-    """One row per group × controller: failures (``failed``: any status but ok; ``crashed``: the
-    metrics' crash detection), then the metrics (mean ± 95 % half-width)."""
-    head = f"| {'case' if group_key == 'case' else 'group'} | controller | {failures} | " + " | ".join(label for _, label in metrics) + " |"
-    lines = [head, "|" + "---|" * (3 + len(metrics))]
+def markdown_table(summary: Sequence[dict[str, Any]], *, group_key: str = "group", metrics: Sequence[tuple[str, str]] = MAIN_METRICS,
+                   order: Sequence[str] = ()) -> str:  # fmt: skip
+    """One row per group × controller: crashed (the vehicle), errors (the software; a column only
+    when there are any), then the metrics (mean ± 95 % half-width); under the table, a note when
+    a row has fewer than :data:`FEW_FLIGHTS` flights or a cell's interval is wider than its mean."""
+    show_errors = any(e.get("errors") for e in summary)
+    head = (f"| {'case' if group_key == 'case' else 'group'} | controller | crashed |" + (" errors |" if show_errors else "")
+            + " " + " | ".join(label for _, label in metrics) + " |")  # fmt: skip
+    lines = [head, "|" + "---|" * (3 + show_errors + len(metrics))]
     rank = {c: i for i, c in enumerate(order)}
     names: list[Any] = []
     for e in summary:
@@ -88,13 +107,29 @@ def markdown_table(summary: Sequence[dict[str, Any]], *, group_key: str = "group
     for g in names:
         for e in sorted((e for e in summary if e[group_key] == g), key=lambda e: rank.get(e["controller"], 99)):
             n = e["flights"]
-            bad = e["failures"] if failures == "failed" else round(e["crash_rate"] * n)
-            lines.append(f"| {g} | {e['controller']} | {bad}/{n} | " + " | ".join(cell(e, k) for k, _ in metrics) + " |")
-    return "\n".join(lines) + "\n"
+            crashed = e["crashes"] if "crashes" in e else round(e["crash_rate"] * n)
+            errors = f" {e.get('errors', 0)}/{n} |" if show_errors else ""
+            lines.append(f"| {g} | {e['controller']} | {crashed}/{n} |{errors} " + " | ".join(cell(e, k) for k, _ in metrics) + " |")
+    return "\n".join(lines) + "\n" + small_sample_note(summary, metrics)
+
+
+def small_sample_note(summary: Sequence[dict[str, Any]], metrics: Sequence[tuple[str, str]] = MAIN_METRICS) -> str:
+    """The note under a table whose intervals rest on few flights ("" when none do)."""
+    if not summary:
+        return ""
+    notes = []
+    fewest = min(e["flights"] for e in summary)
+    if fewest < FEW_FLIGHTS:
+        notes.append(f"Only {fewest} flight{'s' if fewest != 1 else ''} per row{' (seeds)' if fewest > 1 else ''}: the 95 % intervals"
+                     f" (Student t) are rough below {FEW_FLIGHTS}; fly more seeds before reading differences.")  # fmt: skip
+    wide = sum(1 for e in summary for k, _ in metrics if e.get(k) is not None and _wide(e[k]))
+    if wide:
+        notes.append(f"{WIDE} {wide} cell{'s' if wide != 1 else ''}: the interval is wider than the mean itself.")
+    return ("\n" + "\n".join(f"Note: {n}" for n in notes) + "\n") if notes else ""
 
 
 def worst(rows: Sequence[dict[str, Any]], n: int) -> list[dict[str, Any]]:
-    """The ``n`` worst rows: failures first, then the largest max position error (ties: unit order)."""
+    """The ``n`` worst rows: crashes and errors first, then the largest max position error (ties: unit order)."""
     return sorted(rows, key=lambda r: (tuple(-x for x in badness(r)), r.get("unit", 0)))[:n]
 
 

@@ -84,18 +84,31 @@ def _fmt(v: Any, unit: str = "", prec: int = 3) -> str:
     return str(v)
 
 
+#: per channel: the units of its error e (and overshoot), its input u (max|u|, Σ|Δu|) and χ̂ (σ̇'s).
+CHANNEL_UNITS = {
+    "phi": ("rad", "N", "rad/s²"),
+    "theta": ("rad", "N", "rad/s²"),
+    "psi": ("rad", "N·m", "rad/s²"),
+    "z": ("m", "N", "m/s²"),
+}
+
+
 def print_table(metrics: dict[str, Any], walls: dict[str, float], duration_s: float, out=sys.stdout) -> None:
-    head = f"{'controller':<18}{'ch':<7}{'t|σ|<.01':>10}{'t|e|<.01':>10}{'e(end)':>11}{'overshoot':>11}{'max|u|':>10}{'Σ|Δu|':>11}{'χ̂(end)':>9}"
+    """The table of ``metrics``: every number with its unit (a channel's error is in rad or m, its
+    input in N or N·m: the unit is in the cell where the rows differ, in the header where they do not)."""
+    head = (f"{'controller':<18}{'ch':<7}{'t|σ|<.01 s':>12}{'t|e|<.01 s':>12}{'e(end)':>14}{'overshoot':>14}{'max|u|':>13}"
+            f"{'Σ|Δu|':>13}{'χ̂(end)':>15}")  # fmt: skip
     print(head, file=out)
     print("-" * len(head), file=out)
     for name, entry in metrics["controllers"].items():
         for c in CHANNELS:
             m = entry["channels"][c]
+            e_unit, u_unit, chi_unit = CHANNEL_UNITS[c]
             print(
                 f"{name if c == 'phi' else '':<18}{c:<7}"
-                f"{_fmt(m['t_sigma_below_0p01_s'], 's', 2):>10}{_fmt(m['t_err_below_0p01_s'], 's', 2):>10}"
-                f"{_fmt(m['err_final']):>11}{_fmt(m['overshoot']):>11}{_fmt(m['max_abs_u'], '', 2):>10}"
-                f"{_fmt(m['total_variation_u'], '', 2):>11}{_fmt(m['chi_hat_final']):>9}",
+                f"{_fmt(m['t_sigma_below_0p01_s'], '', 2):>12}{_fmt(m['t_err_below_0p01_s'], '', 2):>12}"
+                f"{_fmt(m['err_final'], ' ' + e_unit):>14}{_fmt(m['overshoot'], ' ' + e_unit):>14}{_fmt(m['max_abs_u'], ' ' + u_unit, 2):>13}"
+                f"{_fmt(m['total_variation_u'], ' ' + u_unit, 2):>13}{_fmt(m['chi_hat_final'], ' ' + chi_unit):>15}",
                 file=out,
             )
         wall = walls.get(name, float("nan"))

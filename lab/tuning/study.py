@@ -11,7 +11,7 @@ grids and distributions: the scenario set every trial flies) plus::
     [objective]
     metric = "iae_pos_m_s"        # any metric of results.csv (docs/metrics.md)
     statistic = "mean"            # mean or max over the trial's flights
-    failure_penalty = 100.0       # added per flight that crashed, diverged, timed out or failed
+    failure_penalty = 100.0       # added per flight not ok: crashed, diverged, timed out or error
 
     [[gain]]                      # the FC parameters tuned, with their ranges
     name = "PSC_POS_KP"
@@ -23,7 +23,7 @@ Ask-and-tell in this process: each trial's flights are submitted to the cluster 
 campaign units (the gains override every controller's), and the trial is told its objective once
 all have come back, so trials run in parallel on the same workers. The study lives in
 ``DIR/study.journal`` (Optuna's journal file): ``--resume`` continues it after a crash or Ctrl-C,
-marking trials a crash left RUNNING as failed. With ``parallel`` = 1 a study is reproducible (the
+marking trials a killed or crashed process left RUNNING as failed. With ``parallel`` = 1 a study is reproducible (the
 sampler is seeded); in parallel, which trial the sampler sees first depends on finishing order.
 
 Outputs: ``results.csv`` (every flight, with its trial and gains), ``trials.csv``, ``best.parm``
@@ -69,8 +69,8 @@ class Objective:
     failure_penalty: float = 100.0
 
     def value(self, rows: Sequence[Mapping[str, Any]]) -> tuple[float, int]:
-        """(objective, failed flights) of one trial's rows: the statistic of the metric over the
-        flights that have it, plus the penalty per failed flight."""
+        """(objective, flights not ok) of one trial's rows: the statistic of the metric over the
+        flights that have it, plus the penalty per flight not ok (crashed, diverged, timed out, error)."""
         failures = sum(r.get("status") != "ok" for r in rows)
         vals = [float(r[self.metric]) for r in rows if r.get("status") == "ok" and isinstance(r.get(self.metric), (int, float))
                 and not isinstance(r.get(self.metric), bool) and math.isfinite(r[self.metric])]  # fmt: skip
@@ -280,7 +280,7 @@ def run_tune(spec: TuneSpec, out: Path, cluster: Any, *, sitl: bool = False, res
                             del in_flight[number]
                             n_done += 1
                             best = study.best_value
-                            progress.note(f"trial {number}: {spec.objective.metric} objective {value:.4g} ({failures} failed flights);"
+                            progress.note(f"trial {number}: {spec.objective.metric} objective {value:.4g} ({failures} flights crashed or in error);"
                                           f" best {best:.4g} (trial {study.best_trial.number})")  # fmt: skip
         finally:
             progress.close()
@@ -302,7 +302,7 @@ def _outputs(spec: TuneSpec, study: Any, out: Path) -> TuneResult:
     paths: dict[str, Path] = {}
     v = spec.campaign.variants[0]
     lines = [f"# smcpilot tune {spec.name}: the best gains (trial {best.number}, objective {best.value:.6g} = {spec.objective.statistic}"
-             f" {spec.objective.metric} + {spec.objective.failure_penalty:g} per failed flight), controller {v.controller}",
+             f" {spec.objective.metric} + {spec.objective.failure_penalty:g} per flight crashed or in error), controller {v.controller}",
              "# the FC loads it: python -m fc --param-file FILE, or smcpilot sitl --param-file FILE"]  # fmt: skip
     lines += [f"{k} {val!r}" for k, val in gains.items()]
     paths["parm"] = out / "best.parm"
@@ -313,13 +313,13 @@ def _outputs(spec: TuneSpec, study: Any, out: Path) -> TuneResult:
     paths["trials"] = out / "trials.csv"
     with paths["trials"].open("w", encoding="utf-8", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["trial", "state", "objective", "failed_flights", *gains])
+        w.writerow(["trial", "state", "objective", "flights_not_ok", *gains])
         for t in study.trials:
             w.writerow([t.number, t.state.name, "" if t.value is None else t.value, t.user_attrs.get("failures", ""),
                         *(t.params.get(k, "") for k in gains)])  # fmt: skip
     baseline = next((t.value for t in study.trials if t.number == 0 and t.state == TrialState.COMPLETE), None) if spec.baseline else None
     paths["history"] = write_history(study, out / "history.png", title=f"{spec.name}: {spec.objective.statistic} {spec.objective.metric}"
-                                     f" + {spec.objective.failure_penalty:g} per failed flight", baseline=spec.baseline)  # fmt: skip
+                                     f" + {spec.objective.failure_penalty:g} per flight crashed or in error", baseline=spec.baseline)  # fmt: skip
     (out / "best.json").write_text(json.dumps({"trial": best.number, "objective": best.value, "gains": gains, "baseline_objective": baseline,
                                                "trials": len(study.trials)}, indent=2) + "\n", encoding="utf-8")  # fmt: skip
     return TuneResult(study, float(best.value), gains, baseline, paths)
@@ -367,7 +367,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     p.add_argument("tune", type=Path, metavar="TUNE.toml", help="the tuning file (examples/campaigns/tune-*.toml)")
     p.add_argument("--out", type=Path, required=True, metavar="DIR", help="the study directory (journal, results, best gains, figure)")
-    p.add_argument("--resume", action="store_true", help="continue the study in DIR (trials left RUNNING by a crash count as failed)")
+    p.add_argument("--resume", action="store_true", help="continue the study in DIR (trials a killed process left RUNNING count as failed)")
     p.add_argument("--trials", type=int, metavar="N", help="finish this many trials instead of the file's")
     p.add_argument("--sitl", action="store_true", help="fly each flight as the real FC and simulator processes over UDP")
     p.add_argument("--quiet", action="store_true", help="no progress line")
