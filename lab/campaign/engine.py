@@ -81,6 +81,11 @@ def _executing_keys(dask_worker: Any) -> list[str]:
     return [str(ts.key) for ts in dask_worker.state.executing]
 
 
+#: a unit whose task comes back lost (no result, no error of its own: a worker died) is flown again
+#: this many times before it is recorded as an error.
+MAX_LOST_RETRIES = 3
+
+
 class Engine:
     """A connection to a Dask cluster that flies units (a context manager: leaving it closes the
     client and a local cluster it started)."""
@@ -97,6 +102,8 @@ class Engine:
         self.client: Any = None
         self.cluster: Any = None
         self._pending: dict[Any, Unit] = {}
+        #: times each unit (by index) was flown again after a worker died with it: see :meth:`poll`.
+        self._again: dict[int, int] = {}
         self._started: dict[str, float] = {}
         self._last_check = 0.0
         self._ac: Any = None
@@ -177,9 +184,12 @@ class Engine:
     def submit(self, units: Sequence[Unit]) -> None:
         """Queue ``units`` (unique task keys: the engine's tag and the unit index)."""
         for u in units:
-            fut = self.client.submit(self.task, u, key=f"{self.tag}-{u.index}", pure=False)
-            self._pending[fut] = u
-            self._ac.add(fut)
+            self._submit(u, f"{self.tag}-{u.index}")
+
+    def _submit(self, unit: Unit, key: str) -> None:
+        fut = self.client.submit(self.task, unit, key=key, pure=False)
+        self._pending[fut] = unit
+        self._ac.add(fut)
 
     @property
     def pending(self) -> int:
@@ -201,9 +211,37 @@ class Engine:
         for fut in done:
             unit = self._pending.pop(fut)
             self._started.pop(fut.key, None)
+            died = self._worker_died(fut)
+            tries = self._again.get(unit.index, 0)
+            if died and tries < (1 if died == "killed" else MAX_LOST_RETRIES):
+                # Dask counts a worker's death against every task the scheduler had given that worker,
+                # not only the one it was flying: a unit queued there can be "killed" twice, or lost,
+                # without having flown. It is flown again; only a unit whose worker dies with it again
+                # is an error (a lost one, after MAX_LOST_RETRIES).
+                self._again[unit.index] = tries + 1
+                self._submit(unit, f"{self.tag}-{unit.index}-again{tries + 1}")
+                continue
             out.append((unit, self._row_of(fut, unit)))
         out += self._overdue()
         return out
+
+    @staticmethod
+    def _worker_died(fut: Any) -> str:
+        """"killed": the unit's worker died with it (KilledWorker); "lost": its task came back
+        without a result or an error of its own (lost with a dying worker); "": neither."""
+        from distributed import KilledWorker
+
+        if fut.status in ("finished", "cancelled"):
+            return ""
+        if fut.status != "error":
+            return "lost"
+        try:
+            problem = fut.exception()
+        except Exception:
+            return ""
+        if isinstance(problem, KilledWorker):
+            return "killed"
+        return "lost" if problem is None else ""
 
     def _row_of(self, fut: Any, unit: Unit) -> dict[str, Any]:
         from distributed import KilledWorker
@@ -221,7 +259,9 @@ class Engine:
         except Exception as e:
             problem = e
         if isinstance(problem, KilledWorker):
-            return _error_row(unit, "error", "its worker died while flying it (killed, out of memory or crashed), twice")
+            return _error_row(unit, "error", "its worker died while flying it (killed, out of memory or crashed), again when flown once more")
+        if problem is None:
+            return _error_row(unit, "error", f"its task was lost with a dying worker {MAX_LOST_RETRIES + 1} times, never flown to its end")
         return _error_row(unit, "error", f"{type(problem).__name__}: {problem}")
 
     def _overdue(self) -> list[tuple[Unit, dict[str, Any]]]:
