@@ -58,8 +58,8 @@ class ParamSpec:
     restart: bool = False
     #: the value lives in :class:`FcOptions`, not in FcConfig.
     options: bool = False
-    #: the control law the parameter belongs to ("" for the FC's own).
-    law: str = ""
+    #: the control laws the parameter belongs to (none: the FC's own).
+    laws: tuple[str, ...] = ()
 
 
 _CHANNEL_TAGS = ("R", "P", "Y", "Z")
@@ -186,7 +186,7 @@ def law_param_specs(law: Law) -> tuple[ParamSpec, ...]:
         return ()
     return tuple(
         ParamSpec(name, lp.unit, lp.lo, lp.hi, lp.doc if lp.doc.startswith(law.name) else f"{law.name}: {lp.doc}", _law_value_get(law, lp, name), _law_value_set(law, lp, name),
-                  is_int=lp.is_int, law=law.name)  # fmt: skip
+                  is_int=lp.is_int, laws=(law.name,))  # fmt: skip
         for lp, name in zip(law.param_list(), law.param_names())
     )
 
@@ -198,16 +198,16 @@ def _build() -> tuple[ParamSpec, ...]:
             specs.append(ParamSpec(f"SMC_{tag}_{suffix}", unit, lo, hi, f"{cname}: {doc}", _gain_get(i, field), _gain_set(i, field)))
 
     def add(name: str, path: str, lo: float, hi: float, unit: str, doc: str, scale: float = 1.0, *, is_int: bool = False,
-            restart: bool = False, cast: Callable[[float], object] = float, law: str = "") -> None:  # fmt: skip
+            restart: bool = False, cast: Callable[[float], object] = float, laws: tuple[str, ...] = ()) -> None:  # fmt: skip
         get, set_ = _attr(path, scale, cast)
-        specs.append(ParamSpec(name, unit, lo, hi, doc, get, set_, is_int=is_int, restart=restart, law=law))
+        specs.append(ParamSpec(name, unit, lo, hi, doc, get, set_, is_int=is_int, restart=restart, laws=laws))
 
     add("SMC_CHI0", "chi_hat0", 0.0, 100.0, "", "adaptive chi_hat(0) on every channel (applies at the next arming)")
     add("SMC_CHI_MIN", "adaptation.chi_hat_min", 0.0, 100.0, "", "chi_hat projection: lower bound")
     add("SMC_CHI_MAX", "adaptation.chi_hat_max", 0.0, 1000.0, "", "chi_hat projection: upper bound")
     add("SMC_CHI_DZ", "adaptation.dead_zone", 0.0, 10.0, "", "chi_hat grows only while |sigma| exceeds this dead zone")
     add("SMC_CHI_LEAK", "adaptation.leakage_per_s", 0.0, 10.0, "1/s", "sigma-modification pulling chi_hat back to chi_hat(0)")
-    specs[:] = [replace(sp, law="adaptive_pid_smc,pid_smc") if sp.name.startswith("SMC_") else sp for sp in specs]
+    specs[:] = [replace(sp, laws=("adaptive_pid_smc", "pid_smc")) if sp.name.startswith("SMC_") else sp for sp in specs]
     # -- the disturbance observer, in front of any law ------------------------------------------------
     specs.append(
         ParamSpec("DOB_MODE", "", -1.0, float(len(DISTURBANCE_ESTIMATES) - 1),
@@ -230,16 +230,16 @@ def _build() -> tuple[ParamSpec, ...]:
             (f"ATC_RAT_{tag}_D", "kd_rate", 10.0, "", "D on the low-passed measured rate (angular acceleration per angular acceleration)"),
             (f"ATC_RAT_{tag}_IMAX", "i_max", 1000.0, "rad/s^2", "largest |I term| (integrator clamp)"),
         ):
-            specs.append(ParamSpec(pname, unit, 0.0, hi, f"cascade_pid {cname}: {doc}", _cascade_get(fname, i), _cascade_set(fname, i), law="cascade_pid"))
+            specs.append(ParamSpec(pname, unit, 0.0, hi, f"cascade_pid {cname}: {doc}", _cascade_get(fname, i), _cascade_set(fname, i), laws=("cascade_pid",)))
     for pname, fname, hi, unit, doc in (
         ("PSC_POSZ_P", "k_outer", 50.0, "1/s", "altitude error -> climb-rate command"),
         ("PSC_VELZ_P", "k_inner", 200.0, "1/s", "climb-rate error -> vertical acceleration"),
         ("PSC_VELZ_I", "ki_inner", 200.0, "1/s^2", "integral of the climb-rate error -> vertical acceleration"),
         ("PSC_VELZ_IMAX", "i_max", 20.0, "m/s^2", "largest |I term| of the climb-rate loop (integrator clamp)"),
     ):
-        specs.append(ParamSpec(pname, unit, 0.0, hi, f"cascade_pid altitude z: {doc}", _cascade_get(fname, 3), _cascade_set(fname, 3), law="cascade_pid"))
-    add("ATC_RAT_FLTD", "cascade.d_filter_hz", 0.0, 500.0, "Hz", "cascade_pid: low-pass of the rate D terms (0 off)", law="cascade_pid")
-    add("INS_GYRO_FILTER", "cascade.gyro_filter_hz", 0.0, 500.0, "Hz", "cascade_pid: low-pass of the rates its rate loops use (0 off)", law="cascade_pid")
+        specs.append(ParamSpec(pname, unit, 0.0, hi, f"cascade_pid altitude z: {doc}", _cascade_get(fname, 3), _cascade_set(fname, 3), laws=("cascade_pid",)))
+    add("ATC_RAT_FLTD", "cascade.d_filter_hz", 0.0, 500.0, "Hz", "cascade_pid: low-pass of the rate D terms (0 off)", laws=("cascade_pid",))
+    add("INS_GYRO_FILTER", "cascade.gyro_filter_hz", 0.0, 500.0, "Hz", "cascade_pid: low-pass of the rates its rate loops use (0 off)", laws=("cascade_pid",))
     # -------------------------------------------------------------------------------------------------------
     add("PSC_POS_KP", "position.kp_1ps2", 0.0, 20.0, "1/s^2", "position loop: gain on position error")
     add("PSC_VEL_KD", "position.kd_1ps", 0.0, 20.0, "1/s", "position loop: gain on velocity error")

@@ -30,7 +30,7 @@ from fc.control import LAW_FUNCTIONS
 from fc.control.builtin import BUILTIN_FLIGHT_FUNCTIONS
 from fc.control.law import Law, LawContext, LawFunctions
 from fc.control.observer import observer_estimate, observer_reset, observer_update
-from fc.control.pid_smc import DISTURBANCE_ESTIMATES
+from fc.control.pid_smc import DISTURBANCE_ESTIMATES, DOB_INPUT, DOB_LUMPED, DOB_NONE, DOB_SIGMA
 from fc.mixer import MixerParams, mix, mixer_params
 from fc.position import PositionLoopParams, position_step
 from fc.prefilter import prefilter_step
@@ -43,13 +43,10 @@ _NAN = math.nan
 _ZERO4 = (0.0, 0.0, 0.0, 0.0)
 _ZERO8 = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
-#: :attr:`ObserverConsts.mode` values (``DOB_MODE``): no observer; the estimate handed to the law, which
-#: uses it in its sigma or lumped into its model (the PID-SMC; other laws may ignore it); cancelled at
-#: the law's output (u_cmd = u - d_hat/g), the law staying nominal.
-DOB_OFF = 0
-DOB_SIGMA = 1
-DOB_LUMPED = 2
-DOB_INPUT = 3
+#: :attr:`ObserverConsts.mode` values (``DOB_MODE``, :data:`fc.control.pid_smc.DISTURBANCE_ESTIMATES`
+#: order): no observer; the estimate handed to the law, which uses it in its sigma or lumped into its
+#: model (the PID-SMC; other laws may ignore it); cancelled at the law's output (u_cmd = u - d_hat/g).
+DOB_OFF = DOB_NONE
 #: smallest |cos phi cos theta| in the observer's and the hover trim's g_z.
 TILT_COS_MIN = 0.05
 

@@ -37,15 +37,16 @@ def law_rows() -> list[dict[str, Any]]:
     table = param_table()
     rows = []
     for index, law in enumerate(registry.flight_laws()):
+        style = law_problems(law)
         params = [
             {"name": p.name, "default": p.get(d), "min": p.lo, "max": p.hi, "unit": p.unit, "description": p.doc}
             for p in table.specs
-            if law.name in p.law.split(",")
+            if law.name in p.laws
         ]
         rows.append({
             "name": law.name, "fc_controller": index, "stage": law.stage, "origin": law.origin, "prefix": law.prefix,
             "description": law.description, "state": list(law.state_names), "diagnostics": list(law.diagnostics),
-            "observer_default": law.observer_default, "pure_style": not law_problems(law), "style_problems": law_problems(law)[:5], "reference": law.reference, "parameters": params,
+            "observer_default": law.observer_default, "pure_style": not style, "style_problems": style[:5], "reference": law.reference, "parameters": params,
         })  # fmt: skip
     return rows
 

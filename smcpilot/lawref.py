@@ -76,7 +76,7 @@ def law_reference_problem(ref: object) -> str:
         return f"controller must be a law name, got {ref!r}"
     if is_code_reference(ref):
         head, _, name = ref.rpartition(":")
-        if head and name.isidentifier() and (head.endswith(".py") or "/" in head or "\\" in head or _MODULE_RE.match(ref)):
+        if head and name.isidentifier() and (is_file_reference(ref) or _MODULE_RE.match(ref)):
             return ""
         return f"controller {ref!r}: expected path/to/file.py:NAME or package.module:NAME"
     if ref in FC_CONTROLLERS or ref in _LOADED:

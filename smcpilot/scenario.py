@@ -363,10 +363,8 @@ def _parse(doc: Mapping[str, Any], source: str, base_dir: Path | None) -> Scenar
     _check(fc, _FC_KEYS, "fc.")
     if "controller" in fc:
         kw["controller"] = fc["controller"]
-        if isinstance(fc["controller"], str) and ":" in fc["controller"] and base_dir is not None:
-            head, name = fc["controller"].rsplit(":", 1)
-            if head.endswith(".py") and not Path(head).expanduser().is_absolute():
-                kw["controller"] = f"{(base_dir / head).resolve()}:{name}"  # a law file beside the scenario
+        if isinstance(fc["controller"], str) and base_dir is not None:
+            kw["controller"] = normalise_reference(fc["controller"], base_dir)  # a law file beside the scenario
     if "rate_hz" in fc:
         kw["rate_hz"] = _number(fc["rate_hz"], "fc.rate_hz")
     if "home" in fc:

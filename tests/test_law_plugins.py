@@ -442,7 +442,6 @@ def test_a_value_the_laws_constants_refuse_is_undone_and_the_fc_flies_on(tmp_pat
     f = tmp_path / "picky_law.py"
     f.write_text(_FAILING.replace("{failure}", "pass").replace("{name}", "picky_law").replace("{prefix}", "PICKY")
                  .replace("def consts(ctx, p):\n    return", "def consts(ctx, p):\n    assert p.after < 5000.0, 'after must stay below 5000'\n    return"))  # fmt: skip
-    from fc.app import FlightControllerApp  # noqa: F401  (the FC's own process code path is the gcs handler's)
     from fc.control.law import LawError
     from fc.flight import VehicleState
 

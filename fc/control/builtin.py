@@ -45,6 +45,7 @@ from fc.control.pid_smc import (
     pid_smc_law,
 )
 from fc.control.sign_smc import SignSmc, SignSmcConsts, SignSmcParams, sign_smc_consts, sign_smc_output
+from smcpilot.protocol import FC_CONTROLLERS
 
 _ZERO4 = (0.0, 0.0, 0.0, 0.0)
 Vec4 = tuple[float, float, float, float]
@@ -191,6 +192,9 @@ SIGN_SMC = Law(
 
 #: the built-in laws in FC_CONTROLLER order (the parameter's values 0..5; smcpilot.protocol.FC_CONTROLLERS).
 BUILTIN_LAWS: tuple[Law, ...] = (ADAPTIVE_PID_SMC, KNOWN_BOUND_PID_SMC, CASCADE_PID, SIGN_SMC, SE3_GEOMETRIC, INDI)
+
+# smcpilot.protocol names them for the ground side, which imports no law: one order, checked here.
+assert tuple(law.name for law in BUILTIN_LAWS) == FC_CONTROLLERS, "smcpilot.protocol.FC_CONTROLLERS and BUILTIN_LAWS differ"
 
 #: the pure functions of the built-in laws' flight interface (checked and compiled by the tests).
 BUILTIN_FLIGHT_FUNCTIONS = (
