@@ -181,6 +181,14 @@ class FlightControl:
         return self.pipeline_state.law
 
     # -- the tick -------------------------------------------------------------------------------
+    def pipeline_inputs(self) -> PipelineInputs:
+        """What the commander decided, as the pipeline reads it (armed: the pipeline runs)."""
+        tx, ty, tz = self.target
+        vxy = self.speed_xy_mps
+        return _tuple_new(PipelineInputs, (
+            tx, ty, tz, self._psi_target, True, self.landing, self.position_hold, self.params.speed_max_xy_mps if vxy is None else vxy
+        ))  # fmt: skip
+
     def step(self, st: VehicleState, dt_s: float) -> PipelineOutput:
         """One control tick of ``dt_s`` seconds. Disarmed: motors stopped.
 
@@ -190,11 +198,7 @@ class FlightControl:
         if not self.armed:
             return PipelineOutput((0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0), (False,) * 4, None, (_NAN,) * 4)
         p = self.params
-        tx, ty, tz = self.target
-        vxy = self.speed_xy_mps
-        cmd = _tuple_new(PipelineInputs, (
-            tx, ty, tz, self._psi_target, True, self.landing, self.position_hold, p.speed_max_xy_mps if vxy is None else vxy
-        ))  # fmt: skip
+        cmd = self.pipeline_inputs()
         try:
             new_state, (motors, u, limited, s, sigma, chi, u_law, u_dot, ref, touchdown, d_hat) = self._step_fn(
                 self.pipeline_state, st, cmd, p, dt_s, self.law_functions

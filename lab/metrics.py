@@ -70,6 +70,10 @@ class MetricsRecorder:
             + (float(out.flags), *sigma)
         )  # fmt: skip
 
+    def add_rows(self, rows: np.ndarray) -> None:
+        """Keep rows computed elsewhere (the compiled flight, :mod:`lab.fast`), in :meth:`on_tick`'s layout."""
+        self._rows.extend(map(tuple, rows.tolist()))
+
     def __len__(self) -> int:
         return len(self._rows)
 

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 from fc.config import FcConfig
 from fc.core import FlightCore, TickOutput
 from fc.flight import VehicleState
+from lab.fast.flight import FastRecord, fast_note, fast_simulate, fast_unsupported
 from sim_bridge.faults import FaultEvent
 from sim_bridge.plants.base import Plant
 from sim_bridge.sensors import VehicleObservation
@@ -88,22 +89,35 @@ def simulate(
     on_tick: TickHook | None = None,
     stop: Callable[[], bool] | None = None,
     on_fault_event: FaultHook | None = None,
+    fast: bool | None = None,
+    record: FastRecord | None = None,
 ) -> int:
     """Fly ``core`` on ``plant`` for ``n_ticks`` control ticks (lockstep semantics of the processes:
     state at t, one tick, the motor commands held for one control period of physics); returns the
     number of ticks flown (fewer if ``stop()`` said so). The plant's fault starts and stops go to
     ``on_fault_event`` as they happen: those of the state at t before the tick at t, those of the
-    physics after the period's steps."""
+    physics after the period's steps.
+
+    ``fast`` (None: whenever it can) flies the plain ticks in the compiled kernel
+    (:mod:`lab.fast`): the same flight, bit for bit, many times faster. It cannot call ``on_tick``
+    every tick, so a flight with a tick hook flies in CPython; ``record`` instead keeps a
+    :class:`lab.metrics.MetricsRecorder`'s rows (every n-th tick, of the received or the true
+    state), compiled or not. ``stop()`` is asked at least every
+    :data:`lab.fast.flight.CHUNK_TICKS` ticks.
+    """
     substeps = int(round(physics_hz / rate_hz))
     dt_phys = 1.0 / physics_hz
     step_us = int(round(dt_phys * 1e6))
-    t_us = 0
     tick = core.tick
     pack, unpack = _f32x4.pack, _f32x4.unpack
     observe = plant.observe
     pstep = plant.step
     faults = getattr(plant, "faults", None)
-    for k in range(n_ticks):
+    rec_every = record.every if record is not None else 0
+    rec_on_tick = record.recorder.on_tick if record is not None else None
+    truth = getattr(plant, "truth", None) if record is not None and record.truth else None
+
+    def one_tick(k: int, t_us: int) -> int:
         wire = wire_values(observe())
         if faults is not None and faults.events:
             for ev in faults.take_events():
@@ -115,6 +129,8 @@ def simulate(
         armed = out.armed
         if on_tick is not None:
             on_tick(k, t_us, wire, st, out, motors)
+        if rec_on_tick is not None and k % rec_every == 0:
+            rec_on_tick(k, t_us, wire, wire_state(truth()) if truth is not None else st, out, motors)
         for _ in range(substeps):
             pstep(t_us * 1e-6, dt_phys, motors, armed)
             t_us += step_us
@@ -122,6 +138,18 @@ def simulate(
             for ev in faults.take_events():
                 if on_fault_event is not None:
                     on_fault_event(ev)
+        return t_us
+
+    if fast is not False and on_tick is None:
+        why = fast_unsupported(core, plant, physics_hz, rate_hz)
+        if why is None:
+            return fast_simulate(core, plant, n_ticks, rate_hz=rate_hz, physics_hz=physics_hz, py_tick=one_tick,  # type: ignore[arg-type]
+                                 stop=stop, record=record)  # fmt: skip
+        if fast:
+            fast_note(why)
+    t_us = 0
+    for k in range(n_ticks):
+        t_us = one_tick(k, t_us)
         if stop is not None and stop():
             return k + 1
     return n_ticks
@@ -167,6 +195,6 @@ def fly(
             run.targets.append(flight.target)
 
     n_ticks = int(round(duration_s * config.rate_hz))
-    run.ticks = simulate(core, plant, n_ticks, rate_hz=config.rate_hz, physics_hz=physics_hz, on_tick=record,
+    run.ticks = simulate(core, plant, n_ticks, rate_hz=config.rate_hz, physics_hz=physics_hz, on_tick=record if record_every else None,
                          on_fault_event=lambda ev: run.events.append((ev.t_s, ev.text)))  # fmt: skip
     return run

@@ -135,3 +135,26 @@ def law_problems(law: Law) -> list[str]:
         problems.extend(function_problems(f, called=called))
         todo.extend(called)
     return problems
+
+
+def pure_closure(functions: Iterable[Callable]) -> tuple[tuple[types.FunctionType, ...], list[str]]:
+    """``functions`` and every Python function they call, followed transitively (what a compiler
+    must compile together), and what breaks the rules on the way (empty: all pure)."""
+    todo: list[types.FunctionType] = []
+    problems: list[str] = []
+    for fn in functions:
+        f = _python_function(fn)
+        if f is None:
+            problems.append(f"{getattr(fn, '__name__', repr(fn))}: not a Python function")
+        else:
+            todo.append(f)
+    seen: dict[types.FunctionType, None] = {}
+    while todo:
+        f = todo.pop(0)
+        if f in seen:
+            continue
+        seen[f] = None
+        called: list[types.FunctionType] = []
+        problems.extend(function_problems(f, called=called))
+        todo.extend(called)
+    return tuple(seen), problems

@@ -24,7 +24,18 @@ from fc.mission import (
     CMD_WAYPOINT,
     MissionItem,
 )
-from fc.modes.base import TAKEOFF_DONE_M, FlightMode, ModeHost, Refusal
+from fc.modes.base import (
+    TAKEOFF_DONE_M,
+    WATCH_DIST3,
+    WATCH_EVERY_TICK,
+    WATCH_NOTHING,
+    WATCH_TIME,
+    WATCH_Z_NEAR,
+    FlightMode,
+    ModeHost,
+    Refusal,
+    Watch,
+)
 from fc.modes.rtl import RtlMode
 from smcpilot.protocol import Mode
 
@@ -153,6 +164,31 @@ class AutoMode(FlightMode):
             if it.param2 > 0.0:
                 f.speed_xy_mps = it.param2
             self.phase = AutoPhase.DONE
+
+    def watch(self) -> Watch:
+        phase = self.phase
+        if phase is AutoPhase.RTL:
+            return self._rtl.watch()
+        mission = self.mission
+        items = mission.items
+        if self.complete or len(items) < 2:
+            return WATCH_NOTHING
+        cur = mission.current
+        if cur < 1 or cur >= len(items) or self._seq != cur:
+            return WATCH_EVERY_TICK
+        it = items[cur]
+        if phase is AutoPhase.FLY:
+            tx, ty, tz = self.flight.target
+            cmd = it.command
+            if cmd == CMD_TAKEOFF:
+                return Watch(WATCH_Z_NEAR, tz, r=TAKEOFF_DONE_M)
+            if cmd in _POSITION_ITEMS:
+                radius = it.param2 if (cmd == CMD_WAYPOINT and it.param2 > 0.0) else self.host.config.wp_radius_m
+                return Watch(WATCH_DIST3, tx, ty, tz, radius)
+            return WATCH_NOTHING
+        if phase is AutoPhase.HOLD:
+            return Watch(WATCH_TIME, self._t0_s, it.param1)
+        return WATCH_NOTHING if phase is AutoPhase.LANDING else WATCH_EVERY_TICK
 
     def run(self, st: VehicleState, t_s: float, dt_s: float) -> None:
         if self.phase is AutoPhase.RTL:

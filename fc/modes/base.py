@@ -10,6 +10,8 @@ flight (a mode's progress, e.g. how far RTL has got, lives in its object). The c
   RTL or AUTO restarts it);
 - :meth:`FlightMode.run` once per control tick while armed, before the flight pipeline's step
   (simulated time; called 500 times a second: it allocates nothing on the common path);
+  :meth:`FlightMode.watch` says, as data, when ``run`` would next act (a compiled flight checks
+  that every tick instead of calling ``run``, :mod:`lab.fast`);
 - :meth:`FlightMode.on_armed` after arming and :meth:`FlightMode.on_touchdown` when the pipeline
   disarmed by itself on touchdown (the pipeline, :class:`fc.flight.FlightControl`, owns that).
 
@@ -41,6 +43,33 @@ if TYPE_CHECKING:  # pragma: no cover
 
 #: a take-off (and RTL's climb) counts as done within this height of its target, m.
 TAKEOFF_DONE_M = 0.3
+
+#: kinds of :class:`Watch`: nothing to do per tick; something to do every tick; ``|z - a| < r``;
+#: the distance from (a, b, c) below ``r``; the horizontal distance from (a, b) below ``r``;
+#: ``t_s - a >= b`` (a hold time over).
+WATCH_NONE = 0
+WATCH_ALWAYS = 1
+WATCH_Z_NEAR = 2
+WATCH_DIST3 = 3
+WATCH_DIST2 = 4
+WATCH_TIME = 5
+
+
+class Watch(NamedTuple):
+    """When a mode's per-tick :meth:`FlightMode.run` would do something, as data a compiled flight
+    checks every tick without calling Python (:mod:`lab.fast`): on the estimated state (paper
+    frame, m) and the simulated time since the first tick (s). Until it holds, ``run`` does
+    nothing; once it holds, the tick is flown through ``run``."""
+
+    kind: int
+    a: float = 0.0
+    b: float = 0.0
+    c: float = 0.0
+    r: float = 0.0
+
+
+WATCH_NOTHING = Watch(WATCH_NONE)
+WATCH_EVERY_TICK = Watch(WATCH_ALWAYS)
 
 
 class Refusal(NamedTuple):
@@ -110,6 +139,11 @@ class FlightMode:
 
     def run(self, st: VehicleState, t_s: float, dt_s: float) -> None:
         """Per control tick while armed (simulated time), before the pipeline's step."""
+
+    def watch(self) -> Watch:
+        """When :meth:`run` would next act (see :class:`Watch`); a mode that overrides ``run``
+        must override this too, or it is flown through ``run`` every tick."""
+        return WATCH_NOTHING if type(self).run is FlightMode.run else WATCH_EVERY_TICK
 
     def exit(self, to: Mode) -> None:
         """The vehicle leaves this mode for mode ``to`` (another one)."""

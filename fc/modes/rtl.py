@@ -10,7 +10,7 @@ import math
 from enum import Enum
 from typing import TYPE_CHECKING
 
-from fc.modes.base import TAKEOFF_DONE_M, FlightMode
+from fc.modes.base import TAKEOFF_DONE_M, WATCH_DIST2, WATCH_EVERY_TICK, WATCH_NOTHING, WATCH_Z_NEAR, FlightMode, Watch
 from smcpilot.protocol import Mode
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -62,6 +62,14 @@ class RtlMode(FlightMode):
     def on_touchdown(self) -> Mode | None:
         self.reset()
         return Mode.GUIDED  # home and landed: back to GUIDED, as ArduCopter's RTL ends
+
+    def watch(self) -> Watch:
+        phase = self.phase
+        if phase is RtlPhase.CLIMB:
+            return Watch(WATCH_Z_NEAR, self.return_z_m, r=TAKEOFF_DONE_M)
+        if phase is RtlPhase.HOME:
+            return Watch(WATCH_DIST2, 0.0, 0.0, r=RTL_HOME_RADIUS_M)
+        return WATCH_NOTHING if phase is RtlPhase.LAND else WATCH_EVERY_TICK
 
     def run(self, st: VehicleState, t_s: float, dt_s: float) -> None:
         phase = self.phase

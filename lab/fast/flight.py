@@ -1,0 +1,401 @@
+"""The compiled in-process flight: the kernel flies the plain ticks, Python the eventful ones.
+
+:func:`fast_simulate` flies like :func:`lab.runner.simulate` (which calls it by default): a
+flight is continuous ticks between discrete events, so the compiled kernel
+(:func:`lab.fast.kernel.fly_span`) flies tick after tick until something discrete is due — a plan
+step, a fault starting or stopping, the mode's watched condition (:meth:`fc.modes.base.FlightMode.watch`),
+the disarm delay, a touchdown, a law failure, the end — and returns *before* that tick; Python
+flies it with the ordinary objects (:class:`fc.core.FlightCore`, the plant, the faults, the event
+sinks), then the kernel goes on. The state moves between the live objects and the kernel's
+arrays at each hand-over (:class:`_Bridge`), so the objects are exactly what a CPython flight
+leaves: the same motor commands, events, records and random streams, bit for bit
+(``tests/test_fast.py``).
+
+What the kernel cannot fly goes through Python a tick at a time, said once per reason: a plant
+other than the rigid body, a control law not in the pure style, a tick hook (``on_tick``) other
+than a metrics recorder, sensor faults or fault gusts acting, the state-loss failsafe, a law
+failure, a mode that does something every tick.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from fc import estimate as estimate_mod
+from fc import pipeline as pipeline_mod
+from fc.control.base import Diagnostics
+from fc.control.law import LawFunctions
+from fc.control.purity import law_problems, pure_closure
+from fc.core import FlightCore, TickOutput
+from fc.estimate import EST_OK
+from fc.flight import PipelineOutput, VehicleState
+from fc.modes.base import WATCH_ALWAYS
+from lab.fast import kernel as kernel_mod
+from lab.fast.mt import MT_FUNCTIONS, mt_export, mt_import
+from sim_bridge.faults import TIME_EPS_S
+from sim_bridge.plants import rigid_body
+from sim_bridge.plants.rigid_body import RigidBodyPlant, StepInput
+from sim_bridge.sensors import VehicleObservation
+from smcpilot.errors import DivergenceError
+from smcpilot.faults import MAX_DELAY_S
+from smcpilot.frames import quat_from_euler
+from smcpilot.jit import compile_pure, jit_enabled, say_once
+
+__all__ = ["FastRecord", "fast_simulate", "fast_unsupported", "compiled_kernel"]
+
+_ONES4 = (1.0, 1.0, 1.0, 1.0)
+_NAN4 = (math.nan,) * 4
+#: the kernel flies at most this many ticks a call (a ``stop()`` check and progress in between).
+CHUNK_TICKS = 2000
+
+
+@dataclass(frozen=True)
+class FastRecord:
+    """Rows for a :class:`lab.metrics.MetricsRecorder`: every ``every`` ticks, of the true state
+    (``truth``: what the vehicle did, after the wire's float32 round trip) or of the received one."""
+
+    recorder: Any
+    every: int = 1
+    truth: bool = False
+
+
+class _Kernel(NamedTuple):
+    fly: Any
+    law: LawFunctions
+
+
+_KERNELS: dict[tuple, _Kernel] = {}
+
+
+def compiled_kernel(law_functions: LawFunctions, full_stack: bool) -> _Kernel:
+    """The compiled kernel for a law's functions (compiled once per process and law; numba's
+    cache keeps the compiled pieces on disk)."""
+    key = (tuple(law_functions), full_stack)
+    k = _KERNELS.get(key)
+    if k is None:
+        roots = (
+            *kernel_mod.KERNEL_FUNCTIONS, *pipeline_mod.PURE_FUNCTIONS, *estimate_mod.PURE_FUNCTIONS,
+            *rigid_body.PURE_FUNCTIONS, *MT_FUNCTIONS, *law_functions,
+        )  # fmt: skip
+        fns, _problems = pure_closure(roots)
+        twins = compile_pure(fns, rebind={kernel_mod.fly_span: {"pipeline_step": pipeline_mod.pipeline_step_full}} if full_stack else None)
+        k = _Kernel(twins[kernel_mod.fly_span], LawFunctions(*(twins[f] for f in law_functions)))
+        _KERNELS[key] = k
+    return k
+
+
+_ENTRIES: dict[tuple, Callable[..., Any]] = {}
+
+
+def _entry_point(kernel: _Kernel, args: tuple, flight: Any) -> Callable[..., Any]:
+    """The kernel's compiled entry point for ``args`` (see :meth:`_Bridge._call`)."""
+    from smcpilot.jit import numba_module
+
+    numba = numba_module()
+    types = numba.types
+    typeof = numba.typeof
+    arg_types = tuple(typeof(a) for a in args[1:])
+    key = (id(kernel), arg_types)
+    found = _ENTRIES.get(key)
+    if found is not None:
+        return found
+    try:
+        ps = flight.pipeline_state
+        f64 = types.float64
+        k_t = typeof(flight.params.law)
+        state_t = typeof(ps.law)
+        v4 = types.UniTuple(f64, 4)
+        full = flight.law.full_stack
+        if full:
+            init_args = (typeof(VehicleState(*(0.0,) * 12)), k_t)
+            step_args = (types.UniTuple(f64, 12), types.UniTuple(f64, 16), state_t, f64, k_t, v4, typeof(ps.u_prev))
+        else:
+            init_args = (types.UniTuple(f64, 8), k_t)
+            step_args = (types.UniTuple(f64, 8), types.UniTuple(f64, 16), state_t, f64, k_t, v4, typeof(ps.u_prev))
+        law = kernel.law
+        sigs = []
+        for fn, fargs in ((law.initial_state, init_args), (law.step, step_args)):
+            fn.compile(fargs)
+            sigs.append(fn.overloads[fargs].signature)
+        new_t = sigs[1].return_type[1]
+        aw_args = (state_t, new_t, v4, types.UniTuple(types.boolean, 4), k_t)
+        law.anti_windup.compile(aw_args)
+        sigs.append(law.anti_windup.overloads[aw_args].signature)
+        law_t = types.NamedTuple(tuple(types.FunctionType(s) for s in sigs), LawFunctions)
+        sig = (law_t, *arg_types)
+        what = f"the flight kernel for the law {flight.law.name}"
+        index = _cache_index(kernel.fly)
+        if index is not None and not os.path.exists(index):
+            say_once(f"compiling {what} (once after an install or a change; cached on disk)...")
+        t0 = time.perf_counter()
+        kernel.fly.compile(sig)
+        if kernel.fly.stats.cache_misses.get(sig):
+            say_once(f"compiled {what} in {time.perf_counter() - t0:.1f} s")
+        entry = kernel.fly.overloads[sig].entry_point
+    except Exception as exc:  # numba's typing of first-class functions has limits: compile per process instead
+        say_once(f"the flight kernel is compiled in every process ({type(exc).__name__}: {str(exc).splitlines()[0][:120]})")
+        entry = kernel.fly
+    _ENTRIES[key] = entry
+    return entry
+
+
+_LAW_PROBLEMS: dict[tuple[str, int], list[str]] = {}
+
+
+def _cache_index(dispatcher: Any) -> str | None:
+    """Where numba keeps the cache index of ``dispatcher`` (None: unknown)."""
+    try:
+        return str(dispatcher._cache._cache_file._index_path)
+    except AttributeError:
+        return None
+
+
+def fast_unsupported(core: FlightCore, plant: object, physics_hz: float, rate_hz: float) -> str | None:
+    """Why this flight cannot use the compiled kernel at all (None: it can)."""
+    if not jit_enabled():
+        return "compiled path off"
+    if type(plant) is not RigidBodyPlant:
+        return f"the plant is {type(plant).__name__}, not the rigid body"
+    substeps = int(round(physics_hz / rate_hz))
+    if substeps < 1 or abs(substeps * rate_hz - physics_hz) > 1e-9 * physics_hz:
+        return "the physics rate is not a whole multiple of the control rate"
+    if 1.0 / physics_hz > plant.max_step_s * (1.0 + 1e-9):
+        return "the physics step is longer than the plant's largest step"
+    law = core.flight.law
+    problems = _LAW_PROBLEMS.get((law.name, id(law)))
+    if problems is None:
+        problems = _LAW_PROBLEMS[(law.name, id(law))] = law_problems(law)
+    if problems:
+        return f"the control law {law.name} is not in the pure style ({problems[0]})"
+    return None
+
+
+class _Bridge:
+    """The kernel's arrays for one flight, and the moves between them and the live objects."""
+
+    def __init__(self, core: FlightCore, plant: RigidBodyPlant, *, rate_hz: float, physics_hz: float, record: FastRecord | None) -> None:
+        self.core = core
+        self.plant = plant
+        self.substeps = int(round(physics_hz / rate_hz))
+        self.dt_phys = 1.0 / physics_hz
+        self.step_us = int(round(self.dt_phys * 1e6))
+        self.tick_us = self.step_us * self.substeps
+        self.record = record
+        env = plant.env
+        self.env = env
+        self.faults = plant.faults
+        self.plant_s = np.zeros(17)
+        self.plant_f = np.zeros(6)
+        self.env_f = np.zeros(4)
+        self.gust = np.zeros(6)
+        self.io = np.zeros(4, dtype=np.int64)
+        self.io_f = np.zeros(2)
+        self.obs = np.zeros(16)
+        self.fc_f = np.zeros(2)
+        self.rec = np.zeros((CHUNK_TICKS + 1, kernel_mod.ROW_COLUMNS)) if record is not None else np.zeros((1, kernel_mod.ROW_COLUMNS))
+        p = env.params
+        self.gust_std = tuple(float(v) for v in env._std)
+        self.gusts_on = bool(env.gusts_enabled)
+        n = p.sensor_noise
+        self.noise_on = bool(env.sensors.enabled)
+        self.noise_std = (float(n.attitude_std_rad), float(n.body_rate_std_radps), float(n.position_std_m),
+                          float(n.velocity_std_mps), float(n.accel_std_mps2))  # fmt: skip
+        self._gust_rng = env._gust_rng
+        self._noise_rng = env.sensors._rng
+        self._empty_mt = (np.zeros(625, dtype=np.int64), np.zeros(2))
+        f = self.faults
+        self._delay_starts = tuple(sorted(x.start_s for x in f.faults if getattr(x, "mode", None) == "delay")) if f is not None else ()
+        self.kernel = compiled_kernel(core.flight.law_functions, core.flight.law.full_stack)
+        self._entry: Callable[..., Any] | None = None
+
+    # -- can the next tick be flown by the kernel, and for how many ticks ---------------------------
+    def ticks_allowed(self, t_us: int, want: int) -> int:
+        """How many ticks from ``t_us`` the kernel may fly (0: fly the next one in Python)."""
+        core = self.core
+        if core.ticks == 0 or core.failsafe or core.law_failed or core.estimate_status != EST_OK:
+            return 0
+        if core.flight.armed and core.commander.current.watch().kind == WATCH_ALWAYS:
+            return 0
+        f = self.faults
+        n = want
+        if f is not None:
+            if f.events or f.sensing or f._gusts:
+                return 0
+            limit_s = f._next_s
+            for d in self._delay_starts:
+                if d > t_us * 1e-6:
+                    limit_s = min(limit_s, d - MAX_DELAY_S)
+            if limit_s < math.inf:
+                # whole ticks that end (observation and every physics step included) before the limit
+                end_us = (limit_s - TIME_EPS_S - 2e-6) * 1e6
+                n = min(n, max(0, int((end_us - t_us) // self.tick_us)))
+        return n
+
+    # -- the moves ----------------------------------------------------------------------------------
+    def fly(self, t_us: int, k: int, n: int) -> tuple[int, int, int]:
+        """Fly up to ``n`` ticks in the kernel from tick ``k`` at ``t_us``: (ticks flown, code, t_us after)."""
+        core, plant, env = self.core, self.plant, self.env
+        flight = core.flight
+        c = core.commander
+        plant_s, plant_f = self.plant_s, self.plant_f
+        plant_s[:] = plant._s
+        plant_f[0] = plant._psi
+        plant_f[1] = plant._input.psi_turns
+        plant_f[2:5] = plant._accel
+        plant_f[5] = plant._t_s
+        env_paper = env.paper_disturbance
+        f = self.faults
+        if f is not None and f.physics_on:
+            eff = f.motor_eff
+            paper = env_paper or f.paper_disturbance
+            add_forces = f.forces_on
+            ff, ft = f.force_world_n, f.torque_body_n_m
+        else:
+            eff, paper, add_forces, ff, ft = _ONES4, env_paper, False, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
+        self.env_f[:] = (env._last_dt_s, env._a, env._b, env.params.gust_time_constant_s)
+        wind = env.params.wind_force_n if self.gusts_on else env.force_world_n
+        self.gust[:] = env._gust
+        gmt, ggs = mt_export(self._gust_rng) if self.gusts_on else self._empty_mt
+        nmt, ngs = mt_export(self._noise_rng) if self.noise_on else self._empty_mt
+        cmd, armed = flight.pipeline_inputs(), flight.armed
+        self.fc_f[0] = core.config.disarm_delay_s
+        self.fc_f[1] = c._ground_armed_s
+        io = self.io
+        io[:] = 0
+        plan = core.plan
+        plan_next = plan.steps[plan._i].t_s if not plan.finished else math.inf
+        rec = self.record
+        ps, es, out, est = self._call(
+            self.kernel.law, flight.params, flight.pipeline_state, cmd, armed, flight.position_hold, core.config.period_s,
+            core._est_params, core._est, core.t0_us, self.fc_f, tuple(core.commander.current.watch()) if armed else (0, 0.0, 0.0, 0.0, 0.0),
+            plan_next, plant_s, plant_f, plant.params, eff, paper, self.env_f, wind, add_forces, ff, ft,
+            self.gust, self.gust_std, self.gusts_on, self.noise_std, self.noise_on, gmt, ggs, nmt, ngs,
+            t_us, self.step_us, self.substeps, self.dt_phys, n, self.rec, rec.every if rec is not None else 0,
+            rec.truth if rec is not None else False, k, "sigma" in flight.law.diagnostics, io, self.io_f, self.obs,
+        )  # fmt: skip
+        flown, code, n_rec, t_after = int(io[0]), int(io[1]), int(io[2]), int(io[3])
+        # back into the live objects
+        if self.gusts_on:
+            mt_import(self._gust_rng, gmt, ggs)
+            env._gust = [float(v) for v in self.gust]
+            env._last_dt_s, env._a, env._b = float(self.env_f[0]), float(self.env_f[1]), float(self.env_f[2])
+            env._publish()
+        if self.noise_on:
+            mt_import(self._noise_rng, nmt, ngs)
+        if flown or code == kernel_mod.SPAN_DIVERGED:
+            plant._s = tuple(float(v) for v in plant_s)
+            plant._psi = float(plant_f[0])
+            plant._accel = (float(plant_f[2]), float(plant_f[3]), float(plant_f[4]))
+            plant._t_s = float(plant_f[5])
+            plant._input = StepInput(eff, paper, float(plant_f[1]))
+            plant._obs_cache = None
+        diverged = code == kernel_mod.SPAN_DIVERGED
+        if flown or diverged:
+            last_us = t_after if diverged else t_after - self.tick_us
+            core.ticks += flown + diverged
+            core.t_us = last_us
+            core._est = es
+            state = VehicleState(*est)
+            core.state = state
+            c.state = state
+            c.state_fresh = True
+            c.failsafe_active = False
+            c.estimate = es
+            c.estimate_ok = True
+            c.t_s = (last_us - core.t0_us) * 1e-6
+            c._ground_armed_s = float(self.io_f[1])
+            flight.pipeline_state = ps
+            core.last = self._tick_output(out)
+            if n_rec and rec is not None:
+                rec.recorder.add_rows(self.rec[:n_rec])
+        if diverged:
+            raise DivergenceError("rigid-body plant state became non-finite", float(self.io_f[0]))
+        if code in (kernel_mod.SPAN_EVENT, kernel_mod.SPAN_OVERFLOW):
+            self._hand_over()
+        return flown, code, t_after
+
+    def _call(self, *args: Any) -> Any:
+        """The kernel, on these arguments: compiled for their types with the law's functions as
+        first-class functions (so numba can cache the kernel on disk), or, where that fails, for
+        the law's dispatchers (compiled in every process)."""
+        entry = self._entry
+        if entry is None:
+            entry = self._entry = _entry_point(self.kernel, args, self.core.flight)
+        return entry(*args)
+
+    def _tick_output(self, out: tuple) -> TickOutput:
+        core = self.core
+        f = core.flight
+        motors, u, limited, s, sigma, chi, u_law, u_dot, ref, _touchdown, d_hat = out
+        if f.armed:
+            sm, gm, cm, dm = f._diag_mask
+            diag = Diagnostics(s if sm else None, sigma if gm else None, chi if cm else None, u_law, u_dot if dm else None)
+            po = PipelineOutput(motors, u, limited, diag, ref, d_hat)
+        else:
+            po = PipelineOutput((0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0), (False,) * 4, None, _NAN4)
+        return TickOutput(po.motors, f.armed, core.flags(), int(core.commander.current.number), po, ())
+
+    def _hand_over(self) -> None:
+        """The observation the kernel drew for the tick it stopped before becomes the plant's."""
+        o = self.obs
+        plant = self.plant
+        s = plant._s
+        euler = (float(o[7]), float(o[8]), float(o[9]))
+        quat = quat_from_euler(*euler) if (self.noise_on and self.noise_std[0] > 0.0) else (s[6], s[7], s[8], s[9])
+        obs = VehicleObservation(
+            float(o[0]), (float(o[1]), float(o[2]), float(o[3])), (float(o[4]), float(o[5]), float(o[6])), euler,
+            (float(o[10]), float(o[11]), float(o[12])), (float(o[13]), float(o[14]), float(o[15])), (s[13], s[14], s[15], s[16]), quat,
+        )  # fmt: skip
+        if self.faults is not None:
+            obs = self.faults.observe(obs)
+        plant._obs_cache = obs
+
+
+def fast_simulate(
+    core: FlightCore,
+    plant: RigidBodyPlant,
+    n_ticks: int,
+    *,
+    rate_hz: float,
+    physics_hz: float,
+    py_tick: Callable[[int, int], int],
+    stop: Callable[[], bool] | None,
+    record: FastRecord | None,
+) -> int:
+    """Fly ``n_ticks`` ticks: the kernel where it can, ``py_tick(k, t_us) -> t_us after`` (one tick
+    in Python, the CPython runner's own) where it cannot. Returns the ticks flown."""
+    bridge = _Bridge(core, plant, rate_hz=rate_hz, physics_hz=physics_hz, record=record)
+    t_us = 0
+    k = 0
+    python_run = 0
+    while k < n_ticks:
+        n = bridge.ticks_allowed(t_us, min(CHUNK_TICKS, n_ticks - k)) if python_run == 0 else 0
+        if n > 0:
+            flown, code, t_us = bridge.fly(t_us, k, n)
+            k += flown
+            if code == kernel_mod.SPAN_DONE:
+                if stop is not None and stop():
+                    return k
+                continue
+            # the next tick is eventful: Python flies it (with the observation the kernel drew)
+            if flown == 0:
+                python_run = 8  # it stopped at once: a few ticks in Python before trying again
+        t_us = py_tick(k, t_us)
+        k += 1
+        if python_run:
+            python_run -= 1
+        if stop is not None and stop():
+            return k
+    return k
+
+
+def fast_note(why: str) -> None:
+    say_once(f"flying in CPython: {why}")
+

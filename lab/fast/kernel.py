@@ -1,0 +1,366 @@
+"""The compiled flight kernel: tick after tick of a whole in-process flight, until something discrete is due.
+
+One call of :func:`fly_span` flies what :func:`lab.runner.simulate` flies per tick — the plant's
+observation with sensor noise, the NED/FRD float32 wire round trip, the FC's estimate, the mode's
+per-tick check, the pipeline with the law and the mixer, the float32 motor commands, the physics
+sub-steps with gusts — for as long as every tick is *plain*: nothing happens that the Python side
+(:mod:`lab.fast.flight`) must handle. It returns at the first tick that is not, **before** that
+tick changes anything (so Python flies it with the ordinary objects), handing over the observation
+already drawn for it. A tick is not plain when:
+
+- a plan step is due, or a fault starts or stops during it (the driver limits the span);
+- the estimate is not "everything measured" (a dropout: the driver does not start a span then);
+- the commander's disarm delay runs out, or the mode's watched condition holds (a take-off height
+  reached, a waypoint within its radius, home reached, a hold time over: :mod:`fc.modes` ``watch``);
+- the pipeline touches down while landing, or the law's output is not finite;
+- the float32 wire conversion would overflow (CPython raises there).
+
+The physics diverging returns its own code and time (the driver raises
+:class:`smcpilot.errors.DivergenceError` as the plant does). Everything here is in the pure style
+(plain floats, NamedTuples, numpy arrays for what the kernel owns and mutates): CPython can run it,
+numba compiles it (:func:`smcpilot.jit.compile_pure`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from fc.estimate import estimate_step
+from fc.modes.base import WATCH_DIST2, WATCH_DIST3, WATCH_NONE, WATCH_TIME, WATCH_Z_NEAR
+from fc.pipeline import VehicleState, pipeline_step
+from lab.fast.mt import mt_gauss
+from sim_bridge.plants.rigid_body import rigid_body_substep, rigid_body_targets
+from smcpilot.frames import body_rates_to_euler_rates, euler_from_quat, wrap_pi
+from smcpilot.protocol import FLAG_ARMED, FLAG_LANDING, FLAG_POSITION_HOLD
+
+#: return codes of :func:`fly_span` (``io[1]``).
+SPAN_DONE = 0  # flew the ticks asked for
+SPAN_EVENT = 1  # the next tick is not plain; its observation is in ``obs``
+SPAN_DIVERGED = 2  # the physics became non-finite at ``io_f[0]`` seconds
+SPAN_OVERFLOW = 3  # the wire's float32 would overflow on the next tick; its observation is in ``obs``
+
+
+#: the conditions are checked with a margin: near the boundary, Python decides (math.dist and
+#: math.hypot round differently from a plain square root).
+_MARGIN = 1e-9
+_F32_MAX = 3.4028234663852886e38
+_PI = math.pi
+_TWO_PI = 2.0 * math.pi
+_exp = math.exp
+_sqrt = math.sqrt
+_atan2 = math.atan2
+_isfinite = math.isfinite
+
+#: columns of a recorded row (what :class:`lab.metrics.MetricsRecorder` keeps).
+ROW_COLUMNS = 26
+
+
+def _f32(x: float) -> float:
+    return np.float64(np.float32(x))
+
+
+def _f32_overflows(x: float) -> bool:
+    """Packing ``x`` as float32 raises in CPython (finite, but rounds beyond the float32 range)."""
+    return _isfinite(x) and (x > _F32_MAX or x < -_F32_MAX) and not _isfinite(_f32(x))
+
+
+def _watch_holds(kind: int, a: float, b: float, c: float, r: float, x: float, y: float, z: float, t_s: float) -> bool:
+    """The mode's watched condition holds now, or is too close to call (Python decides)."""
+    if kind == WATCH_NONE:
+        return False
+    if kind == WATCH_Z_NEAR:
+        return abs(z - a) < r
+    if kind == WATCH_DIST3:
+        dx = x - a
+        dy = y - b
+        dz = z - c
+        return _sqrt(dx * dx + dy * dy + dz * dz) < r * (1.0 + _MARGIN) + _MARGIN
+    if kind == WATCH_DIST2:
+        dx = x - a
+        dy = y - b
+        return _sqrt(dx * dx + dy * dy) < r * (1.0 + _MARGIN) + _MARGIN
+    if kind == WATCH_TIME:
+        return t_s - a >= b - _MARGIN
+    return True
+
+
+def fly_span(
+    law, pp, ps, cmd, armed, position_hold, dt_ctrl, ep, es, t0_us, fc_f, watch, plan_next_s,
+    plant_s, plant_f, rbp, eff, paper, env_f, wind, add_forces, fault_force, fault_torque,
+    gust, gust_std, gusts_on, noise_std, noise_on, gmt, ggs, nmt, ngs,
+    t_us, step_us, substeps, dt_phys, n_ticks, rec, rec_every, rec_truth, rec_k0, sigma_ok, io, io_f, obs,
+):  # fmt: skip
+    """Fly up to ``n_ticks`` plain ticks from simulated time ``t_us`` (µs); returns
+    ``(pipeline state, estimator state, last outputs, last estimate)``; ``io`` gets
+    [ticks flown, code, rows recorded, time µs after them], ``io_f`` [divergence time s,
+    ground-armed s]. On divergence the FC's part of the diverging tick is done (it is not counted
+    in ``io[0]``) and ``io[3]`` is that tick's time.
+
+    Arguments, by group (the driver, :mod:`lab.fast.flight`, builds them from the live objects):
+    the law's functions, the pipeline's params/state/inputs, armed, position hold, the control
+    period; the estimator's params/state; the time of the first tick (µs); ``fc_f`` = [disarm
+    delay s, ground-armed s]; the mode's watch (kind, a, b, c, r); the next plan step's time (s
+    since the first tick; inf: none); the plant's 17 states (array, updated), ``plant_f`` = [heading
+    at the last step, heading turns, accel x3, the plant's time s], its params, the rotor efficiencies and paper
+    disturbance in force; ``env_f`` = [gust step of the last draw, a, b, gust time constant]; the
+    wind, whether fault forces are added and the fault force/torque; the 6 gust states (array)
+    and stds; the noise stds (attitude, rates, position, velocity, accel); the MT19937 states of
+    the gust and noise streams; time step (µs), physics sub-steps a tick and their length; the
+    record array (rows of :data:`ROW_COLUMNS`), every how many ticks, of the true state or the
+    received one, the tick number of the first tick, whether the law has a sigma; and the
+    output arrays.
+    """
+    tx, ty, tz, psi_target, _armed, landing, _hold, _vxy = cmd
+    disarm_delay = fc_f[0]
+    ground_s = fc_f[1]
+    wkind, wa, wb, wc, wr = watch
+    n_rec = io[2]
+    flags = (FLAG_ARMED if armed else 0) | (FLAG_LANDING if landing else 0) | (FLAG_POSITION_HOLD if position_hold else 0)
+    yaw_target = wrap_pi(psi_target)
+    nan = math.nan
+    out = (
+        (0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0), (False, False, False, False),
+        (nan, nan, nan, nan), (nan, nan, nan, nan), (nan, nan, nan, nan), (0.0, 0.0, 0.0, 0.0),
+        (nan, nan, nan, nan), (nan, nan, nan, nan), False, (0.0, 0.0, 0.0, 0.0),
+    )  # fmt: skip
+    est = VehicleState(nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan)
+    psi0 = plant_f[0]
+    turns = plant_f[1]
+    acc_x = plant_f[2]
+    acc_y = plant_f[3]
+    acc_z = plant_f[4]
+    last_h = env_f[0]
+    ga = env_f[1]
+    gb = env_f[2]
+    g_tau = env_f[3]
+    s_att, s_rate, s_pos, s_vel, s_acc = noise_std
+    k = 0
+    code = 0
+    while k < n_ticks:
+        # -- the observation (the plant's truth, sensor noise) and the wire ---------------------
+        x, y, z, vx, vy, vz, qw, qx, qy, qz, p_, q_, r_, w1, w2, w3, w4 = (
+            plant_s[0], plant_s[1], plant_s[2], plant_s[3], plant_s[4], plant_s[5], plant_s[6], plant_s[7],
+            plant_s[8], plant_s[9], plant_s[10], plant_s[11], plant_s[12], plant_s[13], plant_s[14], plant_s[15],
+            plant_s[16],
+        )  # fmt: skip
+        phi_t, theta_t, psi_t = euler_from_quat((qw, qx, qy, qz))
+        phi_t = wrap_pi(phi_t)
+        psi_t = wrap_pi(psi_t)
+        o_phi, o_theta, o_psi = phi_t, theta_t, psi_t
+        ox, oy, oz, ovx, ovy, ovz = x, y, z, vx, vy, vz
+        op, oq, o_r = p_, q_, r_
+        oax, oay, oaz = acc_x, acc_y, acc_z
+        if noise_on:
+            if s_att > 0.0:
+                o_phi = wrap_pi(o_phi + mt_gauss(nmt, ngs, 0.0, s_att))
+                o_theta = o_theta + mt_gauss(nmt, ngs, 0.0, s_att)
+                o_psi = wrap_pi(o_psi + mt_gauss(nmt, ngs, 0.0, s_att))
+            if s_pos > 0.0:
+                ox = ox + mt_gauss(nmt, ngs, 0.0, s_pos)
+                oy = oy + mt_gauss(nmt, ngs, 0.0, s_pos)
+                oz = oz + mt_gauss(nmt, ngs, 0.0, s_pos)
+            if s_vel > 0.0:
+                ovx = ovx + mt_gauss(nmt, ngs, 0.0, s_vel)
+                ovy = ovy + mt_gauss(nmt, ngs, 0.0, s_vel)
+                ovz = ovz + mt_gauss(nmt, ngs, 0.0, s_vel)
+            if s_rate > 0.0:
+                op = op + mt_gauss(nmt, ngs, 0.0, s_rate)
+                oq = oq + mt_gauss(nmt, ngs, 0.0, s_rate)
+                o_r = o_r + mt_gauss(nmt, ngs, 0.0, s_rate)
+            if s_acc > 0.0:
+                oax = oax + mt_gauss(nmt, ngs, 0.0, s_acc)
+                oay = oay + mt_gauss(nmt, ngs, 0.0, s_acc)
+                oaz = oaz + mt_gauss(nmt, ngs, 0.0, s_acc)
+        # hand-over values (the driver rebuilds the observation when it flies this tick itself)
+        obs[0] = plant_f[5]
+        obs[1] = ox
+        obs[2] = oy
+        obs[3] = oz
+        obs[4] = ovx
+        obs[5] = ovy
+        obs[6] = ovz
+        obs[7] = o_phi
+        obs[8] = o_theta
+        obs[9] = o_psi
+        obs[10] = op
+        obs[11] = oq
+        obs[12] = o_r
+        obs[13] = oax
+        obs[14] = oay
+        obs[15] = oaz
+        # wire: NED/FRD float32, then back to the paper frame (lab.runner.wire_values / state_of_wire)
+        if (_f32_overflows(o_phi) or _f32_overflows(o_theta) or _f32_overflows(o_psi) or _f32_overflows(op)
+                or _f32_overflows(oq) or _f32_overflows(o_r) or _f32_overflows(ox) or _f32_overflows(oy)
+                or _f32_overflows(oz) or _f32_overflows(ovx) or _f32_overflows(ovy) or _f32_overflows(ovz)):  # fmt: skip
+            code = 3
+            break
+        m_phi = _f32(o_phi)
+        m_theta = -_f32(-o_theta)
+        m_psi = -_f32(-o_psi)
+        m_p = _f32(op)
+        m_q = -_f32(-oq)
+        m_r = -_f32(-o_r)
+        m_x = _f32(ox)
+        m_y = -_f32(-oy)
+        m_z = -_f32(-oz)
+        m_vx = _f32(ovx)
+        m_vy = -_f32(-ovy)
+        m_vz = -_f32(-ovz)
+        phi_d, theta_d, psi_d = body_rates_to_euler_rates(m_phi, m_theta, m_p, m_q, m_r)
+        st = VehicleState(m_x, m_y, m_z, m_vx, m_vy, m_vz, m_phi, m_theta, m_psi, phi_d, theta_d, psi_d)
+        # -- the FC's tick: the estimate, the plan, the commander, the pipeline ------------------
+        es_new, est_new, status, missing = estimate_step(es, st, dt_ctrl, ep)
+        if status != 0 or missing != 0:
+            code = 1
+            break
+        t_s = (t_us - t0_us) * 1e-6
+        if plan_next_s <= t_s + 1e-9:
+            code = 1
+            break
+        ex = est_new[0]
+        ey = est_new[1]
+        ez = est_new[2]
+        new_ground = ground_s
+        if armed:
+            if disarm_delay > 0.0 and ez < 0.15 and tz < 0.3 and not landing:
+                new_ground = ground_s + dt_ctrl
+                if new_ground >= disarm_delay:
+                    code = 1
+                    break
+            else:
+                new_ground = 0.0
+            if _watch_holds(wkind, wa, wb, wc, wr, ex, ey, ez, t_s):
+                code = 1
+                break
+            ps_new, out_new = pipeline_step(ps, est_new, cmd, pp, dt_ctrl, law)
+            mo = out_new[0]
+            ul = out_new[6]
+            if out_new[9] or not (_isfinite(mo[0] + mo[1] + mo[2] + mo[3]) and _isfinite(ul[0] + ul[1] + ul[2] + ul[3])):
+                code = 1
+                break
+            ps = ps_new
+            out = out_new
+        ground_s = new_ground
+        es = es_new
+        est = est_new
+        m0 = _f32(out[0][0])
+        m1 = _f32(out[0][1])
+        m2 = _f32(out[0][2])
+        m3 = _f32(out[0][3])
+        # -- the record (lab.metrics.MetricsRecorder's row) ------------------------------------
+        if rec_every > 0 and (rec_k0 + k) % rec_every == 0:
+            row = rec[n_rec]
+            row[0] = t_us * 1e-6
+            if rec_truth:
+                rphi = _f32(phi_t)
+                rth = -_f32(-theta_t)
+                rpsi = -_f32(-psi_t)
+                row[1] = _f32(x)
+                row[2] = -_f32(-y)
+                row[3] = -_f32(-z)
+                row[4] = _f32(vx)
+                row[5] = -_f32(-vy)
+                row[6] = -_f32(-vz)
+                row[7] = rphi
+                row[8] = rth
+                row[9] = rpsi
+            else:
+                for j in range(9):
+                    row[1 + j] = est[j]
+            row[10] = tx
+            row[11] = ty
+            row[12] = tz
+            row[13] = yaw_target
+            rf = out[8]
+            row[14] = rf[0]
+            row[15] = rf[1]
+            row[16] = rf[2]
+            row[17] = m0
+            row[18] = m1
+            row[19] = m2
+            row[20] = m3
+            row[21] = flags
+            sg = out[4]
+            for j in range(4):
+                row[22 + j] = sg[j] if (sigma_ok and armed) else nan
+            n_rec += 1
+        # -- the physics: sub-steps with the motor commands held --------------------------------
+        t_tick = t_us
+        targets = rigid_body_targets((m0, m1, m2, m3), armed, rbp)
+        s = (x, y, z, vx, vy, vz, qw, qx, qy, qz, p_, q_, r_, w1, w2, w3, w4)
+        u_in = (eff, paper, turns)
+        for _i in range(substeps):
+            t = t_us * 1e-6
+            fx = wind[0]
+            fy = wind[1]
+            fz = wind[2]
+            tqx = 0.0
+            tqy = 0.0
+            tqz = 0.0
+            if gusts_on:
+                if dt_phys != last_h:
+                    ga = _exp(-dt_phys / g_tau)
+                    gb = _sqrt(max(0.0, 1.0 - ga * ga))
+                    last_h = dt_phys
+                for j in range(6):
+                    sd = gust_std[j]
+                    if sd > 0.0:
+                        gust[j] = ga * gust[j] + gb * mt_gauss(gmt, ggs, 0.0, sd)
+                fx = wind[0] + gust[0]
+                fy = wind[1] + gust[1]
+                fz = wind[2] + gust[2]
+                tqx = gust[3]
+                tqy = gust[4]
+                tqz = gust[5]
+            if add_forces:
+                fx = fx + fault_force[0]
+                fy = fy + fault_force[1]
+                fz = fz + fault_force[2]
+                tqx = tqx + fault_torque[0]
+                tqy = tqy + fault_torque[1]
+                tqz = tqz + fault_torque[2]
+            s, accel, ok = rigid_body_substep(s, targets, (fx, fy, fz), (tqx, tqy, tqz), t, dt_phys, rbp, u_in)
+            if not ok:
+                io_f[0] = t + dt_phys
+                t_us = t_tick  # the tick whose physics diverged (it counts as flown by the FC)
+                code = 2
+                break
+            psi1 = _atan2(2.0 * (s[6] * s[9] + s[7] * s[8]), 1.0 - 2.0 * (s[8] * s[8] + s[9] * s[9]))
+            if psi1 - psi0 > _PI:
+                turns = turns - 1.0
+                u_in = (eff, paper, turns)
+            elif psi1 - psi0 < -_PI:
+                turns = turns + 1.0
+                u_in = (eff, paper, turns)
+            psi0 = psi1
+            acc_x = accel[0]
+            acc_y = accel[1]
+            acc_z = accel[2]
+            plant_f[5] = t + dt_phys
+            t_us += step_us
+        for j in range(17):
+            plant_s[j] = s[j]
+        if code == 2:
+            break
+        k += 1
+    plant_f[0] = psi0
+    plant_f[1] = turns
+    plant_f[2] = acc_x
+    plant_f[3] = acc_y
+    plant_f[4] = acc_z
+    env_f[0] = last_h
+    env_f[1] = ga
+    env_f[2] = gb
+    io[0] = k
+    io[1] = code
+    io[2] = n_rec
+    io[3] = t_us
+    io_f[1] = ground_s
+    return ps, es, out, est
+
+
+#: the kernel and what it calls of its own (compiled with the pipeline's, the estimate's, the
+#: plant's and the random streams' pure functions: :data:`lab.fast.flight.KERNEL_FUNCTIONS`).
+KERNEL_FUNCTIONS = (fly_span, _watch_holds, _f32, _f32_overflows)

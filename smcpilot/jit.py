@@ -1,0 +1,140 @@
+"""The project's one way to compile: pure functions, with numba when it is there.
+
+The hot path (the pipeline, the laws, the estimate, the plant, the flight kernel of
+:mod:`lab.fast`) is written once, as plain Python functions in the pure style
+(:mod:`fc.control.purity`). CPython runs them as they are. :func:`compile_pure` makes compiled
+*twins* of a set of them: each twin is the same code with its own copy of the module's globals in
+which every other function of the set is its twin, so compiled code calls compiled code, and the
+originals stay untouched (CPython callers keep calling plain Python, never a compiled function
+once per tick with its arguments unboxed: that crossing is what costs).
+
+Switches: ``SMCPILOT_JIT=0`` (or numba's own ``NUMBA_DISABLE_JIT=1``) runs everything in CPython;
+a platform without numba does the same and says so once. Nothing imports numba until a compiled
+path is first used, so commands that do not fly (``--help``, ``gcs``, ``log``) never load it.
+
+Compiled code is cached on disk (numba's cache: next to the sources when that is writable, else in
+the user's cache directory). A twin's name carries a hash of the sources of the whole set it was
+compiled with, so a change in any function of the set compiles afresh instead of reusing code
+compiled from older sources (numba itself checks only the file of the function it caches).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import inspect
+import os
+import sys
+import types
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any
+
+__all__ = [
+    "JIT_ENV",
+    "jit_enabled",
+    "jit_unavailable_reason",
+    "numba_module",
+    "compile_pure",
+    "sources_hash",
+    "say_once",
+]
+
+#: environment variable: "0" (or "off", "false", "no") runs every compiled path in CPython.
+JIT_ENV = "SMCPILOT_JIT"
+_OFF = {"0", "off", "false", "no"}
+_said: set[str] = set()
+
+
+def say_once(text: str) -> None:
+    """Print ``text`` to stderr once per process (notes about compiling and fallbacks)."""
+    if text in _said:
+        return
+    _said.add(text)
+    print(f"smcpilot: {text}", file=sys.stderr, flush=True)
+
+
+def jit_unavailable_reason() -> str | None:
+    """Why compiled paths are off in this process (None: they are on)."""
+    if os.environ.get(JIT_ENV, "").strip().lower() in _OFF:
+        return f"{JIT_ENV}={os.environ[JIT_ENV]}"
+    if os.environ.get("NUMBA_DISABLE_JIT", "").strip() not in ("", "0"):
+        return "NUMBA_DISABLE_JIT is set"
+    try:
+        import numba  # noqa: F401
+    except Exception as exc:  # no wheel for this platform, or a broken install
+        return f"numba is not available ({type(exc).__name__}: {exc})"
+    return None
+
+
+def jit_enabled(*, say: bool = True) -> bool:
+    """Compiled paths are on: numba imports and neither switch turns them off. When they are
+    off, says why once (with ``say``)."""
+    why = jit_unavailable_reason()
+    if why is not None and say:
+        say_once(f"compiled flight path off ({why}): flying in CPython, the same code, slower")
+    return why is None
+
+
+def numba_module() -> Any:
+    """numba (imported on first use)."""
+    import numba
+
+    return numba
+
+
+def sources_hash(functions: Iterable[Callable[..., Any]], extra: str = "") -> str:
+    """A short hash of the source files of ``functions`` (and ``extra``): names cache entries."""
+    h = hashlib.sha256(extra.encode())
+    files = sorted({inspect.getsourcefile(f) or f.__code__.co_filename for f in functions})
+    for path in files:
+        try:
+            with open(path, "rb") as fh:
+                h.update(fh.read())
+        except OSError:
+            h.update(path.encode())
+    return h.hexdigest()[:12]
+
+
+def compile_pure(
+    functions: Iterable[types.FunctionType],
+    *,
+    cache: bool = True,
+    rebind: Mapping[types.FunctionType, Mapping[str, types.FunctionType]] | None = None,
+) -> dict[types.FunctionType, Any]:
+    """Compiled twins of ``functions`` (a closed set: every pure function they call by name is in
+    it): ``{original: numba dispatcher}``. Compilation itself happens lazily, at a twin's first
+    call with new argument types.
+
+    ``rebind`` gives a function of the set its own globals in which some names call other
+    functions of the set (e.g. a kernel written against one step function, compiled with another).
+    Twins use numba's "numpy" error model: a division by zero gives inf or NaN instead of raising,
+    so compiled code never stops half-way; callers check what comes out for finiteness and let
+    CPython fly the step that went wrong, which raises as it always has.
+    """
+    numba = numba_module()
+    fns = tuple(dict.fromkeys(functions))
+    rebind = rebind or {}
+    tag = sources_hash(fns, extra=repr(sorted((f.__qualname__, sorted((n, t.__qualname__) for n, t in m.items())) for f, m in rebind.items())))
+    globals_of: dict[int, dict[str, Any]] = {}
+    twins: dict[types.FunctionType, Any] = {}
+    own: list[tuple[dict[str, Any], Mapping[str, types.FunctionType]]] = []
+    for f in fns:
+        if f in rebind:
+            g = dict(f.__globals__)
+            own.append((g, rebind[f]))
+        else:
+            g = globals_of.setdefault(id(f.__globals__), dict(f.__globals__))
+        twin = types.FunctionType(f.__code__, g, f.__name__, f.__defaults__, f.__closure__)
+        twin.__qualname__ = f"{f.__qualname__}__{tag}"
+        twin.__module__ = f.__module__
+        twin.__doc__ = f.__doc__
+        twins[f] = numba.njit(cache=cache, error_model="numpy")(twin)
+        if f in rebind:
+            globals_of[-len(own)] = g
+    for g in globals_of.values():
+        for name, value in list(g.items()):
+            if isinstance(value, types.FunctionType) and value in twins:
+                g[name] = twins[value]
+    for g, names in own:
+        for name, target in names.items():
+            g[name] = twins[target]
+    return twins
