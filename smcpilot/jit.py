@@ -95,11 +95,11 @@ def sources_hash(functions: Iterable[Callable[..., Any]], extra: str = "") -> st
 
 
 def compile_pure(
-    functions: Iterable[types.FunctionType],
+    functions: Iterable[Callable[..., Any]],
     *,
     cache: bool = True,
-    rebind: Mapping[types.FunctionType, Mapping[str, types.FunctionType]] | None = None,
-) -> dict[types.FunctionType, Any]:
+    rebind: Mapping[Callable[..., Any], Mapping[str, Callable[..., Any]]] | None = None,
+) -> dict[Callable[..., Any], Any]:
     """Compiled twins of ``functions`` (a closed set: every pure function they call by name is in
     it): ``{original: numba dispatcher}``. Compilation itself happens lazily, at a twin's first
     call with new argument types.
@@ -111,12 +111,12 @@ def compile_pure(
     CPython fly the step that went wrong, which raises as it always has.
     """
     numba = numba_module()
-    fns = tuple(dict.fromkeys(functions))
+    fns: tuple[Any, ...] = tuple(dict.fromkeys(functions))
     rebind = rebind or {}
     tag = sources_hash(fns, extra=repr(sorted((f.__qualname__, sorted((n, t.__qualname__) for n, t in m.items())) for f, m in rebind.items())))
     globals_of: dict[int, dict[str, Any]] = {}
-    twins: dict[types.FunctionType, Any] = {}
-    own: list[tuple[dict[str, Any], Mapping[str, types.FunctionType]]] = []
+    twins: dict[Callable[..., Any], Any] = {}
+    own: list[tuple[dict[str, Any], Mapping[str, Callable[..., Any]]]] = []
     for f in fns:
         if f in rebind:
             g = dict(f.__globals__)

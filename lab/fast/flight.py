@@ -67,8 +67,9 @@ class FastRecord:
 
 
 class _Kernel(NamedTuple):
+    #: the compiled kernel and the law's compiled functions (numba dispatchers).
     fly: Any
-    law: LawFunctions
+    law: Any
 
 
 _KERNELS: dict[tuple, _Kernel] = {}
@@ -207,8 +208,8 @@ class _Bridge:
         self.noise_on = bool(env.sensors.enabled)
         self.noise_std = (float(n.attitude_std_rad), float(n.body_rate_std_radps), float(n.position_std_m),
                           float(n.velocity_std_mps), float(n.accel_std_mps2))  # fmt: skip
-        self._gust_rng = env._gust_rng
-        self._noise_rng = env.sensors._rng
+        self._gust_rng: Any = env._gust_rng
+        self._noise_rng: Any = env.sensors._rng
         self._empty_mt = (np.zeros(625, dtype=np.int64), np.zeros(2))
         f = self.faults
         self._delay_starts = tuple(sorted(x.start_s for x in f.faults if getattr(x, "mode", None) == "delay")) if f is not None else ()
