@@ -225,3 +225,11 @@ _EXTRA_TARGETS: list[Callable[[argparse._SubParsersAction], None]] = [_add_sitl,
 def main(args: argparse.Namespace) -> int:
     sys.stdout.reconfigure(line_buffering=True)  # type: ignore[union-attr]
     return int(args.bench(args))
+
+def _add_fast(sub: argparse._SubParsersAction) -> None:
+    from lab.fast import bench as fast_bench
+
+    fast_bench.add_arguments(sub)
+
+
+_EXTRA_TARGETS.append(_add_fast)

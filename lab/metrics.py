@@ -36,6 +36,8 @@ __all__ = ["MetricsRecorder"]
 
 _NAN4 = (float("nan"),) * 4
 _LANDING_BITS = FLAG_LANDING | FLAG_FAILSAFE
+#: columns of a row.
+_COLUMNS = 26
 
 
 class MetricsRecorder:
@@ -47,7 +49,9 @@ class MetricsRecorder:
             raise ConfigError(f"MetricsRecorder: every must be an integer >= 1, got {every!r}")
         self.core = core
         self.every = every
-        self._rows: list[tuple[float, ...]] = []
+        #: kept rows: tuples (one tick each) and arrays (many ticks, from the compiled flight), in order.
+        self._rows: list[tuple[float, ...] | np.ndarray] = []
+        self._n = 0
         #: events noted with :meth:`note_event`: (t_s, MAV_SEVERITY, text).
         self.events: list[tuple[float, int, str]] = []
 
@@ -60,6 +64,7 @@ class MetricsRecorder:
         """Keep tick ``k``: time, state, set-point, references, motors, flags, σ."""
         if k % self.every:
             return
+        self._n += 1
         f = self.core.flight
         diag = out.pipeline.diag
         sigma = diag.sigma if diag is not None and diag.sigma is not None else _NAN4
@@ -71,15 +76,32 @@ class MetricsRecorder:
         )  # fmt: skip
 
     def add_rows(self, rows: np.ndarray) -> None:
-        """Keep rows computed elsewhere (the compiled flight, :mod:`lab.fast`), in :meth:`on_tick`'s layout."""
-        self._rows.extend(map(tuple, rows.tolist()))
+        """Keep rows computed elsewhere (the compiled flight, :mod:`lab.fast`), in :meth:`on_tick`'s layout (copied)."""
+        self._rows.append(np.array(rows, dtype=float).reshape(-1, _COLUMNS))
+        self._n += len(rows)
 
     def __len__(self) -> int:
-        return len(self._rows)
+        return self._n
+
+    def rows(self) -> np.ndarray:
+        """Every kept row, one per tick kept (columns as :meth:`on_tick` builds them)."""
+        parts: list[np.ndarray] = []
+        run: list[tuple[float, ...]] = []
+        for r in self._rows:
+            if isinstance(r, np.ndarray):
+                if run:
+                    parts.append(np.asarray(run, dtype=float).reshape(-1, _COLUMNS))
+                    run = []
+                parts.append(r)
+            else:
+                run.append(r)
+        if run:
+            parts.append(np.asarray(run, dtype=float).reshape(-1, _COLUMNS))
+        return np.concatenate(parts) if parts else np.zeros((0, _COLUMNS))
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The samples so far as arrays named like :func:`flight_metrics`'s arguments."""
-        a = np.asarray(self._rows, dtype=float).reshape(-1, 26)
+        a = self.rows()
         flags = a[:, 21].astype(np.int64)
         return {
             "t_s": a[:, 0],

@@ -69,7 +69,7 @@ def _fly(sc: Scenario, fast: bool, *, truth: bool = False) -> dict[str, Any]:
         diverged = (str(exc), exc.time_s)
         ticks = core.ticks
     return {
-        "ticks": ticks, "core_ticks": core.ticks, "t_us": core.t_us, "rows": rec._rows, "events": events,
+        "ticks": ticks, "core_ticks": core.ticks, "t_us": core.t_us, "rows": [tuple(r) for r in rec.rows().tolist()], "events": events,
         "plant": plant._s, "turns": plant.heading_turns, "diverged": diverged, "law_fault": core.law_fault,
         "pipeline": core.flight.pipeline_state, "armed": core.flight.armed, "mode": core.mode,
     }  # fmt: skip

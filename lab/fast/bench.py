@@ -1,0 +1,98 @@
+"""``smcpilot bench fast``: the compiled in-process flight against the CPython one, in the same run.
+
+For each scenario (by default the example hover, step-yaw, gusty-hold with noise and gusts, and
+motor-loss), the same flight is flown in CPython (``SMCPILOT_JIT=0``'s path) and compiled
+(:mod:`lab.fast`), with no log, keeping a metrics row every tick (what a campaign unit keeps);
+the wall times are the best of ``--repeat`` flights. Printed: simulated seconds per wall second
+(× real time), µs per tick, and the ratio compiled / CPython. The first compiled flight also
+shows what loading (or compiling) the kernel cost, separately. With ``--compare N``, also
+``smcpilot compare --seeds N`` end to end, once each way (subprocesses, 2 workers).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from smcpilot.errors import ConfigError
+
+_EXAMPLES = Path(__file__).resolve().parents[2] / "examples" / "scenarios"
+DEFAULT_SCENARIOS = ("hover", "step-yaw", "gusty-hold", "motor-loss")
+
+
+def add_arguments(sub: argparse._SubParsersAction) -> None:
+    c = sub.add_parser("fast", help="the compiled in-process flight against CPython (same run; ratios)")
+    c.add_argument("scenarios", nargs="*", metavar="SCENARIO", help="scenario files (default: the example scenarios)")
+    c.add_argument("--repeat", type=int, default=3, help="flights each way; the best is reported (default 3)")
+    c.add_argument("--compare", type=int, default=0, metavar="SEEDS",
+                   help="also time 'smcpilot compare --seeds SEEDS' end to end each way (default 0: not)")  # fmt: skip
+    c.set_defaults(bench=bench_fast)
+
+
+def _flight_s(sc, fast: bool) -> tuple[float, int]:  # type: ignore[no-untyped-def]
+    from fc.core import FlightCore
+    from fc.params import config_for, options_for
+    from lab.fast.flight import FastRecord
+    from lab.metrics import MetricsRecorder
+    from lab.runner import simulate
+    from sim_bridge.build import plant_for
+    from smcpilot.geo import Home
+
+    core = FlightCore(config_for(sc), sc.vehicle, home=Home(*sc.home) if sc.home is not None else Home(), plan=sc.plan,
+                      estimator=options_for(sc).estimator)  # fmt: skip
+    plant = plant_for(sc)
+    rec = MetricsRecorder(core)
+    t0 = time.perf_counter()
+    n = simulate(core, plant, sc.n_ticks, rate_hz=sc.rate_hz, physics_hz=sc.physics_hz, fast=fast, record=FastRecord(rec))
+    return time.perf_counter() - t0, n
+
+
+def bench_fast(args: argparse.Namespace) -> int:
+    from smcpilot.jit import jit_unavailable_reason
+    from smcpilot.scenario import Scenario
+
+    if args.repeat < 1:
+        raise ConfigError("--repeat must be at least 1")
+    why = jit_unavailable_reason()
+    if why is not None:
+        print(f"the compiled path is off ({why}): nothing to compare")
+        return 1
+    paths = [Path(p) for p in args.scenarios] or [_EXAMPLES / f"{n}.toml" for n in DEFAULT_SCENARIOS]
+    print(f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}; best of {args.repeat}")
+    print(f"{'scenario':<14} {'ticks':>7} {'CPython':>10} {'compiled':>10} {'CPython':>9} {'compiled':>9} {'ratio':>7} {'first call':>11}")
+    print(f"{'':<14} {'':>7} {'x real':>10} {'x real':>10} {'us/tick':>9} {'us/tick':>9} {'':>7} {'(load, s)':>11}")
+    ratios = []
+    for path in paths:
+        sc = Scenario.from_toml(path)
+        first, _ = _flight_s(sc, True)  # loads (or compiles) the kernel for this law
+        py = min(_flight_s(sc, False)[0] for _ in range(args.repeat))
+        fast, n = min(_flight_s(sc, True) for _ in range(args.repeat))
+        sim_s = n / sc.rate_hz
+        ratios.append(py / fast)
+        print(f"{path.stem:<14} {n:>7} {sim_s / py:>10.0f} {sim_s / fast:>10.0f} {py / n * 1e6:>9.1f} {fast / n * 1e6:>9.2f} "
+              f"{py / fast:>6.1f}x {first - fast:>11.2f}")  # fmt: skip
+    if len(ratios) > 1:
+        print(f"compiled / CPython: {min(ratios):.1f}x to {max(ratios):.1f}x")
+    if args.compare:
+        _bench_compare(args.compare)
+    return 0
+
+
+def _bench_compare(seeds: int) -> None:
+    print(f"\nsmcpilot compare --seeds {seeds} (2 workers), end to end:")
+    walls = {}
+    for label, env in (("CPython", {"SMCPILOT_JIT": "0"}), ("compiled", {})):
+        with tempfile.TemporaryDirectory() as out:
+            t0 = time.perf_counter()
+            p = subprocess.run([sys.executable, "-m", "lab.cli", "compare", "--seeds", str(seeds), "--out", out, "--jobs", "2", "--quiet", "--no-plots"],
+                               capture_output=True, text=True, env={**os.environ, **env})  # fmt: skip
+            walls[label] = time.perf_counter() - t0
+            ok = "ok" if p.returncode == 0 else f"exit {p.returncode}: {p.stderr.strip().splitlines()[-1:]}"
+        print(f"  {label:<9} {walls[label]:7.1f} s  ({ok})")
+    print(f"  ratio     {walls['CPython'] / walls['compiled']:7.1f}x")
