@@ -28,10 +28,12 @@ import math
 import struct
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from fc import telemetry
@@ -64,6 +66,7 @@ from smcpilot.tlog import TlogWriter
 MODES = ("in-process", "sitl")
 _ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
 _ZEROS12 = [0.0] * 12
+_ZEROS27 = [0.0] * 27
 
 
 @dataclass
@@ -138,6 +141,14 @@ class _TlogRecorder:
         self.tlog.write(int(round(ev.t_s * 1e6)), telemetry.statustext(mav, ev.severity, ev.text).pack(mav))
 
     def on_tick(self, k: int, t_us: int, w: tuple[float, ...], st: VehicleState, out: TickOutput, motors: tuple[float, ...]) -> None:
+        self._write_tick(t_us, w, out.motors, out.armed, telemetry.smc_record(self.core, out))
+
+    def on_rows(self, rows: np.ndarray) -> None:
+        """The ticks a compiled flight logged (:data:`lab.fast.kernel.LOG_COLUMNS`): the same records."""
+        for r in rows.tolist():
+            self._write_tick(int(r[0]), r[1:13], r[13:17], r[17] != 0.0, r[18:49] + _ZEROS27)
+
+    def _write_tick(self, t_us: int, w: Sequence[float], m: Sequence[float], armed: bool, data: list[float]) -> None:
         tl = self.tlog
         sysid = self.sysid
         t_ms = (t_us // 1000) & 0xFFFFFFFF
@@ -145,13 +156,11 @@ class _TlogRecorder:
         tl.write(t_us, encode_attitude(s, sysid, SIM_COMPONENT_ID, t_ms, w[0], w[1], w[2], w[3], w[4], w[5]))
         tl.write(t_us, encode_local_position_ned((s + 1) & 0xFF, sysid, SIM_COMPONENT_ID, t_ms, w[6], w[7], w[8], w[9], w[10], w[11]))
         self._sim_seq = (s + 2) & 0xFF
-        m = out.motors
         tl.write(t_us, encode_hil_actuator_controls(
             self._fc_seq, sysid, FC_COMPONENT_ID, t_us, [m[0], m[1], m[2], m[3]] + _ZEROS12,
-            _ARMED if out.armed else 0, ACTUATOR_FLAG_LOCKSTEP,
+            _ARMED if armed else 0, ACTUATOR_FLAG_LOCKSTEP,
         ))  # fmt: skip
         self._fc_seq = (self._fc_seq + 1) & 0xFF
-        data = telemetry.smc_record(self.core, out)
         tl.write(t_us, encode_debug_float_array(self._log_seq, sysid, FC_COMPONENT_ID, t_us, SMC_ARRAY_NAME, SMC_ARRAY_ID, data))
         self._log_seq = (self._log_seq + 1) & 0xFF
 
@@ -188,7 +197,7 @@ def fly_in_process(scenario: Scenario, tlog_path: Path, *, echo=None) -> FlightR
     ticks = 0
     try:
         ticks = simulate(core, plant, scenario.n_ticks, rate_hz=scenario.rate_hz, physics_hz=scenario.physics_hz,
-                         on_tick=recorder.on_tick, on_fault_event=fault_event)  # fmt: skip
+                         log=recorder, on_fault_event=fault_event)  # fmt: skip
     except DivergenceError as exc:
         status, message = "diverged", f"the simulation diverged at t = {exc.time_s:.3f} s: {exc}"
         ticks = core.ticks

@@ -23,6 +23,9 @@ from __future__ import annotations
 import struct
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
 
 from fc.config import FcConfig
 from fc.core import FlightCore, TickOutput
@@ -79,6 +82,14 @@ TickHook = Callable[[int, int, tuple[float, ...], VehicleState, TickOutput, tupl
 FaultHook = Callable[[FaultEvent], None]
 
 
+class TickLog(Protocol):
+    """What logs every tick of a flight, compiled or not (:class:`lab.run._TlogRecorder`)."""
+
+    def on_tick(self, k: int, t_us: int, wire: tuple[float, ...], st: VehicleState, out: TickOutput, motors: tuple[float, ...]) -> None: ...
+
+    def on_rows(self, rows: np.ndarray) -> None: ...
+
+
 def simulate(
     core: FlightCore,
     plant: Plant,
@@ -91,6 +102,7 @@ def simulate(
     on_fault_event: FaultHook | None = None,
     fast: bool | None = None,
     record: FastRecord | None = None,
+    log: TickLog | None = None,
 ) -> int:
     """Fly ``core`` on ``plant`` for ``n_ticks`` control ticks (lockstep semantics of the processes:
     state at t, one tick, the motor commands held for one control period of physics); returns the
@@ -102,7 +114,9 @@ def simulate(
     (:mod:`lab.fast`): the same flight, bit for bit, many times faster. It cannot call ``on_tick``
     every tick, so a flight with a tick hook flies in CPython; ``record`` instead keeps a
     :class:`lab.metrics.MetricsRecorder`'s rows (every n-th tick, of the received or the true
-    state), compiled or not. ``stop()`` is asked at least every
+    state), compiled or not, and ``log`` gets every tick (its ``on_tick`` in CPython, its
+    ``on_rows`` with the compiled flight's log rows: :class:`lab.run._TlogRecorder` writes the same
+    ``.tlog`` either way). ``stop()`` is asked at least every
     :data:`lab.fast.flight.CHUNK_TICKS` ticks.
     """
     substeps = int(round(physics_hz / rate_hz))
@@ -129,6 +143,8 @@ def simulate(
         armed = out.armed
         if on_tick is not None:
             on_tick(k, t_us, wire, st, out, motors)
+        if log is not None:
+            log.on_tick(k, t_us, wire, st, out, motors)
         if rec_on_tick is not None and k % rec_every == 0:
             rec_on_tick(k, t_us, wire, wire_state(truth()) if truth is not None else st, out, motors)
         for _ in range(substeps):
@@ -144,7 +160,7 @@ def simulate(
         why = fast_unsupported(core, plant, physics_hz, rate_hz)
         if why is None:
             return fast_simulate(core, plant, n_ticks, rate_hz=rate_hz, physics_hz=physics_hz, py_tick=one_tick,  # type: ignore[arg-type]
-                                 stop=stop, record=record)  # fmt: skip
+                                 stop=stop, record=record, log=log)  # fmt: skip
         if fast:
             fast_note(why)
     t_us = 0

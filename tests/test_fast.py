@@ -300,3 +300,19 @@ def test_commands_that_do_not_fly_never_import_numba(argv: list[str]) -> None:
     p = _python(code)
     assert p.stderr.strip().splitlines()[-1] == "False", p.stderr[-2000:]
 
+
+
+# -- the log ------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", ["gusty-hold", "motor-loss"])
+def test_the_tlog_of_a_compiled_flight_is_the_same_file(name: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``smcpilot run``'s in-process log: every record (state messages, motor commands, the SMC
+    record, the events, the simulator's fault announcements) the same, byte for byte."""
+    from lab.run import fly_in_process
+
+    sc = Scenario.from_toml(ROOT / "examples" / "scenarios" / f"{name}.toml").with_changes(duration_s=14.0)
+    compiled = fly_in_process(sc, tmp_path / "compiled.tlog")
+    monkeypatch.setenv("SMCPILOT_JIT", "0")
+    cpython = fly_in_process(sc, tmp_path / "cpython.tlog")
+    assert (compiled.status, compiled.ticks, compiled.events) == (cpython.status, cpython.ticks, cpython.events)
+    assert compiled.events, "the flight had events (take-off, the fault or the landing)"
+    assert (tmp_path / "compiled.tlog").read_bytes() == (tmp_path / "cpython.tlog").read_bytes()

@@ -80,13 +80,12 @@ def _status(row: dict[str, Any], status: str) -> None:
 
 
 def _fly_in_process(unit: Unit, row: dict[str, Any], tlog: Path | None) -> Trace:
-    from fc.core import FlightCore, TickOutput
-    from fc.flight import VehicleState
+    from fc.core import FlightCore
     from fc.params import config_for, options_for
     from ground.logs.metrics import flight_metrics
-    from lab.metrics import MetricsRecorder
     from lab.fast.flight import FastRecord
-    from lab.runner import simulate, wire_state
+    from lab.metrics import MetricsRecorder
+    from lab.runner import simulate
     from sim_bridge.build import plant_for
     from smcpilot.errors import DivergenceError
     from smcpilot.geo import Home
@@ -110,23 +109,17 @@ def _fly_in_process(unit: Unit, row: dict[str, Any], tlog: Path | None) -> Trace
         recorder = _TlogRecorder(tlog, core, options=options)
     every = unit.record_every
     rec = MetricsRecorder(core, every=every)
-    truth = plant.truth
 
-    def on_tick(k: int, t_us: int, wire: tuple[float, ...], st: VehicleState, out: TickOutput, motors: tuple[float, ...]) -> None:
-        if recorder is not None:
-            recorder.on_tick(k, t_us, wire, st, out, motors)
-        if k % every == 0:  # scored on the true state (what the vehicle did), not on what the sensors said
-            rec.on_tick(k, t_us, wire, wire_state(truth()), out, motors)
-
-    # Without a log, the rows are all a unit keeps: the compiled flight records them itself (lab.fast).
-    hook, record = (on_tick, None) if recorder is not None else (None, FastRecord(rec, every, truth=True))
+    # scored on the true state (what the vehicle did), not on what the sensors said; the compiled
+    # flight (lab.fast) records the rows and the log itself
+    record = FastRecord(rec, every, truth=True)
 
     deadline = time.perf_counter() + unit.timeout_s
     perf = time.perf_counter
     status, message = "ok", ""
     diverged_t_s: float | None = None
     try:
-        ticks = simulate(core, plant, sc.n_ticks, rate_hz=sc.rate_hz, physics_hz=sc.physics_hz, on_tick=hook, record=record,
+        ticks = simulate(core, plant, sc.n_ticks, rate_hz=sc.rate_hz, physics_hz=sc.physics_hz, record=record, log=recorder,
                          stop=lambda: perf() > deadline, on_fault_event=None if recorder is None else recorder.sim_event)  # fmt: skip
         if ticks < sc.n_ticks:
             status, message = "timed out", f"over the {unit.timeout_s:g} s limit at t = {core.t_us * 1e-6:.2f} of {sc.duration_s:g} simulated s"

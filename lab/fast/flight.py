@@ -181,7 +181,8 @@ def fast_unsupported(core: FlightCore, plant: object, physics_hz: float, rate_hz
 class _Bridge:
     """The kernel's arrays for one flight, and the moves between them and the live objects."""
 
-    def __init__(self, core: FlightCore, plant: RigidBodyPlant, *, rate_hz: float, physics_hz: float, record: FastRecord | None) -> None:
+    def __init__(self, core: FlightCore, plant: RigidBodyPlant, *, rate_hz: float, physics_hz: float, record: FastRecord | None,
+                 log: Any = None) -> None:  # fmt: skip
         self.core = core
         self.plant = plant
         self.substeps = int(round(physics_hz / rate_hz))
@@ -189,6 +190,8 @@ class _Bridge:
         self.step_us = int(round(self.dt_phys * 1e6))
         self.tick_us = self.step_us * self.substeps
         self.record = record
+        self.log = log
+        self.lg = np.zeros((CHUNK_TICKS + 1, kernel_mod.LOG_COLUMNS) if log is not None else (1, kernel_mod.LOG_COLUMNS))
         env = plant.env
         self.env = env
         self.faults = plant.faults
@@ -280,6 +283,7 @@ class _Bridge:
             self.gust, self.gust_std, self.gusts_on, self.noise_std, self.noise_on, gmt, ggs, nmt, ngs,
             t_us, self.step_us, self.substeps, self.dt_phys, n, self.rec, rec.every if rec is not None else 0,
             rec.truth if rec is not None else False, k, "sigma" in flight.law.diagnostics, io, self.io_f, self.obs,
+            self.log is not None, self.lg, flight._diag_mask, int(c.current.number),
         )  # fmt: skip
         flown, code, n_rec, t_after = int(io[0]), int(io[1]), int(io[2]), int(io[3])
         # back into the live objects
@@ -316,6 +320,8 @@ class _Bridge:
             core.last = self._tick_output(out)
             if n_rec and rec is not None:
                 rec.recorder.add_rows(self.rec[:n_rec])
+            if self.log is not None:
+                self.log.on_rows(self.lg[: flown + diverged])
         if diverged:
             raise DivergenceError("rigid-body plant state became non-finite", float(self.io_f[0]))
         if code in (kernel_mod.SPAN_EVENT, kernel_mod.SPAN_OVERFLOW):
@@ -369,10 +375,11 @@ def fast_simulate(
     py_tick: Callable[[int, int], int],
     stop: Callable[[], bool] | None,
     record: FastRecord | None,
+    log: Any = None,
 ) -> int:
     """Fly ``n_ticks`` ticks: the kernel where it can, ``py_tick(k, t_us) -> t_us after`` (one tick
     in Python, the CPython runner's own) where it cannot. Returns the ticks flown."""
-    bridge = _Bridge(core, plant, rate_hz=rate_hz, physics_hz=physics_hz, record=record)
+    bridge = _Bridge(core, plant, rate_hz=rate_hz, physics_hz=physics_hz, record=record, log=log)
     t_us = 0
     k = 0
     python_run = 0

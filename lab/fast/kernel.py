@@ -55,6 +55,8 @@ _isfinite = math.isfinite
 
 #: columns of a recorded row (what :class:`lab.metrics.MetricsRecorder` keeps).
 ROW_COLUMNS = 26
+#: columns of a log row (what :class:`lab.run._TlogRecorder` writes for a tick).
+LOG_COLUMNS = 49
 
 
 def _f32(x: float) -> float:
@@ -91,6 +93,7 @@ def fly_span(
     plant_s, plant_f, rbp, eff, paper, env_f, wind, add_forces, fault_force, fault_torque,
     gust, gust_std, gusts_on, noise_std, noise_on, gmt, ggs, nmt, ngs,
     t_us, step_us, substeps, dt_phys, n_ticks, rec, rec_every, rec_truth, rec_k0, sigma_ok, io, io_f, obs,
+    log_on, lg, diag_mask, mode_num,
 ):  # fmt: skip
     """Fly up to ``n_ticks`` plain ticks from simulated time ``t_us`` (µs); returns
     ``(pipeline state, estimator state, last outputs, last estimate)``; ``io`` gets
@@ -109,8 +112,11 @@ def fly_span(
     and stds; the noise stds (attitude, rates, position, velocity, accel); the MT19937 states of
     the gust and noise streams; time step (µs), physics sub-steps a tick and their length; the
     record array (rows of :data:`ROW_COLUMNS`), every how many ticks, of the true state or the
-    received one, the tick number of the first tick, whether the law has a sigma; and the
-    output arrays.
+    received one, the tick number of the first tick, whether the law has a sigma; the output
+    arrays; whether to log every tick into ``lg`` (rows of :data:`LOG_COLUMNS`: time µs, the 12
+    wire values, the motor commands, armed, the 31 leading values of the ``SMC`` record of
+    :func:`fc.telemetry.smc_data`), which of the law's diagnostics exist (s, sigma, chi_hat,
+    u_dot) and the mode's number.
     """
     tx, ty, tz, psi_target, _armed, landing, _hold, _vxy = cmd
     disarm_delay = fc_f[0]
@@ -286,6 +292,45 @@ def fly_span(
             for j in range(4):
                 row[22 + j] = sg[j] if (sigma_ok and armed) else nan
             n_rec += 1
+        # -- the log (what lab.run's tlog recorder writes for the tick) ----------------------------
+        if log_on:
+            lr = lg[k]
+            lr[0] = t_us
+            lr[1] = m_phi
+            lr[2] = -m_theta
+            lr[3] = -m_psi
+            lr[4] = m_p
+            lr[5] = -m_q
+            lr[6] = -m_r
+            lr[7] = m_x
+            lr[8] = -m_y
+            lr[9] = -m_z
+            lr[10] = m_vx
+            lr[11] = -m_vy
+            lr[12] = -m_vz
+            mo = out[0]
+            chi = out[5]
+            sg = out[4]
+            sv = out[3]
+            uu = out[1]
+            rf = out[8]
+            lr[17] = 1.0 if armed else 0.0
+            for j in range(4):
+                lr[13 + j] = mo[j]
+                lr[18 + j] = chi[j] if (armed and diag_mask[2]) else nan
+                lr[22 + j] = sg[j] if (armed and diag_mask[1]) else nan
+                lr[26 + j] = sv[j] if (armed and diag_mask[0]) else nan
+                lr[30 + j] = uu[j]
+                lr[34 + j] = rf[j]
+                lr[38 + j] = mo[j]
+            lr[42] = tx
+            lr[43] = ty
+            lr[44] = tz
+            lr[45] = yaw_target
+            lim = out[2]
+            lr[46] = (1.0 if lim[0] else 0.0) + (2.0 if lim[1] else 0.0) + (4.0 if lim[2] else 0.0) + (8.0 if lim[3] else 0.0)
+            lr[47] = flags
+            lr[48] = mode_num
         # -- the physics: sub-steps with the motor commands held --------------------------------
         t_tick = t_us
         targets = rigid_body_targets((m0, m1, m2, m3), armed, rbp)
