@@ -61,6 +61,7 @@ from fc.config import FcConfig
 from fc.core import FlightCore
 from fc.flight import VehicleState
 from fc.gcs import GcsHandler
+from fc.intake import OTHER, Intake, classify
 from fc.params import ParamStore, param_messages
 from fc.streams import StreamScheduler
 from smcpilot.clock import SimClock, WallClock
@@ -70,7 +71,7 @@ from smcpilot.faults import SIM_PARAM_INDEX
 from smcpilot.frames import body_rates_to_euler_rates, euler_frd_to_flu, ned_to_nwu, rates_frd_to_flu
 from smcpilot.geo import Home
 from smcpilot.impair import LinkImpairment
-from smcpilot.link import MavlinkUdp
+from smcpilot.link import Address, MavlinkUdp
 from smcpilot.plan import PlanStep
 from smcpilot.protocol import ACTUATOR_FLAG_LOCKSTEP, FC_COMPONENT_ID, OVERRUN_NAME, SIM_COMPONENT_ID, SMC_ARRAY_ID, SMC_ARRAY_NAME
 from smcpilot.signing import Signing
@@ -99,8 +100,17 @@ def _f32(v: float) -> float:
 _ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
 _ZEROS12 = [0.0] * 12
 _yield = getattr(os, "sched_yield", lambda: None)
-#: real time: ground datagrams handled per poll (the rest wait for the next one, moments later).
-REALTIME_GCS_BATCH = 8
+#: real time, the loop first: ground-link work (handling datagrams, streaming telemetry) draws on
+#: a budget refilled by this share of the control period each tick and holding at most that much;
+#: work that overdraws it (one long request) is paid back from the next periods' shares.
+GCS_BUDGET_SHARE = 0.15
+#: real time: streamed telemetry is built for at most this share of the period per tick (the
+#: heartbeat always); what is not built by then goes first at the next tick.
+TELEMETRY_SHARE = 0.075
+#: real time: no queued datagram is started this close to a deadline (share of the period).
+GCS_GUARD_SHARE = 0.2
+#: datagrams taken off the ground socket at a time (unparsed, queued in the intake by class).
+GCS_DRAIN = 64
 #: a SIM_* forward unanswered this long (wall seconds) gets one STATUSTEXT warning.
 SIM_PARAM_ANSWER_S = 1.0
 #: the link id the ground link's signed packets carry.
@@ -154,6 +164,10 @@ class FcStats:
     sim_param_unanswered: int = 0
     #: STATUSTEXT from the simulator (fault starts/stops), relayed to the ground.
     sim_statustexts: int = 0
+    #: real time: periods whose ground-link budget ran out with datagrams still queued, and the
+    #: wall seconds of ground-link work (intake and telemetry) in all.
+    gcs_budget_spent_periods: int = 0
+    gcs_work_s: float = 0.0
 
     def summary(self) -> dict:
         late = sorted(self.lateness_s)
@@ -181,6 +195,9 @@ class FcStats:
             "sim_param_unanswered": self.sim_param_unanswered,
             "sim_statustexts": self.sim_statustexts,
         }
+
+    def budget_summary(self) -> dict[str, object]:
+        return {"periods_out_of_budget": self.gcs_budget_spent_periods, "work_s": round(self.gcs_work_s, 3)}
 
 
 def state_from_mavlink(att: mavlink.MAVLink_attitude_message, pos: mavlink.MAVLink_local_position_ned_message):
@@ -317,6 +334,13 @@ class FlightControllerApp:
         #: the tlog is handed to the OS every this many ticks (a killed FC loses at most ~0.25 s).
         self._flush_ticks = max(1, int(config.rate_hz * TLOG_FLUSH_S))
         self._unflushed_ticks = 0
+        #: received datagrams waiting to be handled, by class (fc.intake): the ground link's, and
+        #: the simulator link's from other addresses than the simulator's (class "other").
+        self.intake: Intake[tuple[MavlinkUdp, bytes, Address]] = Intake()
+        #: control periods (ticks) so far: the intake counts a datagram handled in a later one deferred.
+        self._period_no = 0
+        #: wall seconds the last tick spent on the ground link (telemetry, acknowledgements).
+        self._gcs_tick_s = 0.0
         self._stop = False
         self._exit_code = EXIT_OK
 
@@ -391,6 +415,10 @@ class FlightControllerApp:
             summary["links"] = {"sim": self.sim.counters.as_dict(), "gcs": self.gcs.counters.as_dict() if self.gcs else None}
             summary["impairment"] = {"sim": self.sim.impair_counters, "gcs": self.gcs.impair_counters if self.gcs else None}
             summary["gcs_rejected"] = dict(self.gcs_handler.rejected)
+            summary["gcs_budget"] = {**self.intake.counters.as_dict(), "left": len(self.intake), **self.stats.budget_summary(),
+                                                      "telemetry_peers_skipped": self.gcs_handler.telemetry_peers_skipped,
+                                     "telemetry_deferred": self.gcs_handler.telemetry_deferred}  # fmt: skip
+            summary["cpu_s"] = round(time.process_time(), 3)
             summary["rx_rejected"] = self.rejected_summary()
             summary["tlog"] = str(self.tlog.path) if self.tlog is not None else None
             if self.tlog is not None and not self.tlog.closed:  # the run's own overrun count, for the log's readers
@@ -452,7 +480,7 @@ class FlightControllerApp:
         fds = self._fds()
         mono = self._mono
         poll_sim = self._poll_sim
-        poll_gcs = self._poll_gcs if self.gcs is not None else None
+        poll_gcs = self._poll_ground
         spin_s = self.spin_s
         last_rx = last_probe = mono()
         spin_until = last_rx + spin_s
@@ -464,7 +492,7 @@ class FlightControllerApp:
                 last_rx = mono()
                 spin_until = last_rx + spin_s
                 n += 1
-                if poll_gcs is not None and n % 8 == 0:
+                if n % 8 == 0:
                     poll_gcs()
                 continue
             now = mono()
@@ -475,7 +503,7 @@ class FlightControllerApp:
             if self._impaired:
                 timeout = min(timeout, sim.impair_wait_s(), gcs.impair_wait_s() if gcs is not None else 0.1)
             readable, _, _ = select.select(fds, (), (), timeout)
-            if readable and poll_gcs is not None:
+            if readable:
                 poll_gcs()
             if gcs is not None:
                 self.gcs_handler.send_durable_acks()  # between ticks too (before the first state)
@@ -503,8 +531,7 @@ class FlightControllerApp:
             readable, _, _ = select.select(fds, (), (), 0.1)
             if sim_fd in readable:
                 self._poll_sim()
-            if self.gcs is not None and self.gcs.fileno() in readable:
-                self._poll_gcs()
+            self._poll_ground()
             if self.gcs is not None:
                 self.gcs_handler.send_durable_acks()
             if mono() - start > self.startup_timeout_s:
@@ -512,18 +539,37 @@ class FlightControllerApp:
         deadline = mono() + period
         lateness = self.stats.lateness_s
         slow_ticks = 0
+        # The loop first: ground-link work draws on a budget of GCS_BUDGET_SHARE of each period
+        # (fc.intake: most important and oldest first) and never starts within the guard before a
+        # deadline; the ground socket is watched only while the budget lasts.
+        budget = GCS_BUDGET_SHARE * period
+        guard = GCS_GUARD_SHARE * period
+        credit = budget
+        worked = False
+        gcs_fd = self.gcs.fileno() if self.gcs is not None else -1
+        intake = self.intake
+        stats = self.stats
+        sim_only = [sim_fd]
         while not self._stop:
             now = mono()
             wait = deadline - now
             if wait > 0.0:
-                readable, _, _ = select.select(fds, (), (), wait)
+                # at least one datagram a period (the most important waiting), whatever the credit
+                can_work = (credit > 0.0 or not worked) and wait > guard
+                if can_work and intake:
+                    spent = self._work_intake(min(deadline - guard, now + credit))
+                    worked = True
+                    credit -= spent
+                    stats.gcs_work_s += spent
+                    if credit <= 0.0 and intake:
+                        stats.gcs_budget_spent_periods += 1
+                    continue
+                readable, _, _ = select.select(fds if can_work else sim_only, (), (), wait)
                 if readable:
                     if sim_fd in readable:
                         self._poll_sim()
-                    if len(readable) > 1 or readable[0] != sim_fd:
-                        # a few datagrams at a time: a burst (72 PARAM_SET) is spread over the
-                        # time before the deadline and the next ticks, never one long stall
-                        self._poll_gcs(REALTIME_GCS_BATCH)
+                    if gcs_fd in readable:
+                        self._take_gcs()
                 continue
             late = -wait
             lateness.append(late)
@@ -536,13 +582,20 @@ class FlightControllerApp:
                 self._poll_sim()
                 if self.gcs is not None:
                     self.gcs.pump()
-                    self._poll_gcs()
             age = now - self._state_wall_s
             if age > self.cfg.watchdog_s:
                 raise WatchdogError(f"simulator has been silent for {age:.1f} s (real-time watchdog); stopping")
             t_start = mono()
             self._tick(self.clock.now_us(), stale=age > self.cfg.failsafe_state_timeout_s)
-            spent = mono() - t_start
+            t_end = mono()
+            spent = t_end - t_start
+            # the period's new share, less the ground work of the tick (telemetry) and of taking
+            # what waits on the ground socket off it (counted and queued by class, or dropped)
+            self._take_gcs()
+            ground = self._gcs_tick_s + mono() - t_end
+            stats.gcs_work_s += ground
+            credit = min(budget, credit + budget) - ground
+            worked = False
             if spent > period and self.core.flight.armed and not self.core.law_failed:
                 # Ticks that cannot keep the rate, again and again, are a law too slow for it: the
                 # failsafe (open loop, cheap) flies instead of a loop that falls ever later. A fast
@@ -565,7 +618,14 @@ class FlightControllerApp:
         stamp not newer than the last one (stale) or implausibly far ahead (future)."""
         got = False
         sim = self.sim
-        for msg, addr in sim.recv(0.0):
+        messages: list[tuple[mavlink.MAVLink_message, Address]] = []
+        for data, addr in sim.recv_datagrams():
+            if self._sim_peer is not None and addr != self._sim_peer:
+                # not the simulator: parsed (and counted) as ground work, least important
+                self.intake.put(OTHER, (sim, data, addr), self._period_no)
+            else:
+                messages.extend(sim.parse(data, addr))
+        for msg, addr in messages:
             peer = self._sim_peer
             if peer is not None and addr != peer:
                 if msg.id == _LPN_ID:  # one per state (ATTITUDE + LOCAL_POSITION_NED)
@@ -730,11 +790,42 @@ class FlightControllerApp:
         if self.gcs is not None:
             self.gcs.send_many(telemetry.statustexts(self.gcs.mav, int(msg.severity), text))
 
-    def _poll_gcs(self, max_datagrams: int = 256) -> None:
-        if self.gcs is None:
+    def _take_gcs(self) -> None:
+        """Take what waits on the ground socket off it, unparsed, into the intake by class."""
+        gcs = self.gcs
+        if gcs is None:
             return
-        for msg, addr in self.gcs.recv(0.0, max_datagrams=max_datagrams):
-            self.gcs_handler.handle(msg, addr)
+        put, period = self.intake.put, self._period_no
+        for data, addr in gcs.recv_datagrams(GCS_DRAIN):
+            put(classify(data), (gcs, data, addr), period)
+
+    def _work_intake(self, until: float | None) -> float:
+        """Parse and handle queued datagrams, most important and oldest first, until the queue is
+        empty or the clock passes ``until`` (None: no limit; at least one is handled). Returns
+        the wall seconds it took."""
+        mono = self._mono
+        t0 = mono()
+        intake, period = self.intake, self._period_no
+        handle = self.gcs_handler.handle
+        while intake:
+            item = intake.pop(period)
+            assert item is not None
+            link, data, addr = item
+            if link is self.gcs:
+                for msg, src in link.parse(data, addr):
+                    handle(msg, src)
+            else:  # the simulator link, from another address than the simulator's
+                self.stats.foreign_states += sum(1 for msg, _ in link.parse(data, addr) if msg.id == _LPN_ID)
+            if until is not None and mono() >= until:
+                break
+        return mono() - t0
+
+    def _poll_ground(self) -> None:
+        """What waits on the ground socket (up to GCS_DRAIN datagrams) and everything queued,
+        handled now (lockstep, and before the first state)."""
+        self._take_gcs()
+        if self.intake:
+            self._work_intake(None)
 
     # -- the tick ------------------------------------------------------------------------------
     def apply_config(self, cfg: FcConfig) -> None:
@@ -775,7 +866,10 @@ class FlightControllerApp:
             if self._unflushed_ticks >= self._flush_ticks:
                 self._unflushed_ticks = 0
                 tlog.flush()
-        self.gcs_handler.on_tick(t_us)
+        t_ground = self._mono()
+        self.gcs_handler.on_tick(t_us, None if self.lockstep else t_ground + TELEMETRY_SHARE * self.cfg.period_s)
+        self._gcs_tick_s = self._mono() - t_ground
+        self._period_no += 1
 
     def event(self, severity: int, text: str) -> None:
         """A STATUSTEXT to ground stations (and the log), and a line on stdout."""

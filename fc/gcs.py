@@ -53,6 +53,10 @@ _PIN_MSG_IDS = frozenset({
     M.MAVLINK_MSG_ID_MISSION_COUNT, M.MAVLINK_MSG_ID_SET_POSITION_TARGET_LOCAL_NED,
     M.MAVLINK_MSG_ID_SET_POSITION_TARGET_GLOBAL_INT, M.MAVLINK_MSG_ID_PARAM_REQUEST_LIST,
 })  # fmt: skip
+#: streamed telemetry goes to the configured destination and every station that matters (pinned:
+#: it commanded, or signed), and to this many of the other peers per batch, in turn: a table full
+#: of strangers (a heartbeat flood) costs a bounded number of sends.
+TELEMETRY_OTHER_PEERS = 4
 _GLOBAL_FRAMES = (M.MAV_FRAME_GLOBAL, M.MAV_FRAME_GLOBAL_INT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
 
 
@@ -64,7 +68,7 @@ class GroundLink(Protocol):
 
     def send(self, msg: mavlink.MAVLink_message) -> None: ...
 
-    def send_many(self, msgs: Iterable[mavlink.MAVLink_message]) -> None: ...
+    def send_many(self, msgs: Iterable[mavlink.MAVLink_message], *, others_limit: int | None = None) -> int: ...
 
     def send_to(self, msg: mavlink.MAVLink_message, addr: Address) -> None: ...
 
@@ -130,6 +134,12 @@ class GcsHandler:
         self._text_bucket: tuple[float, float] = (float(REFUSAL_TEXT_BURST), -math.inf)
         #: refusal STATUSTEXTs not sent because of the rate limit.
         self.texts_suppressed = 0
+        #: streamed telemetry batches not sent to a peer (beyond TELEMETRY_OTHER_PEERS).
+        self.telemetry_peers_skipped = 0
+        #: streamed messages deferred to the next tick (real time: the budget ran out), and the
+        #: ids deferred last time (they go first next time).
+        self.telemetry_deferred = 0
+        self._late_streams: set[int] = set()
         self.signing = signing
         self.trusted = trusted
         #: drop-rate window: (wall start, rejected, good) at its start; the last window's rate.
@@ -645,8 +655,11 @@ class GcsHandler:
         self._send_to(self.mav.file_transfer_protocol_encode(0, m.get_srcSystem(), m.get_srcComponent(), list(reply)), addr)
 
     # -- telemetry ------------------------------------------------------------------------------
-    def stream(self, t_us: int) -> None:
-        """Send what the scheduler says is due (one batch per peer, from one snapshot)."""
+    def stream(self, t_us: int, until: float | None = None) -> None:
+        """Send what the scheduler says is due (one batch per peer, from one snapshot; beyond the
+        stations that matter, to :data:`TELEMETRY_OTHER_PEERS` others at a time). With ``until``
+        (a wall time: real time's budget), the heartbeat and then the messages deferred last time
+        go first, and what is not built by then is deferred to the next tick (counted)."""
         link = self.link
         if link is None:
             return
@@ -656,17 +669,33 @@ class GcsHandler:
         snap = self.snapshot()
         mav = self.mav
         msgs: list[mavlink.MAVLink_message] = []
-        for mid in due:
-            msgs.extend(telemetry.build(mid, snap, mav))
+        if until is None:
+            for mid in due:
+                msgs.extend(telemetry.build(mid, snap, mav))
+        else:
+            late = self._late_streams
+            due.sort(key=lambda mid: (mid != M.MAVLINK_MSG_ID_HEARTBEAT, mid not in late))
+            wall_s = self.wall_s
+            for k, mid in enumerate(due):
+                if k and mid != M.MAVLINK_MSG_ID_HEARTBEAT and wall_s() >= until:
+                    rest = due[k:]
+                    self.streams.defer(rest, t_us + 1)
+                    self.telemetry_deferred += len(rest)
+                    self._late_streams = set(rest)
+                    break
+                msgs.extend(telemetry.build(mid, snap, mav))
+            else:
+                self._late_streams = set()
         if msgs:
-            link.send_many(msgs)
+            self.telemetry_peers_skipped += link.send_many(msgs, others_limit=TELEMETRY_OTHER_PEERS)
 
     def build(self, msg_id: int) -> list[mavlink.MAVLink_message]:
         """The message(s) of this id now; [] when there is nothing to say."""
         return telemetry.build(msg_id, self.snapshot(), self.mav)
 
-    def on_tick(self, t_us: int) -> None:
-        """Per control tick: mission-protocol timeouts (wall clock) and the telemetry streams."""
+    def on_tick(self, t_us: int, until: float | None = None) -> None:
+        """Per control tick: mission-protocol timeouts (wall clock) and the telemetry streams
+        (within ``until``, a wall time, if given: :meth:`stream`)."""
         now = self.wall_s()
         self.mission.tick(now)
         self.send_durable_acks()
@@ -674,7 +703,7 @@ class GcsHandler:
             exc = self.params.write_errors.pop()
             self.params.write_errors.clear()
             self._event(M.MAV_SEVERITY_ERROR, f"Param file not written: {exc.strerror or exc}")
-        self.stream(t_us)
+        self.stream(t_us, until)
 
 
 def _param_name(raw: object) -> str:

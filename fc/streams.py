@@ -124,6 +124,14 @@ class StreamScheduler:
             self.set_interval(mid, max(MIN_INTERVAL_US, int(1e6 / rate_hz)) if start and rate_hz > 0 else -1)
         return None
 
+    def defer(self, ids: list[int], t_us: int) -> None:
+        """Messages that were due but not sent (the ground link's budget ran out): due again from
+        ``t_us`` (the next tick), their phase kept."""
+        for mid in ids:
+            self._next_us[mid] = t_us
+        if ids:
+            self._earliest_us = min(self._earliest_us, t_us)
+
     def due(self, t_us: int) -> list[int]:
         if t_us < self._earliest_us:
             return []  # nothing due before the earliest next time (the common case, per tick)

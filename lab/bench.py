@@ -219,7 +219,13 @@ def bench_soak(args: argparse.Namespace) -> int:
     return report(cfg, run_soak(cfg))
 
 
-_EXTRA_TARGETS: list[Callable[[argparse._SubParsersAction], None]] = [_add_sitl, _add_campaign, _add_soak]
+def _add_flood(sub: argparse._SubParsersAction) -> None:
+    from lab import flood
+
+    flood.add_arguments(sub)
+
+
+_EXTRA_TARGETS: list[Callable[[argparse._SubParsersAction], None]] = [_add_sitl, _add_campaign, _add_soak, _add_flood]
 
 
 def main(args: argparse.Namespace) -> int:

@@ -334,6 +334,8 @@ class MavlinkUdp:
         self._peer_seen_s: dict[Address, float] = {}
         self._destinations: tuple[Address, ...] = ()
         self._next_prune_s = math.inf
+        #: where the next send_many(others_limit=...) starts among the peers not pinned.
+        self._others_turn = 0
         self._closed = True
 
         self._bind_port = int(bind_port)
@@ -420,17 +422,46 @@ class MavlinkUdp:
         if self._tlog is not None:
             self._tlog.write(self._clock_us(), self._log_copy(packet))
 
-    def send_many(self, msgs: Iterable[mavlink.MAVLink_message]) -> None:
+    def send_many(self, msgs: Iterable[mavlink.MAVLink_message], *, others_limit: int | None = None) -> int:
         """Encode several messages and send them in as few datagrams as fit
-        ``max_datagram_bytes`` (normally one) to every peer; all logged with one timestamp."""
+        ``max_datagram_bytes`` (normally one) to every peer; all logged with one timestamp.
+
+        ``others_limit``: the initial destination and the pinned peers get them always; of the
+        other peers (learnt from their traffic alone) at most this many, taken in turn from one
+        call to the next, so a table full of strangers costs a bounded number of sends (None:
+        every peer). Returns how many peers were left out."""
         encode = self._encode
         packets = [encode(msg) for msg in msgs]
         if not packets:
-            return
-        for datagram in self._datagrams(packets):
-            self._send_datagram_to_peers(datagram)
+            return 0
+        skipped = 0
+        if others_limit is None:
+            for datagram in self._datagrams(packets):
+                self._send_datagram_to_peers(datagram)
+        else:
+            dests, skipped = self._limited_destinations(others_limit)
+            send = self._send_datagram
+            for datagram in self._datagrams(packets):
+                for addr in dests:
+                    send(datagram, addr)
         if self._tlog is not None:
             self._tlog.write_many(self._clock_us(), packets)
+        return skipped
+
+    def _limited_destinations(self, others_limit: int) -> tuple[list[Address], int]:
+        """The initial destination, the pinned peers, and ``others_limit`` of the other peers from
+        where the last call stopped; and how many others were left out."""
+        dests = self.peers
+        initial, pinned = self._initial_destination, self._pinned
+        out = [a for a in dests if a == initial or a in pinned]
+        others = [a for a in dests if a != initial and a not in pinned]
+        n = len(others)
+        if n <= others_limit:
+            return out + others, 0
+        start = self._others_turn % n
+        self._others_turn = start + others_limit
+        out.extend(others[(start + k) % n] for k in range(others_limit))
+        return out, n - others_limit
 
     def take_seq(self) -> int:
         """The next sequence number, consumed: for packets encoded by :mod:`smcpilot.fastcodec`
@@ -584,10 +615,45 @@ class MavlinkUdp:
         received: list[tuple[mavlink.MAVLink_message, Address]] = []
         if timeout_s > 0 and not self._wait_readable(timeout_s):
             return received
-        recvfrom = self._sock.recvfrom
-        counters = self.counters
         parse = self._parse_datagram
         now_s = -1.0
+        for data, addr in self._take_datagrams(max_datagrams):
+            self._rx_signed = False
+            if parse(data, addr, received):
+                if now_s < 0:
+                    now_s = self._monotonic_s()
+                self._heard(addr, now_s)
+        return received
+
+    def recv_datagrams(self, max_datagrams: int = 256) -> list[tuple[bytes, Address]]:
+        """Take up to ``max_datagrams`` datagrams already queued (after the receiving impairment,
+        if any), unparsed, without waiting: the cheap first half of :meth:`recv`, for an owner that
+        decides what to parse and when (:meth:`parse` is the second half)."""
+        if self._closed:
+            raise LinkClosedError(f"link {self._endpoint.url} is closed")
+        rx = self._rx_impair
+        if rx is None:
+            return self._take_datagrams(max_datagrams)
+        self.pump()
+        now_s = self._monotonic_s()
+        for item in self._take_datagrams(max_datagrams):
+            rx.offer(item, now_s)
+        return list(rx.due(now_s))
+
+    def parse(self, data: bytes, addr: Address) -> list[tuple[mavlink.MAVLink_message, Address]]:
+        """The good messages of one datagram from :meth:`recv_datagrams` (counted, checked, logged
+        and the peer noted exactly as :meth:`recv` does)."""
+        received: list[tuple[mavlink.MAVLink_message, Address]] = []
+        self._rx_signed = False
+        if self._parse_datagram(data, addr, received):
+            self._heard(addr, self._monotonic_s())
+        return received
+
+    def _take_datagrams(self, max_datagrams: int) -> list[tuple[bytes, Address]]:
+        """Up to ``max_datagrams`` datagrams off the socket (counted), without waiting."""
+        recvfrom = self._sock.recvfrom
+        counters = self.counters
+        out: list[tuple[bytes, Address]] = []
         for _ in range(max_datagrams):
             try:
                 data, addr = recvfrom(_RECV_BUFFER_BYTES)
@@ -597,12 +663,8 @@ class MavlinkUdp:
                 self._refused(exc)  # an ICMP "port unreachable" for an earlier send
                 continue
             counters.rx_datagrams += 1
-            self._rx_signed = False
-            if parse(data, addr, received):
-                if now_s < 0:
-                    now_s = self._monotonic_s()
-                self._heard(addr, now_s)
-        return received
+            out.append((data, addr))
+        return out
 
     def _refused(self, exc: OSError) -> None:
         """A send of ours was refused by the peer's host (its port is closed), reported on receive."""
@@ -664,22 +726,13 @@ class MavlinkUdp:
         rx = self._rx_impair
         assert rx is not None
         mono = self._monotonic_s
-        counters = self.counters
         received: list[tuple[mavlink.MAVLink_message, Address]] = []
         end_s = mono() + max(0.0, timeout_s)
         while True:
             self.pump()
             now_s = mono()
-            for _ in range(max_datagrams):
-                try:
-                    data, addr = self._sock.recvfrom(_RECV_BUFFER_BYTES)
-                except BlockingIOError:
-                    break
-                except (ConnectionRefusedError, ConnectionResetError) as exc:
-                    self._refused(exc)
-                    continue
-                counters.rx_datagrams += 1
-                rx.offer((data, addr), now_s)
+            for item in self._take_datagrams(max_datagrams):
+                rx.offer(item, now_s)
             for data, addr in rx.due(now_s):
                 self._rx_signed = False
                 if self._parse_datagram(data, addr, received):

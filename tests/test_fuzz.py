@@ -23,204 +23,30 @@ from __future__ import annotations
 
 import contextlib
 import math
-import os
-import random
 import socket
 import threading
 import time
-from collections import Counter
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 from gcs_helpers import FC_SYSID, LOOPBACK, Gcs
-from pymavlink.dialects.v10 import ardupilotmega as M1
 from pymavlink.dialects.v20 import ardupilotmega as M
 from sitl_helpers import write_plan
 
 from ground.logs import load_log, summarize
 from ground.sitl import Sitl, SitlOptions
-from smcpilot.protocol import SIM_COMPONENT_ID
+from lab.flood import FloodSpec, Fuzzer, send_flood, udp_ports
+from smcpilot.protocol import SIM_COMPONENT_ID, Mode
 from smcpilot.tlog import read_tlog
 
 SEED = 20261202
 DURATION_S = 8.0
 SPEED = 1.0  # lockstep at real time: the fuzz is spread over the whole flight
 PLAN = ({"t_s": 0.0, "action": "takeoff", "alt_m": 2.0}, {"t_s": 4.0, "action": "goto", "north_m": 1.0, "east_m": 0.5, "alt_m": 2.5})
-NAN, INF = math.nan, math.inf
-HOSTILE_FLOATS = (NAN, INF, -INF)
-HUGE = (1e30, -1e30, 3.4e38)
 FLOOD_SYSTEMS = 50
 FLOOD_RATE_HZ = 10.0
-FOREIGN_SYSID = 77  # not the vehicle
-
-
-# -- where things listen ---------------------------------------------------------------------------
-def udp_ports(pid: int) -> list[int]:
-    """The UDP ports process ``pid`` has sockets bound to (Linux /proc)."""
-    inodes = set()
-    for fd in os.listdir(f"/proc/{pid}/fd"):
-        with contextlib.suppress(OSError):
-            target = os.readlink(f"/proc/{pid}/fd/{fd}")
-            if target.startswith("socket:["):
-                inodes.add(target[8:-1])
-    ports = []
-    with open("/proc/net/udp", encoding="ascii") as f:
-        next(f)
-        for line in f:
-            cols = line.split()
-            if cols[9] in inodes:
-                ports.append(int(cols[1].split(":")[1], 16))
-    return ports
-
-
-# -- the fuzzer ------------------------------------------------------------------------------------
-@dataclass
-class Fuzzer:
-    """Builds hostile datagrams by class, seeded. ``sent`` counts datagrams by (target, class)."""
-
-    seed: int
-    rng: random.Random = field(init=False)
-    sent: Counter = field(default_factory=Counter)
-
-    def __post_init__(self) -> None:
-        self.rng = random.Random(self.seed)
-        self.enc = M.MAVLink(None, srcSystem=250, srcComponent=190)
-        self.enc1 = M1.MAVLink(None, srcSystem=250, srcComponent=190)
-        self.foreign_sim = M.MAVLink(None, srcSystem=FOREIGN_SYSID, srcComponent=SIM_COMPONENT_ID)
-
-    def pack(self, msg) -> bytes:
-        return msg.pack(self.enc)
-
-    def hostile(self) -> float:
-        return self.rng.choice(HOSTILE_FLOATS)
-
-    # classes common to both links
-    def garbage(self) -> bytes:
-        return self.rng.randbytes(self.rng.randint(1, 300))
-
-    def truncated_v2(self, valid: bytes) -> bytes:
-        return valid[: self.rng.randint(1, len(valid) - 1)]
-
-    def truncated_v1(self) -> bytes:
-        e = self.enc1
-        v1 = e.command_long_encode(FC_SYSID, 1, M.MAV_CMD_NAV_LAND, 0, 0, 0, 0, 0, 0, 0, 0).pack(e)
-        return v1[: self.rng.randint(1, len(v1) - 1)]
-
-    def bad_crc(self, valid: bytes) -> bytes:
-        b = bytearray(valid)
-        b[-1] ^= self.rng.randint(1, 255)
-        return bytes(b)
-
-    # ground link: valid CRC, hostile content (must all be refused, today)
-    def ground_hostile(self) -> tuple[str, bytes]:
-        e, r, h = self.enc, self.rng, self.hostile
-        kind = r.randrange(9)
-        if kind == 0:
-            return "setpoint_nan", self.pack(e.set_position_target_local_ned_encode(
-                0, FC_SYSID, 1, M.MAV_FRAME_LOCAL_NED, 0xDF8, h(), h(), h(), 0, 0, 0, 0, 0, 0, h(), 0))  # fmt: skip
-        if kind == 1:
-            return "setpoint_nan", self.pack(e.set_position_target_global_int_encode(
-                0, FC_SYSID, 1, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, 0xDF8, r.choice((2**31 - 1, -(2**31))), 0, h(),
-                0, 0, 0, 0, 0, 0, 0, 0))  # fmt: skip
-        if kind == 2:
-            cmd, params = r.choice((
-                (M.MAV_CMD_COMPONENT_ARM_DISARM, (r.choice((NAN, INF, 1e30, 2.0, -1.0)), 0)),
-                (M.MAV_CMD_NAV_TAKEOFF, (0, 0, 0, 0, 0, 0, h())),
-                (M.MAV_CMD_DO_SET_MODE, (h(), h())),
-                (M.MAV_CMD_DO_SET_MODE, (1, 1e30)),
-                (M.MAV_CMD_SET_MESSAGE_INTERVAL, (M.MAVLINK_MSG_ID_HEARTBEAT, r.choice((1e30, INF, NAN, 5e6, -1)))),
-                (M.MAV_CMD_SET_MESSAGE_INTERVAL, (r.choice((1e30, NAN, -5.0)), 1000)),
-                (M.MAV_CMD_REQUEST_MESSAGE, (r.choice((NAN, INF, 1e30)),)),
-                (M.MAV_CMD_DO_REPOSITION, (-1, 0, 0, h(), h(), h(), h())),
-                (M.MAV_CMD_DO_SET_MISSION_CURRENT, (r.choice((NAN, 1e30, -7.0)),)),
-                (M.MAV_CMD_INJECT_FAILURE, (h(), h(), h())),
-                (M.MAV_CMD_MISSION_START, (h(), h())),
-            ))  # fmt: skip
-            p = list(params) + [0.0] * (7 - len(params))
-            return "command_long_nan", self.pack(e.command_long_encode(FC_SYSID, 1, cmd, 0, *p))
-        if kind == 3:
-            cmd = r.choice((M.MAV_CMD_DO_REPOSITION, M.MAV_CMD_NAV_TAKEOFF, M.MAV_CMD_DO_SET_MODE))
-            return "command_int_nan", self.pack(e.command_int_encode(
-                FC_SYSID, 1, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, cmd, 0, 0, h(), h(), h(), h(),
-                r.choice((2**31 - 1, -(2**31))), r.choice((2**31 - 1, -(2**31))), h()))  # fmt: skip
-        if kind == 4:
-            names = (b"SMC_Z_KD", b"FS_GCS_ENABLE", b"RTL_ALT_M", b"SYSID_THISMAV", b"TELEM_RATE_HZ", b"SIM_WIND_SPD")
-            name = r.choice(names) if r.random() < 0.5 else bytes(r.choice(b"ABCDEFGHIJKLMNOPQRSTUVWXYZ_") for _ in range(16))
-            return "param_set_hostile", self.pack(e.param_set_encode(FC_SYSID, 1, name, r.choice(HOSTILE_FLOATS + HUGE), 9))
-        if kind == 5:
-            return "mission_count_range", self.pack(e.mission_count_encode(FC_SYSID, 1, r.choice((501, 65535, 10_000)), 0))
-        if kind == 6:
-            return "mission_item_seq", self.pack(e.mission_item_int_encode(
-                FC_SYSID, 1, r.randint(3, 65535), M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, M.MAV_CMD_NAV_WAYPOINT, 0, 1,
-                h(), h(), h(), h(), 2**31 - 1, -(2**31), h(), 0))  # fmt: skip
-        if kind == 7:
-            group = r.choice((M.MAV_DATA_STREAM_ALL, 7, 99, 200))
-            # every group at 65535 Hz or off: accepted, bounded (MIN_INTERVAL_US); unknown groups refused
-            cls = "request_data_stream_bounded" if group == M.MAV_DATA_STREAM_ALL else "request_data_stream_unknown"
-            return cls, self.pack(e.request_data_stream_encode(FC_SYSID, 1, group, r.choice((65535, 0, 1000)), 1))
-        return "setpoint_bad_frame", self.pack(e.set_position_target_local_ned_encode(
-            0, FC_SYSID, 1, r.choice((M.MAV_FRAME_BODY_FRD, 99, M.MAV_FRAME_GLOBAL)), 0xDF8, 1, 1, -2, 0, 0, 0, 0, 0, 0, 0, 0))  # fmt: skip
-
-    def ground_other_system(self) -> bytes:
-        """Commands that would change the flight, for another vehicle: dropped."""
-        e, r = self.enc, self.rng
-        ts = r.choice((FOREIGN_SYSID, 2, 254))
-        return self.pack(r.choice((
-            e.command_long_encode(ts, 1, M.MAV_CMD_NAV_LAND, 0, 0, 0, 0, 0, 0, 0, 0),
-            e.command_long_encode(ts, 1, M.MAV_CMD_COMPONENT_ARM_DISARM, 0, 0, 21196, 0, 0, 0, 0, 0),
-            e.set_position_target_local_ned_encode(0, ts, 1, M.MAV_FRAME_LOCAL_NED, 0xDF8, 5, 5, -5, 0, 0, 0, 0, 0, 0, 0, 0),
-            e.param_set_encode(ts, 1, b"SMC_Z_KD", 3.0, M.MAV_PARAM_TYPE_REAL32),
-            e.set_mode_encode(ts, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, 9),
-        )))  # fmt: skip
-
-    def valid_ground(self) -> bytes:
-        e = self.enc
-        return self.pack(e.command_long_encode(FOREIGN_SYSID, 1, M.MAV_CMD_NAV_LAND, 0, 0, 0, 0, 0, 0, 0, 0))
-
-    def valid_sim_state(self, enc: M.MAVLink) -> bytes:
-        return enc.attitude_encode(1000, 0.5, 0.5, 0.5, 0, 0, 0).pack(enc) + enc.local_position_ned_encode(1000, 9, 9, -9, 0, 0, 0).pack(enc)
-
-    def datagram(self, target: str) -> bytes:
-        """One hostile datagram for ``target`` ("gcs", "fc_sim", "sim"), counted by class."""
-        r = self.rng
-        if target == "gcs":
-            kind = r.choices(("garbage", "truncated_v2", "truncated_v1", "bad_crc", "hostile", "other_system"),
-                             (2, 1, 1, 1, 6, 2))[0]  # fmt: skip
-            if kind == "hostile":
-                cls, data = self.ground_hostile()
-                self.sent[(target, cls)] += 1
-                return data
-            if kind == "other_system":
-                data = self.ground_other_system()
-            elif kind == "garbage":
-                data = self.garbage()
-            elif kind == "truncated_v1":
-                data = self.truncated_v1()
-            elif kind == "truncated_v2":
-                data = self.truncated_v2(self.valid_ground())
-            else:
-                data = self.bad_crc(self.valid_ground())
-            self.sent[(target, kind)] += 1
-            return data
-        kind = r.choice(("garbage", "truncated_v2", "truncated_v1", "bad_crc", "other_system"))
-        enc = self.foreign_sim
-        if kind == "garbage":
-            data = self.garbage()
-        elif kind == "truncated_v1":
-            data = self.truncated_v1()
-        elif kind == "other_system":
-            if target == "fc_sim":
-                data = self.valid_sim_state(enc)  # a state from another system id: dropped, counted
-            else:
-                data = enc.hil_actuator_controls_encode(1000, [1.0] * 16, 0, 0).pack(enc)
-        else:
-            valid = self.valid_sim_state(M.MAVLink(None, srcSystem=FC_SYSID, srcComponent=SIM_COMPONENT_ID))
-            valid = valid[: 12 + valid[1]]  # the ATTITUDE alone
-            data = self.truncated_v2(valid) if kind == "truncated_v2" else self.bad_crc(valid)
-        self.sent[(target, kind)] += 1
-        return data
 
 
 # -- running a flight --------------------------------------------------------------------------------
@@ -543,6 +369,95 @@ def test_real_time_loop_under_fuzz_keeps_flying_and_counts_everything(realtime_f
     gcs = fuzzed.fc_summary["links"]["gcs"]
     assert gcs["rx_bad"] + gcs["rx_unknown"] >= sum(fuzzer.sent[("gcs", k)] for k in framing)
     assert clean.fc_summary["rx_rejected"] == {"total": 0}
+    # every datagram the loop took off the ground socket (and every one from a stranger on the sim
+    # socket) went through the intake: handled, dropped, or still waiting at the end
+    b = fuzzed.fc_summary["gcs_budget"]
+    assert b["queued"] >= gcs["rx_datagrams"] > 0
+    assert b["queued"] == b["handled"] + b["dropped"] + b["left"]
+    assert fuzzed.fc_summary["gcs_budget"]["telemetry_peers_skipped"] > 0  # the heartbeat flood's strangers
+    assert clean.fc_summary["gcs_budget"]["telemetry_peers_skipped"] == 0
+
+
+# -- the loop first: a request flood the FC cannot keep up with ---------------------------------------
+#: PARAM_REQUEST_LIST a second from one address (each costs the FC ~176 PARAM_VALUE): far more than
+#: its ground-link budget affords, so the intake overflows and drops.
+REQUEST_FLOOD_HZ = 1000.0
+PARAM_LIST = M.MAVLink(None, srcSystem=250, srcComponent=190).param_request_list_encode(FC_SYSID, 1).pack(
+    M.MAVLink(None, srcSystem=250, srcComponent=190))
+
+
+def request_flood(seconds: float, rate_hz: float = REQUEST_FLOOD_HZ) -> Fuzz:
+    """PARAM_REQUEST_LIST at ``rate_hz`` to the FC's ground port plus the heartbeat flood."""
+
+    def run(sitl: Sitl, stop: threading.Event, sim_s: Callable[[], float]) -> None:
+        assert sitl.gcs_address is not None
+        host, port = sitl.gcs_address.rsplit(":", 1)
+        n = int(rate_hz * seconds)
+        spec = FloodSpec(hostile=n, seconds=seconds, systems=FLOOD_SYSTEMS, heartbeat_hz=FLOOD_RATE_HZ)
+        send_flood({"gcs": (host, int(port))}, [("gcs", PARAM_LIST)] * n, spec, stop)
+
+    return run
+
+
+@pytest.mark.slow
+def test_mode_changes_and_a_disarm_sent_during_a_request_flood_are_answered_and_acted_on(tmp_path: Path) -> None:
+    """Real time: a station changes mode twice (COMMAND_LONG and SET_MODE), arms and disarms while
+    the FC is flooded with more requests than its ground-link budget affords. Every command is
+    answered and acted on while the flood lasts, ahead of a request the station sent before them;
+    the flood's requests are dropped (counted), nothing more important is."""
+    station = Gcs()
+    opts = SitlOptions.of(lockstep=False, duration_s=16.0, gcs=f"udp:{LOOPBACK}:{station.port}", tlog=tmp_path / "fc.tlog",
+                          param_file=tmp_path / "fc.parm", log_dir=tmp_path, watchdog_s=10.0)  # fmt: skip
+    stop = threading.Event()
+    try:
+        with Sitl(opts, echo=lambda line: None) as sitl:
+            station.wait("HEARTBEAT", lambda m: m.get_srcSystem() == FC_SYSID, what="the FC's first heartbeat")
+            flooder = threading.Thread(target=request_flood(10.0), args=(sitl, stop, lambda: 0.0), daemon=True)
+            flooder.start()
+            station.run_sim(1.0)  # the intake is full of requests by now
+            mark = station.mark()
+            station.mav.param_request_read_send(FC_SYSID, 1, b"RTL_ALT_M", -1)  # a request, before the commands
+            station.set_mode(Mode.ALT_HOLD)
+            station.wait_mode(Mode.ALT_HOLD, sim_timeout_s=10.0)
+            station.mav.set_mode_send(FC_SYSID, M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, Mode.GUIDED)
+            station.check_ack(station.ack(M.MAVLINK_MSG_ID_SET_MODE, mark), M.MAV_RESULT_ACCEPTED)
+            station.wait_mode(Mode.GUIDED, sim_timeout_s=10.0)
+            station.arm()
+            station.wait("HEARTBEAT", lambda m: m.get_srcSystem() == FC_SYSID and m.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED,
+                         sim_timeout_s=10.0, what="armed HEARTBEAT")  # fmt: skip
+            station.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 0)
+            station.wait_disarmed(sim_timeout_s=10.0)
+            assert flooder.is_alive(), "the flood ended before the commands were answered: it proves nothing"
+            flooder.join(30)
+            assert sitl.wait(timeout_s=60) == 0
+            summary = sitl.fc_summary or {}
+    finally:
+        stop.set()
+        station.close()
+    types = [r.msg.get_type() for r in station.log[mark:]]
+    first_ack = types.index("COMMAND_ACK")
+    read = [i for i, r in enumerate(station.log[mark:]) if r.msg.get_type() == "PARAM_VALUE" and r.msg.param_id == "RTL_ALT_M"]
+    assert not read or read[0] > first_ack, "the request sent first was handled before the command"
+    b = summary["gcs_budget"]
+    by = b["by_class"]
+    print(f"\nrequest flood: FC {summary['ticks']} ticks, {summary['overruns']} overruns, lateness p99"
+          f" {summary['lateness_p99_s'] * 1e3:.3f} ms; ground link {b}")  # fmt: skip
+    assert by["critical"]["handled"] >= 4 and by["critical"]["dropped"] == 0
+    assert by["request"]["dropped"] > 0  # the flood overflowed the intake: its requests were dropped...
+    assert all(v["dropped"] == 0 for name, v in by.items() if name in ("critical", "command", "heartbeat"))  # ...nothing better
+    assert b["deferred"] > 0 and b["periods_out_of_budget"] > 0
+    assert b["queued"] == b["handled"] + b["dropped"] + b["left"]
+
+
+@pytest.mark.slow
+def test_lockstep_flight_under_a_request_flood_is_bit_identical_to_the_clean_one(tmp_path: Path) -> None:
+    clean = fly(tmp_path, "clean", None)
+    flooded = fly(tmp_path, "flooded", request_flood(DURATION_S - 1.5, rate_hz=200.0))
+    a, b = flight_records(clean.tlog), flight_records(flooded.tlog)
+    assert len(a) > 3 * DURATION_S * 100
+    assert a == b
+    budget = flooded.fc_summary["gcs_budget"]
+    assert budget["by_class"]["request"]["handled"] > 0 and budget["dropped"] == 0  # lockstep: every one handled
 
 
 # -- the defences one by one, in process (the ground protocol handler with a fake link) ------------

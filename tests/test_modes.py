@@ -335,8 +335,9 @@ class FakeLink:
     def send(self, msg) -> None:
         self.all.append(msg)
 
-    def send_many(self, msgs) -> None:
+    def send_many(self, msgs, *, others_limit=None) -> int:
         self.all.extend(msgs)
+        return 0
 
     def send_to(self, msg, addr) -> None:
         self.to.append((msg, addr))
