@@ -316,3 +316,15 @@ def test_the_tlog_of_a_compiled_flight_is_the_same_file(name: str, tmp_path: Pat
     assert (compiled.status, compiled.ticks, compiled.events) == (cpython.status, cpython.ticks, cpython.events)
     assert compiled.events, "the flight had events (take-off, the fault or the landing)"
     assert (tmp_path / "compiled.tlog").read_bytes() == (tmp_path / "cpython.tlog").read_bytes()
+
+
+@pytest.mark.parametrize("case", ["gusts", "gyro-bias", "pos-dropout", "motor30-step", "paper-dist"])
+def test_the_robustness_study_cases_fly_the_same_compiled(case: str) -> None:
+    """The study's cases (lab.compare): fault gusts, a gyro bias, a position dropout (dead reckoning),
+    a motor loss mid-step, the paper's disturbances — and with them the kernel's sensor-fault program."""
+    from lab.compare import study_cases
+
+    (c,) = [c for c in study_cases(duration_s=9.0, t_event_s=4.0) if c.name == case]
+    sc = c.scenario.with_changes(seed=3)
+    _assert_same(_fly(sc, False), _fly(sc, True), case)
+    _assert_same(_fly(sc, False, truth=True), _fly(sc, True, truth=True), case + " (truth)")

@@ -34,7 +34,7 @@ from fc.control.base import Diagnostics
 from fc.control.law import LawFunctions
 from fc.control.purity import law_problems, pure_closure
 from fc.core import FlightCore, TickOutput
-from fc.estimate import EST_OK
+from fc.estimate import EST_DEAD_RECKONING, EST_OK
 from fc.flight import PipelineOutput, VehicleState
 from fc.modes.base import WATCH_ALWAYS
 from lab.fast import kernel as kernel_mod
@@ -44,7 +44,7 @@ from sim_bridge.plants import rigid_body
 from sim_bridge.plants.rigid_body import RigidBodyPlant, StepInput
 from sim_bridge.sensors import VehicleObservation
 from smcpilot.errors import DivergenceError
-from smcpilot.faults import MAX_DELAY_S
+from smcpilot.faults import MAX_DELAY_S, SENSORS
 from smcpilot.frames import quat_from_euler
 from smcpilot.jit import compile_pure, jit_enabled, say_once
 
@@ -139,12 +139,44 @@ def _entry_point(kernel: _Kernel, args: tuple, flight: Any) -> Callable[..., Any
         kernel.fly.compile(sig)
         if kernel.fly.stats.cache_misses.get(sig):
             say_once(f"compiled {what} in {time.perf_counter() - t0:.1f} s")
-        entry = kernel.fly.overloads[sig].entry_point
+        kernel_entry = kernel.fly.overloads[sig].entry_point
+        # the law's functions by their addresses: unboxed at no cost on every call
+        law_fns = LawFunctions(*(_addressed(fn, s) for fn, s in zip(law, sigs)))
+
+        def entry(_law: Any, *rest: Any) -> Any:
+            return kernel_entry(law_fns, *rest)
+
     except Exception as exc:  # numba's typing of first-class functions has limits: compile per process instead
         say_once(f"the flight kernel is compiled in every process ({type(exc).__name__}: {str(exc).splitlines()[0][:120]})")
         entry = kernel.fly
     _ENTRIES[key] = entry
     return entry
+
+
+_ADDRESSED: Any = None
+
+
+def _addressed(dispatcher: Any, sig: Any) -> Any:
+    """A compiled function as a first-class function object numba unboxes from its address (the
+    wrapper address protocol) instead of looking the address up on every call."""
+    global _ADDRESSED
+    if _ADDRESSED is None:
+        from smcpilot.jit import numba_module
+
+        class Addressed(numba_module().types.WrapperAddressProtocol):  # type: ignore[misc,name-defined]
+            def __init__(self, fn: Any, sig: Any, addr: int) -> None:
+                self.fn, self.sig, self.addr = fn, sig, addr  # fn: keeps the compiled code alive
+
+            def __wrapper_address__(self) -> int:
+                return self.addr
+
+            def signature(self) -> Any:
+                return self.sig
+
+        _ADDRESSED = Addressed
+    cres = dispatcher.overloads[sig.args]
+    addr = cres.library.get_pointer_to_function(cres.fndesc.llvm_cfunc_wrapper_name)
+    return _ADDRESSED(dispatcher, sig, addr)
 
 
 _LAW_PROBLEMS: dict[tuple[str, int], list[str]] = {}
@@ -199,9 +231,13 @@ class _Bridge:
         self.plant_f = np.zeros(6)
         self.env_f = np.zeros(4)
         self.gust = np.zeros(6)
-        self.io = np.zeros(4, dtype=np.int64)
+        self.io = np.zeros(7, dtype=np.int64)
+        #: the faults' gusts (rows of lab.fast.kernel.FG_COLUMNS) and sensor-fault program.
+        self.fg = np.zeros((8, kernel_mod.FG_COLUMNS))
+        self.sp = np.zeros((5, 5, 4))
+        self.sn = np.zeros(5, dtype=np.int64)
         self.io_f = np.zeros(2)
-        self.obs = np.zeros(16)
+        self.obs = np.zeros(17)
         self.fc_f = np.zeros(2)
         self.rec = np.zeros((CHUNK_TICKS + 1, kernel_mod.ROW_COLUMNS)) if record is not None else np.zeros((1, kernel_mod.ROW_COLUMNS))
         p = env.params
@@ -223,15 +259,17 @@ class _Bridge:
     def ticks_allowed(self, t_us: int, want: int) -> int:
         """How many ticks from ``t_us`` the kernel may fly (0: fly the next one in Python)."""
         core = self.core
-        if core.ticks == 0 or core.failsafe or core.law_failed or core.estimate_status != EST_OK:
+        if core.ticks == 0 or core.failsafe or core.law_failed or core.estimate_status > EST_DEAD_RECKONING:
             return 0
         if core.flight.armed and core.commander.current.watch().kind == WATCH_ALWAYS:
             return 0
         f = self.faults
         n = want
         if f is not None:
-            if f.events or f.sensing or f._gusts:
+            if f.events:
                 return 0
+            if f.sensing and not self._sensor_program(f):
+                return 0  # a delay fault, or a stuck sensor before its first observation
             limit_s = f._next_s
             for d in self._delay_starts:
                 if d > t_us * 1e-6:
@@ -241,6 +279,30 @@ class _Bridge:
                 end_us = (limit_s - TIME_EPS_S - 2e-6) * 1e6
                 n = min(n, max(0, int((end_us - t_us) // self.tick_us)))
         return n
+
+    def _sensor_program(self, f: Any) -> bool:
+        """The acting sensor faults as the kernel's program (``self.sp``/``self.sn``); False: one
+        of them is not for the kernel."""
+        sp, sn = self.sp, self.sn
+        sn[:] = 0
+        for sensor, objs in f._by_sensor:
+            si = SENSORS.index(sensor)
+            if len(objs) > sp.shape[1]:
+                return False
+            for oi, o in enumerate(objs):
+                mode = o.spec.mode
+                if mode == "stuck":
+                    if o.held is None:
+                        return False
+                    sp[si, oi] = (kernel_mod.SF_STUCK, *o.held)
+                elif mode in ("bias", "noise"):
+                    sp[si, oi] = (kernel_mod.SF_BIAS if mode == "bias" else kernel_mod.SF_NOISE, *o.vec)
+                elif mode == "dropout":
+                    sp[si, oi] = (kernel_mod.SF_DROPOUT, 0.0, 0.0, 0.0)
+                else:
+                    return False
+            sn[si] = len(objs)
+        return True
 
     # -- the moves ----------------------------------------------------------------------------------
     def fly(self, t_us: int, k: int, n: int) -> tuple[int, int, int]:
@@ -256,13 +318,25 @@ class _Bridge:
         plant_f[5] = plant._t_s
         env_paper = env.paper_disturbance
         f = self.faults
+        gusts = list(f._gusts.values()) if f is not None else []
         if f is not None and f.physics_on:
             eff = f.motor_eff
             paper = env_paper or f.paper_disturbance
             add_forces = f.forces_on
-            ff, ft = f.force_world_n, f.torque_body_n_m
+            ff, ft = (f._step_force, f._step_torque) if gusts else (f.force_world_n, f.torque_body_n_m)
         else:
             eff, paper, add_forces, ff, ft = _ONES4, env_paper, False, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
+        if len(gusts) > len(self.fg):
+            self.fg = np.zeros((len(gusts), kernel_mod.FG_COLUMNS))
+        fg = self.fg
+        for i, g in enumerate(gusts):
+            fg[i, 0:5] = g.state
+            fg[i, 5:11] = (g.force_std, g.torque_std, g.tau_s, g.last_h, g.a, g.b)
+        fgmt, fggs = mt_export(f._gust_rng) if gusts else self._empty_mt
+        sensing = f is not None and f.sensing
+        if not sensing:
+            self.sn[:] = 0
+        fnmt, fngs = mt_export(f._noise_rng) if sensing else self._empty_mt
         self.env_f[:] = (env._last_dt_s, env._a, env._b, env.params.gust_time_constant_s)
         wind = env.params.wind_force_n if self.gusts_on else env.force_world_n
         self.gust[:] = env._gust
@@ -273,6 +347,7 @@ class _Bridge:
         self.fc_f[1] = c._ground_armed_s
         io = self.io
         io[:] = 0
+        io[6] = core._est_missing
         plan = core.plan
         plan_next = plan.steps[plan._i].t_s if not plan.finished else math.inf
         rec = self.record
@@ -284,6 +359,7 @@ class _Bridge:
             t_us, self.step_us, self.substeps, self.dt_phys, n, self.rec, rec.every if rec is not None else 0,
             rec.truth if rec is not None else False, k, "sigma" in flight.law.diagnostics, io, self.io_f, self.obs,
             self.log is not None, self.lg, flight._diag_mask, int(c.current.number),
+            fg, len(gusts), fgmt, fggs, self.sp, self.sn, fnmt, fngs, core.estimate_status,
         )  # fmt: skip
         flown, code, n_rec, t_after = int(io[0]), int(io[1]), int(io[2]), int(io[3])
         # back into the live objects
@@ -294,6 +370,15 @@ class _Bridge:
             env._publish()
         if self.noise_on:
             mt_import(self._noise_rng, nmt, ngs)
+        if gusts:
+            assert f is not None
+            mt_import(f._gust_rng, fgmt, fggs)
+            for i, g in enumerate(gusts):
+                g.state = [float(v) for v in fg[i, 0:5]]
+                g.last_h, g.a, g.b = float(fg[i, 8]), float(fg[i, 9]), float(fg[i, 10])
+        if sensing:
+            assert f is not None
+            mt_import(f._noise_rng, fnmt, fngs)
         if flown or code == kernel_mod.SPAN_DIVERGED:
             plant._s = tuple(float(v) for v in plant_s)
             plant._psi = float(plant_f[0])
@@ -313,7 +398,10 @@ class _Bridge:
             c.state_fresh = True
             c.failsafe_active = False
             c.estimate = es
-            c.estimate_ok = True
+            c.estimate_ok = core.estimate_status == EST_OK
+            core.states_missing += int(io[4])
+            core.dead_reckoning_ticks += int(io[5])
+            core._est_missing = int(io[6])
             c.t_s = (last_us - core.t0_us) * 1e-6
             c._ground_armed_s = float(self.io_f[1])
             flight.pipeline_state = ps
@@ -355,14 +443,21 @@ class _Bridge:
         plant = self.plant
         s = plant._s
         euler = (float(o[7]), float(o[8]), float(o[9]))
-        quat = quat_from_euler(*euler) if (self.noise_on and self.noise_std[0] > 0.0) else (s[6], s[7], s[8], s[9])
+        f = self.faults
+        sensing = f is not None and f.sensing
+        if sensing and self.sn[SENSORS.index("attitude")]:
+            quat = _NAN4 if o[16] != 0.0 else quat_from_euler(*euler)
+        elif self.noise_on and self.noise_std[0] > 0.0:
+            quat = quat_from_euler(*euler)
+        else:
+            quat = (s[6], s[7], s[8], s[9])
         obs = VehicleObservation(
             float(o[0]), (float(o[1]), float(o[2]), float(o[3])), (float(o[4]), float(o[5]), float(o[6])), euler,
             (float(o[10]), float(o[11]), float(o[12])), (float(o[13]), float(o[14]), float(o[15])), (s[13], s[14], s[15], s[16]), quat,
         )  # fmt: skip
-        if self.faults is not None:
-            obs = self.faults.observe(obs)
-        plant._obs_cache = obs
+        if f is not None and not sensing:
+            obs = f.observe(obs)  # the sensors are healthy: it keeps its history (delay faults) and clock
+        plant._obs_cache = obs  # (with sensor faults acting, the kernel applied them)
 
 
 def fast_simulate(

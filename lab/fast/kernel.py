@@ -27,7 +27,7 @@ import math
 
 import numpy as np
 
-from fc.estimate import estimate_step
+from fc.estimate import EST_DEAD_RECKONING, estimate_step
 from fc.modes.base import WATCH_DIST2, WATCH_DIST3, WATCH_NONE, WATCH_TIME, WATCH_Z_NEAR
 from fc.pipeline import VehicleState, pipeline_step
 from lab.fast.mt import mt_gauss
@@ -55,6 +55,13 @@ _isfinite = math.isfinite
 
 #: columns of a recorded row (what :class:`lab.metrics.MetricsRecorder` keeps).
 ROW_COLUMNS = 26
+#: sensor-fault modes of the kernel's program (``sp``); delay is flown in Python.
+SF_STUCK = 1
+SF_BIAS = 2
+SF_NOISE = 3
+SF_DROPOUT = 4
+#: columns of a fault gust's row: state (N, E, x, y, z), force std, torque std, tau, last step, a, b.
+FG_COLUMNS = 11
 #: columns of a log row (what :class:`lab.run._TlogRecorder` writes for a tick).
 LOG_COLUMNS = 49
 
@@ -94,6 +101,7 @@ def fly_span(
     gust, gust_std, gusts_on, noise_std, noise_on, gmt, ggs, nmt, ngs,
     t_us, step_us, substeps, dt_phys, n_ticks, rec, rec_every, rec_truth, rec_k0, sigma_ok, io, io_f, obs,
     log_on, lg, diag_mask, mode_num,
+    fg, n_fg, fgmt, fggs, sp, sn, fnmt, fngs, est_prev,
 ):  # fmt: skip
     """Fly up to ``n_ticks`` plain ticks from simulated time ``t_us`` (µs); returns
     ``(pipeline state, estimator state, last outputs, last estimate)``; ``io`` gets
@@ -116,7 +124,11 @@ def fly_span(
     arrays; whether to log every tick into ``lg`` (rows of :data:`LOG_COLUMNS`: time µs, the 12
     wire values, the motor commands, armed, the 31 leading values of the ``SMC`` record of
     :func:`fc.telemetry.smc_data`), which of the law's diagnostics exist (s, sigma, chi_hat,
-    u_dot) and the mode's number.
+    u_dot) and the mode's number; the faults' gusts (``fg``: one row each, :data:`FG_COLUMNS`;
+    ``n_fg`` of them) and their random stream; the sensor faults as a program per sensor (``sp``
+    [sensor, op] = (mode, x, y, z) in the paper's frames, ``sn`` ops per sensor, sensors in
+    :data:`smcpilot.faults.SENSORS` order) and their noise stream; the estimate's status before
+    the span (a tick whose status differs is not plain).
     """
     tx, ty, tz, psi_target, _armed, landing, _hold, _vxy = cmd
     disarm_delay = fc_f[0]
@@ -144,6 +156,9 @@ def fly_span(
     s_att, s_rate, s_pos, s_vel, s_acc = noise_std
     k = 0
     code = 0
+    n_missing = 0
+    n_dr = 0
+    last_missing = io[6]
     while k < n_ticks:
         # -- the observation (the plant's truth, sensor noise) and the wire ---------------------
         x, y, z, vx, vy, vz, qw, qx, qy, qz, p_, q_, r_, w1, w2, w3, w4 = (
@@ -179,6 +194,55 @@ def fly_span(
                 oax = oax + mt_gauss(nmt, ngs, 0.0, s_acc)
                 oay = oay + mt_gauss(nmt, ngs, 0.0, s_acc)
                 oaz = oaz + mt_gauss(nmt, ngs, 0.0, s_acc)
+        # the sensor faults, sensor by sensor in SENSORS order, each sensor's in their order
+        att_lost = False
+        for si in range(5):
+            nops = sn[si]
+            if nops == 0:
+                continue
+            if si == 0:
+                v0, v1, v2 = op, oq, o_r
+            elif si == 1:
+                v0, v1, v2 = oax, oay, oaz
+            elif si == 2:
+                v0, v1, v2 = o_phi, o_theta, o_psi
+            elif si == 3:
+                v0, v1, v2 = ox, oy, oz
+            else:
+                v0, v1, v2 = ovx, ovy, ovz
+            dropped = False
+            for oi in range(nops):
+                prog = sp[si, oi]
+                mode = prog[0]
+                if mode == SF_STUCK:
+                    v0, v1, v2 = prog[1], prog[2], prog[3]
+                elif mode == SF_BIAS:
+                    v0, v1, v2 = v0 + prog[1], v1 + prog[2], v2 + prog[3]
+                elif mode == SF_NOISE:
+                    if prog[1] > 0.0:
+                        v0 = v0 + mt_gauss(fnmt, fngs, 0.0, prog[1])
+                    if prog[2] > 0.0:
+                        v1 = v1 + mt_gauss(fnmt, fngs, 0.0, prog[2])
+                    if prog[3] > 0.0:
+                        v2 = v2 + mt_gauss(fnmt, fngs, 0.0, prog[3])
+                else:  # dropout
+                    v0 = v1 = v2 = nan
+                    dropped = True
+            if si == 0:
+                op, oq, o_r = v0, v1, v2
+            elif si == 1:
+                oax, oay, oaz = v0, v1, v2
+            elif si == 2:
+                if dropped:
+                    att_lost = True
+                else:
+                    v0 = wrap_pi(v0)
+                    v2 = wrap_pi(v2)
+                o_phi, o_theta, o_psi = v0, v1, v2
+            elif si == 3:
+                ox, oy, oz = v0, v1, v2
+            else:
+                ovx, ovy, ovz = v0, v1, v2
         # hand-over values (the driver rebuilds the observation when it flies this tick itself)
         obs[0] = plant_f[5]
         obs[1] = ox
@@ -196,6 +260,7 @@ def fly_span(
         obs[13] = oax
         obs[14] = oay
         obs[15] = oaz
+        obs[16] = 1.0 if att_lost else 0.0
         # wire: NED/FRD float32, then back to the paper frame (lab.runner.wire_values / state_of_wire)
         if (_f32_overflows(o_phi) or _f32_overflows(o_theta) or _f32_overflows(o_psi) or _f32_overflows(op)
                 or _f32_overflows(oq) or _f32_overflows(o_r) or _f32_overflows(ox) or _f32_overflows(oy)
@@ -218,7 +283,7 @@ def fly_span(
         st = VehicleState(m_x, m_y, m_z, m_vx, m_vy, m_vz, m_phi, m_theta, m_psi, phi_d, theta_d, psi_d)
         # -- the FC's tick: the estimate, the plan, the commander, the pipeline ------------------
         es_new, est_new, status, missing = estimate_step(es, st, dt_ctrl, ep)
-        if status != 0 or missing != 0:
+        if status != est_prev or status > EST_DEAD_RECKONING:
             code = 1
             break
         t_s = (t_us - t0_us) * 1e-6
@@ -251,6 +316,11 @@ def fly_span(
         ground_s = new_ground
         es = es_new
         est = est_new
+        if missing != 0:
+            n_missing += 1
+        if status == EST_DEAD_RECKONING:
+            n_dr += 1
+        last_missing = missing
         m0 = _f32(out[0][0])
         m1 = _f32(out[0][1])
         m2 = _f32(out[0][2])
@@ -274,7 +344,7 @@ def fly_span(
                 row[9] = rpsi
             else:
                 for j in range(9):
-                    row[1 + j] = est[j]
+                    row[1 + j] = st[j]
             row[10] = tx
             row[11] = ty
             row[12] = tz
@@ -359,7 +429,40 @@ def fly_span(
                 tqx = gust[3]
                 tqy = gust[4]
                 tqz = gust[5]
-            if add_forces:
+            if n_fg > 0:
+                # the faults' gusts (sim_bridge.faults.SimFaults.advance): NED force, FRD torque
+                gfn = 0.0
+                gfe = 0.0
+                gtx = 0.0
+                gty = 0.0
+                gtz = 0.0
+                for gi in range(n_fg):
+                    gr = fg[gi]
+                    if dt_phys != gr[8]:
+                        gr[9] = _exp(-dt_phys / gr[7])
+                        gr[10] = _sqrt(max(0.0, 1.0 - gr[9] * gr[9]))
+                        gr[8] = dt_phys
+                    a_ = gr[9]
+                    b_ = gr[10]
+                    if gr[5] > 0.0:
+                        gr[0] = a_ * gr[0] + b_ * mt_gauss(fgmt, fggs, 0.0, gr[5])
+                        gr[1] = a_ * gr[1] + b_ * mt_gauss(fgmt, fggs, 0.0, gr[5])
+                    if gr[6] > 0.0:
+                        gr[2] = a_ * gr[2] + b_ * mt_gauss(fgmt, fggs, 0.0, gr[6])
+                        gr[3] = a_ * gr[3] + b_ * mt_gauss(fgmt, fggs, 0.0, gr[6])
+                        gr[4] = a_ * gr[4] + b_ * mt_gauss(fgmt, fggs, 0.0, gr[6])
+                    gfn += gr[0]
+                    gfe += gr[1]
+                    gtx += gr[2]
+                    gty += gr[3]
+                    gtz += gr[4]
+                fx = fx + (fault_force[0] + gfn)
+                fy = fy + (fault_force[1] + -gfe)
+                fz = fz + (fault_force[2] + -0.0)
+                tqx = tqx + (fault_torque[0] + gtx)
+                tqy = tqy + (fault_torque[1] + -gty)
+                tqz = tqz + (fault_torque[2] + -gtz)
+            elif add_forces:
                 fx = fx + fault_force[0]
                 fy = fy + fault_force[1]
                 fz = fz + fault_force[2]
@@ -402,6 +505,9 @@ def fly_span(
     io[1] = code
     io[2] = n_rec
     io[3] = t_us
+    io[4] = n_missing
+    io[5] = n_dr
+    io[6] = last_missing
     io_f[1] = ground_s
     return ps, es, out, est
 
