@@ -19,7 +19,6 @@ paper's disturbances.
 from __future__ import annotations
 
 import contextlib
-import inspect
 import math
 import random
 import time
@@ -182,17 +181,16 @@ _DISPATCHERS: dict = {}
 
 @contextlib.contextmanager
 def compiled():
-    """Every pure function as a numba dispatcher, in every module that calls it (undone after)."""
-    numba = pytest.importorskip("numba")
+    """Every pure function compiled, as the product compiles them: :func:`smcpilot.jit.compile_pure`'s
+    twins (the same code calling each other's twins; the originals stay plain Python)."""
+    pytest.importorskip("numba")
     if not _DISPATCHERS:
-        _DISPATCHERS.update({fn: numba.njit(fn) for fn in ALL_PURE})
-    modules = {inspect.getmodule(fn) for fn in ALL_PURE}
-    with pytest.MonkeyPatch.context() as mp:
-        for mod in modules:
-            for name, value in list(vars(mod).items()):
-                if isinstance(value, types.FunctionType) and value in _DISPATCHERS:
-                    mp.setattr(mod, name, _DISPATCHERS[value])
-        yield _DISPATCHERS
+        from fc.control.purity import pure_closure
+        from smcpilot.jit import compile_pure
+
+        fns, _ = pure_closure(ALL_PURE)
+        _DISPATCHERS.update(compile_pure(fns, cache=False))
+    yield _DISPATCHERS
 
 
 def _closed_loop(controller: str) -> list[tuple]:

@@ -5,7 +5,8 @@ motor-loss), the same flight is flown in CPython (``SMCPILOT_JIT=0``'s path) and
 (:mod:`lab.fast`), with no log, keeping a metrics row every tick (what a campaign unit keeps);
 the wall times are the best of ``--repeat`` flights. Printed: simulated seconds per wall second
 (× real time), µs per tick, and the ratio compiled / CPython. The first compiled flight also
-shows what loading (or compiling) the kernel cost, separately. With ``--compare N``, also
+shows what loading (or compiling) the kernel cost, separately. Then the same flights as
+``smcpilot run`` flies them, writing the full-rate ``.tlog``. With ``--compare N``, also
 ``smcpilot compare --seeds N`` end to end, once each way (subprocesses, 2 workers).
 """
 
@@ -53,6 +54,23 @@ def _flight_s(sc, fast: bool) -> tuple[float, int]:  # type: ignore[no-untyped-d
     return time.perf_counter() - t0, n
 
 
+def _logged_flight_s(sc, fast: bool) -> float:  # type: ignore[no-untyped-def]
+    from lab.run import fly_in_process
+
+    old = os.environ.get("SMCPILOT_JIT")
+    os.environ["SMCPILOT_JIT"] = "1" if fast else "0"
+    try:
+        with tempfile.TemporaryDirectory() as d:
+            t0 = time.perf_counter()
+            fly_in_process(sc, Path(d) / "flight.tlog")
+            return time.perf_counter() - t0
+    finally:
+        if old is None:
+            del os.environ["SMCPILOT_JIT"]
+        else:
+            os.environ["SMCPILOT_JIT"] = old
+
+
 def bench_fast(args: argparse.Namespace) -> int:
     from smcpilot.jit import jit_unavailable_reason
     from smcpilot.scenario import Scenario
@@ -79,6 +97,19 @@ def bench_fast(args: argparse.Namespace) -> int:
               f"{py / fast:>6.1f}x {first - fast:>11.2f}")  # fmt: skip
     if len(ratios) > 1:
         print(f"compiled / CPython: {min(ratios):.1f}x to {max(ratios):.1f}x")
+    print("\nthe same flights as `smcpilot run` flies them, writing the full-rate .tlog (byte for byte the same either way):")
+    print(f"{'scenario':<14} {'CPython':>10} {'compiled':>10} {'ratio':>7}")
+    print(f"{'':<14} {'x real':>10} {'x real':>10} {'':>7}")
+    tl_ratios = []
+    for path in paths:
+        sc = Scenario.from_toml(path)
+        py = min(_logged_flight_s(sc, False) for _ in range(args.repeat))
+        fast = min(_logged_flight_s(sc, True) for _ in range(args.repeat))
+        sim_s = sc.n_ticks / sc.rate_hz
+        tl_ratios.append(py / fast)
+        print(f"{path.stem:<14} {sim_s / py:>10.0f} {sim_s / fast:>10.0f} {py / fast:>6.1f}x")
+    if len(tl_ratios) > 1:
+        print(f"compiled / CPython, with the log: {min(tl_ratios):.1f}x to {max(tl_ratios):.1f}x")
     if args.compare:
         _bench_compare(args.compare)
     return 0
