@@ -5,7 +5,7 @@ frames, bad CRCs, valid-CRC frames with NaN / ±inf / huge fields, frames for ot
 ``tests/test_fuzz.py`` sends them during lockstep and real-time flights, :func:`send_flood` at a
 fixed rate with the heartbeat flood of many systems beside them.
 
-``smcpilot bench flood`` (docs/performance.md) flies the same real-time flight clean and flooded,
+``smcpilot bench flood`` (docs/security.md, "Measured") flies the same real-time flight clean and flooded,
 back to back, ``--pairs`` times, while a well-behaved ground station sends a command every half
 second and times its ``COMMAND_ACK``; it prints the loop's figures (overruns, p99 lateness), the
 flooded track's deviation from the clean one, the command answer times, and what the FC's
@@ -216,7 +216,7 @@ class Fuzzer:
 # -- a flood at a fixed rate ---------------------------------------------------------------------
 @dataclass(frozen=True)
 class FloodSpec:
-    """The issue's flood: ``hostile`` datagrams spread evenly over ``seconds`` (three in five to
+    """A ground-link flood: ``hostile`` datagrams spread evenly over ``seconds`` (three in five to
     the FC's ground port, one to its simulator port, one to the simulator's port), plus a
     heartbeat from each of ``systems`` ground-station systems (each on its own socket) at
     ``heartbeat_hz``."""
