@@ -110,8 +110,9 @@ def simulate(
     ``on_fault_event`` as they happen: those of the state at t before the tick at t, those of the
     physics after the period's steps.
 
-    ``fast`` (None: whenever it can) flies the plain ticks in the compiled kernel
-    (:mod:`lab.fast`): the same flight, bit for bit, many times faster. It cannot call ``on_tick``
+    ``fast`` (None: whenever it can, True: also when a plug-in law's kernel must be compiled
+    first) flies the plain ticks in the compiled kernel (:mod:`lab.fast`): the same flight, bit for
+    bit, many times faster. It cannot call ``on_tick``
     every tick, so a flight with a tick hook flies in CPython; ``record`` instead keeps a
     :class:`lab.metrics.MetricsRecorder`'s rows (every n-th tick, of the received or the true
     state), compiled or not, and ``log`` gets every tick (its ``on_tick`` in CPython, its
@@ -157,7 +158,7 @@ def simulate(
         return t_us
 
     if fast is not False and on_tick is None:
-        why = fast_unsupported(core, plant, physics_hz, rate_hz)
+        why = fast_unsupported(core, plant, physics_hz, rate_hz, compile_new=bool(fast))
         if why is None:
             return fast_simulate(core, plant, n_ticks, rate_hz=rate_hz, physics_hz=physics_hz, py_tick=one_tick,  # type: ignore[arg-type]
                                  stop=stop, record=record, log=log)  # fmt: skip

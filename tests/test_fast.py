@@ -328,3 +328,32 @@ def test_the_robustness_study_cases_fly_the_same_compiled(case: str) -> None:
     sc = c.scenario.with_changes(seed=3)
     _assert_same(_fly(sc, False), _fly(sc, True), case)
     _assert_same(_fly(sc, False, truth=True), _fly(sc, True, truth=True), case + " (truth)")
+
+
+def test_a_plug_in_law_flies_in_cpython_until_it_is_compiled_and_then_the_same(tmp_path: Path) -> None:
+    """A single flight of a plug-in law whose kernel is not compiled flies in CPython (said once);
+    ``fast=True`` (what campaigns pass) compiles it, and the flight is the same."""
+    src = (ROOT / "examples" / "law-plugin" / "smcpilot_pd_law" / "pd_law.py").read_text()
+    law_file = tmp_path / f"my_pd_{random.SystemRandom().randrange(1 << 30)}.py"  # a new law: nothing cached
+    law_file.write_text(src)
+    sc = Scenario.from_toml(ROOT / "examples" / "scenarios" / "hover.toml").with_changes(
+        duration_s=4.0, controller=f"{law_file}:PD_LAW")
+    code = (
+        "import sys\n"
+        "from smcpilot.scenario import Scenario\n"
+        "from fc.core import FlightCore\n"
+        "from fc.params import config_for\n"
+        "from lab.runner import simulate\n"
+        "from sim_bridge.build import plant_for\n"
+        f"sc = Scenario.from_toml({str(ROOT / 'examples' / 'scenarios' / 'hover.toml')!r}).with_changes(duration_s=4.0, controller={sc.controller!r})\n"
+        "core = FlightCore(config_for(sc), sc.vehicle, plan=sc.plan)\n"
+        "simulate(core, plant_for(sc), sc.n_ticks, rate_hz=sc.rate_hz)\n"
+        "simulate(FlightCore(config_for(sc), sc.vehicle, plan=sc.plan), plant_for(sc), sc.n_ticks, rate_hz=sc.rate_hz)\n"
+    )
+    p = _python(code)
+    assert p.returncode == 0, p.stderr
+    assert p.stderr.count("no compiled kernel yet") == 1, p.stderr  # two flights, said once
+    assert "compiling the flight kernel" not in p.stderr and "compiled the flight kernel" not in p.stderr, p.stderr
+    a = _fly(sc, False)
+    b = _fly(sc, True)  # compiles the kernel for this law
+    _assert_same(a, b, "plug-in law")

@@ -119,7 +119,7 @@ def _fly_in_process(unit: Unit, row: dict[str, Any], tlog: Path | None) -> Trace
     status, message = "ok", ""
     diverged_t_s: float | None = None
     try:
-        ticks = simulate(core, plant, sc.n_ticks, rate_hz=sc.rate_hz, physics_hz=sc.physics_hz, record=record, log=recorder,
+        ticks = simulate(core, plant, sc.n_ticks, rate_hz=sc.rate_hz, physics_hz=sc.physics_hz, fast=True, record=record, log=recorder,
                          stop=lambda: perf() > deadline, on_fault_event=None if recorder is None else recorder.sim_event)  # fmt: skip
         if ticks < sc.n_ticks:
             status, message = "timed out", f"over the {unit.timeout_s:g} s limit at t = {core.t_us * 1e-6:.2f} of {sc.duration_s:g} simulated s"

@@ -46,7 +46,7 @@ from sim_bridge.sensors import VehicleObservation
 from smcpilot.errors import DivergenceError
 from smcpilot.faults import MAX_DELAY_S, SENSORS
 from smcpilot.frames import quat_from_euler
-from smcpilot.jit import compile_pure, jit_enabled, say_once
+from smcpilot.jit import JIT_ENV, compile_pure, jit_enabled, say_once
 
 __all__ = ["FastRecord", "fast_simulate", "fast_unsupported", "compiled_kernel"]
 
@@ -190,8 +190,11 @@ def _cache_index(dispatcher: Any) -> str | None:
         return None
 
 
-def fast_unsupported(core: FlightCore, plant: object, physics_hz: float, rate_hz: float) -> str | None:
-    """Why this flight cannot use the compiled kernel at all (None: it can)."""
+def fast_unsupported(core: FlightCore, plant: object, physics_hz: float, rate_hz: float, *, compile_new: bool = True) -> str | None:
+    """Why this flight cannot use the compiled kernel at all (None: it can). Without
+    ``compile_new``, a plug-in law whose kernel is not compiled yet flies in CPython: compiling it
+    (10–30 s) would cost more than one flight saves, and a law being written changes often;
+    campaigns (many flights) and ``SMCPILOT_JIT=1`` compile it. Says once why a law flies in CPython."""
     if not jit_enabled():
         return "compiled path off"
     if type(plant) is not RigidBodyPlant:
@@ -206,7 +209,16 @@ def fast_unsupported(core: FlightCore, plant: object, physics_hz: float, rate_hz
     if problems is None:
         problems = _LAW_PROBLEMS[(law.name, id(law))] = law_problems(law)
     if problems:
-        return f"the control law {law.name} is not in the pure style ({problems[0]})"
+        why = f"the control law {law.name} is not in the pure style ({problems[0]})"
+        fast_note(why)
+        return why
+    if not compile_new and law.origin != "built-in" and os.environ.get(JIT_ENV, "").strip() != "1":
+        index = _cache_index(compiled_kernel(core.flight.law_functions, law.full_stack).fly)
+        if index is None or not os.path.exists(index):
+            why = (f"the law {law.name} has no compiled kernel yet (compiling takes 10-30 s once; "
+                   f"campaigns do it, or set {JIT_ENV}=1)")  # fmt: skip
+            fast_note(why)
+            return why
     return None
 
 
