@@ -334,8 +334,9 @@ def test_a_plug_in_law_flies_in_cpython_until_it_is_compiled_and_then_the_same(t
     """A single flight of a plug-in law whose kernel is not compiled flies in CPython (said once);
     ``fast=True`` (what campaigns pass) compiles it, and the flight is the same."""
     src = (ROOT / "examples" / "law-plugin" / "smcpilot_pd_law" / "pd_law.py").read_text()
-    law_file = tmp_path / f"my_pd_{random.SystemRandom().randrange(1 << 30)}.py"  # a new law: nothing cached
-    law_file.write_text(src)
+    tag = random.SystemRandom().randrange(1 << 30)
+    law_file = tmp_path / f"my_pd_{tag}.py"
+    law_file.write_text(src + f"\n# {tag}: a new law, nothing compiled for it yet\n")
     sc = Scenario.from_toml(ROOT / "examples" / "scenarios" / "hover.toml").with_changes(
         duration_s=4.0, controller=f"{law_file}:PD_LAW")
     code = (
