@@ -58,10 +58,27 @@ def _python_function(v: object) -> types.FunctionType | None:
     return inner if isinstance(inner, types.FunctionType) else None
 
 
+#: the transitive form's answers per function (its source does not change in a process).
+_TRANSITIVE: dict[types.FunctionType, tuple[list[str], list[types.FunctionType]]] = {}
+
+
 def function_problems(fn: Callable, pure: Iterable[Callable] = (), *, called: list[types.FunctionType] | None = None) -> list[str]:
     """What in ``fn`` breaks the rules (empty: none). Calls must go to ``pure`` functions; with
     ``called`` given, calls of other Python functions are allowed and collected there instead
     (for a transitive check)."""
+    pure = tuple(pure)
+    f = _python_function(fn)
+    if called is not None and not pure and f is not None:
+        known = _TRANSITIVE.get(f)
+        if known is None:
+            found: list[types.FunctionType] = []
+            known = _TRANSITIVE[f] = (_function_problems(fn, (), called=found), found)
+        called.extend(known[1])
+        return list(known[0])
+    return _function_problems(fn, pure, called=called)
+
+
+def _function_problems(fn: Callable, pure: Iterable[Callable] = (), *, called: list[types.FunctionType] | None = None) -> list[str]:
     f = _python_function(fn)
     name = getattr(fn, "__name__", repr(fn))
     if f is None:
