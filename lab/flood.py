@@ -235,6 +235,19 @@ def flood_datagrams(fuzzer: Fuzzer, n: int) -> list[tuple[str, bytes]]:
     return [(order[i % len(order)], fuzzer.datagram(order[i % len(order)])) for i in range(n)]
 
 
+def heartbeat_flood(systems: int) -> list[tuple[socket.socket, bytes]]:
+    """One socket on 127.0.0.1 and one ground-station heartbeat (systems 100, 101, ...) per
+    flooding system; the caller closes the sockets."""
+    flood: list[tuple[socket.socket, bytes]] = []
+    for i in range(systems):
+        s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        flood.append((s, b""))
+        s.bind((LOOPBACK, 0))
+        enc = M.MAVLink(None, srcSystem=100 + i, srcComponent=190)
+        flood[-1] = (s, enc.heartbeat_encode(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 4).pack(enc))
+    return flood
+
+
 def send_flood(
     targets: dict[str, tuple[str, int]], datagrams: Sequence[tuple[str, bytes]], spec: FloodSpec, stop: threading.Event,
     sent: Counter | None = None,
@@ -243,13 +256,8 @@ def send_flood(
     shift the rest) and the heartbeat flood beside them, until done or ``stop``; counts in ``sent``
     by (target, class) as :class:`Fuzzer` does ("heartbeat_flood" for the heartbeats)."""
     sent = sent if sent is not None else Counter()
-    flood: list[tuple[socket.socket, bytes]] = []
+    flood = heartbeat_flood(spec.systems)
     try:
-        for i in range(spec.systems):
-            s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            s.bind((LOOPBACK, 0))
-            enc = M.MAVLink(None, srcSystem=100 + i, srcComponent=190)
-            flood.append((s, enc.heartbeat_encode(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 4).pack(enc)))
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as out:
             out.bind((LOOPBACK, 0))
             t0 = time.monotonic()

@@ -37,7 +37,7 @@ from sitl_helpers import write_plan
 
 from ground.logs import load_log, summarize
 from ground.sitl import Sitl, SitlOptions
-from lab.flood import FloodSpec, Fuzzer, send_flood, udp_ports
+from lab.flood import FloodSpec, Fuzzer, heartbeat_flood, send_flood, udp_ports
 from smcpilot.protocol import SIM_COMPONENT_ID, Mode
 from smcpilot.tlog import read_tlog
 
@@ -150,12 +150,7 @@ def fuzz_all(fuzzer: Fuzzer, rate_hz: float = 400.0) -> Fuzz:
         sim_ports = udp_ports(sitl.sim.proc.pid)
         assert len(sim_ports) == 1, sim_ports
         targets["sim"] = (LOOPBACK, sim_ports[0])
-        flood = []
-        for i in range(FLOOD_SYSTEMS):
-            s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-            s.bind((LOOPBACK, 0))
-            enc = M.MAVLink(None, srcSystem=100 + i, srcComponent=190)
-            flood.append((s, enc.heartbeat_encode(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 4).pack(enc)))
+        flood = heartbeat_flood(FLOOD_SYSTEMS)
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as out:
             out.bind((LOOPBACK, 0))
             period = 1.0 / rate_hz
