@@ -195,10 +195,12 @@ def fly(
     physics_hz: float = 1000.0,
     record_every: int = 0,
     home: Home = Home(),
+    fast: bool | None = None,
 ) -> InProcessRun:
     """Fly ``plan`` for ``duration_s`` simulated seconds (``duration_s`` × rate ticks).
 
-    ``record_every`` = 0 records nothing but the events (benchmarks).
+    ``record_every`` = 0 records nothing but the events (benchmarks); then the flight flies
+    compiled where it can (``fast``, as :func:`simulate`).
     """
     run = InProcessRun()
     core = FlightCore(config, vehicle, home=home, plan=plan, event=lambda severity, text: run.events.append((core.t_us * 1e-6, text)))
@@ -212,6 +214,6 @@ def fly(
             run.targets.append(flight.target)
 
     n_ticks = int(round(duration_s * config.rate_hz))
-    run.ticks = simulate(core, plant, n_ticks, rate_hz=config.rate_hz, physics_hz=physics_hz, on_tick=record if record_every else None,
+    run.ticks = simulate(core, plant, n_ticks, rate_hz=config.rate_hz, physics_hz=physics_hz, on_tick=record if record_every else None, fast=fast,
                          on_fault_event=lambda ev: run.events.append((ev.t_s, ev.text)))  # fmt: skip
     return run
