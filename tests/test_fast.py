@@ -336,7 +336,11 @@ def test_a_plug_in_law_flies_in_cpython_until_it_is_compiled_and_then_the_same(t
     src = (ROOT / "examples" / "law-plugin" / "smcpilot_pd_law" / "pd_law.py").read_text()
     tag = random.SystemRandom().randrange(1 << 30)
     law_file = tmp_path / f"my_pd_{tag}.py"
-    law_file.write_text(src + f"\n# {tag}: a new law, nothing compiled for it yet\n")
+    # a new law (its own name and parameter prefix, beside the example's and other tests' copies)
+    prefix = "FQ" + "".join(chr(65 + int(d)) for d in str(tag)[:5])
+    src = src.replace('name="pd_feedback", stage="attitude", prefix="PDL"', f'name="pd_copy_{tag}", stage="attitude", prefix="{prefix}"')
+    assert f"pd_copy_{tag}" in src
+    law_file.write_text(src + f"\n# {tag}: nothing compiled for it yet\n")
     sc = Scenario.from_toml(ROOT / "examples" / "scenarios" / "hover.toml").with_changes(
         duration_s=4.0, controller=f"{law_file}:PD_LAW")
     code = (

@@ -344,11 +344,11 @@ class _Bridge:
         for i, g in enumerate(gusts):
             fg[i, 0:5] = g.state
             fg[i, 5:11] = (g.force_std, g.torque_std, g.tau_s, g.last_h, g.a, g.b)
-        fgmt, fggs = mt_export(f._gust_rng) if gusts else self._empty_mt
+        fgmt, fggs = mt_export(f._gust_rng) if (gusts and f is not None) else self._empty_mt
         sensing = f is not None and f.sensing
         if not sensing:
             self.sn[:] = 0
-        fnmt, fngs = mt_export(f._noise_rng) if sensing else self._empty_mt
+        fnmt, fngs = mt_export(f._noise_rng) if (sensing and f is not None) else self._empty_mt
         self.env_f[:] = (env._last_dt_s, env._a, env._b, env.params.gust_time_constant_s)
         wind = env.params.wind_force_n if self.gusts_on else env.force_world_n
         self.gust[:] = env._gust
