@@ -86,6 +86,21 @@ def _sitl(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=sitl_cmd.sitl_main)
 
 
+def _sim(sub: argparse._SubParsersAction) -> None:
+    from sim_bridge import serve
+
+    p = sub.add_parser(
+        "sim",
+        help="our simulator as the physics back-end of another autopilot: ArduPilot SITL (--model JSON) or PX4 SITL",
+        description="Serve a scenario's plant, environment and faults to ArduPilot SITL over its JSON interface"
+        " (--serve ardupilot-json, UDP 9002) or to PX4 SITL over its simulator MAVLink API (--serve px4, TCP 4560),"
+        " in lockstep with the autopilot. Stops on Ctrl-C/SIGTERM with a summary (exit 0), at --duration, or when the"
+        " autopilot stops answering (exit 3). Command lines, motor order and frame parameters: docs/external-simulators.md.",
+    )
+    serve.add_arguments(p)
+    p.set_defaults(handler=serve.main)
+
+
 def _demo(sub: argparse._SubParsersAction) -> None:
     from ground import sitl_cmd
 
@@ -223,7 +238,7 @@ def _laws(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=laws_cmd.main)
 
 
-SUBCOMMANDS = (_run, _laws, _compare, _campaign, _tune, _paper, _sitl, _demo, _bench, _plot, _log, _gcs, _mission)
+SUBCOMMANDS = (_run, _laws, _compare, _campaign, _tune, _paper, _sitl, _sim, _demo, _bench, _plot, _log, _gcs, _mission)
 
 
 def build_parser() -> argparse.ArgumentParser:
