@@ -62,6 +62,7 @@ from fc.core import FlightCore
 from fc.flight import VehicleState
 from fc.gcs import GcsHandler
 from fc.intake import OTHER, Intake, classify
+from fc.mission import MissionProtocol
 from fc.params import ParamStore, param_messages
 from fc.streams import StreamScheduler
 from smcpilot.clock import SimClock, WallClock
@@ -299,16 +300,19 @@ class FlightControllerApp:
         gcs = self.gcs
         #: the flight core: the one control tick (plan, modes, failsafes, pipeline, events).
         self.core = FlightCore(
-            config, vehicle, home=home, plan=plan, event=self.event,
-            mav=gcs.mav if gcs is not None else None,
-            send_to=gcs.send_to if gcs is not None else None,
-            broadcast=gcs.send if gcs is not None else None,
+            config, vehicle, home=home, plan=plan, event=self.event, item_reached=self._item_reached,
             estimator=self.params.options.estimator,
+        )  # fmt: skip
+        #: the mission protocol with ground stations, over the commander's stored mission.
+        self.mission = MissionProtocol(
+            self.core.commander.mission, gcs.mav if gcs is not None else mavlink.MAVLink(None),
+            gcs.send_to if gcs is not None else (lambda m, a: None),
+            home=lambda: self.core.commander.home, fence=lambda: self.core.config.fence,
         )  # fmt: skip
         self.streams = StreamScheduler(config.telemetry_rate_hz)
         #: the ground protocol, with its collaborators (no back-reference to this app).
         self.gcs_handler = GcsHandler(
-            core=self.core, mission=self.core.commander.mission, params=self.params, streams=self.streams,
+            core=self.core, mission=self.mission, params=self.params, streams=self.streams,
             link=gcs, event=self.event, log=self.say, snapshot=self.telemetry_snapshot,
             apply_config=self.apply_config, wall_s=monotonic, forward_sim=self.forward_sim_param,
             signing=self.signing, trusted=gcs_trusted,
@@ -459,7 +463,7 @@ class FlightControllerApp:
         for reason, v in self.gcs_handler.rejected.items():
             if v:
                 out[f"gcs.{reason}"] = v
-        mission = self.core.commander.mission
+        mission = self.mission
         for reason, v in (("mission_refused", mission.refused), ("mission_ignored", mission.ignored)):
             if v:
                 out[f"gcs.{reason}"] = v
@@ -870,6 +874,11 @@ class FlightControllerApp:
         self.gcs_handler.on_tick(t_us, None if self.lockstep else t_ground + TELEMETRY_SHARE * self.cfg.period_s)
         self._gcs_tick_s = self._mono() - t_ground
         self._period_no += 1
+
+    def _item_reached(self, seq: int) -> None:
+        """``MISSION_ITEM_REACHED`` to every ground station."""
+        if self.gcs is not None:
+            self.gcs.send(self.gcs.mav.mission_item_reached_encode(seq))
 
     def event(self, severity: int, text: str) -> None:
         """A STATUSTEXT to ground stations (and the log), and a line on stdout."""

@@ -18,20 +18,38 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import NamedTuple
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from fc import inbound
 from fc.estimate import EstimatorParams, EstimatorState, HoldPoint, hold_point
 from fc.flight import FlightControl, VehicleState
-from fc.mission import MissionProtocol
+from fc.mission import MissionStore
 from fc.modes import AutoMode, FlightMode, Refusal, build_modes
 from smcpilot.geo import Home
 from smcpilot.limits import takeoff_refusal, target_refusal
 from smcpilot.plan import PlanStep
 from smcpilot.protocol import Mode, mode_name
 
-__all__ = ["Commander", "Refusal"]
+__all__ = ["Commander", "CommanderInput", "Refusal"]
+
+
+class CommanderInput(NamedTuple):
+    """What the flight core tells the commander about the vehicle (paper frame), in one value:
+    every tick, and between ticks before a command is judged (:meth:`Commander.observe`)."""
+
+    #: the state flown on (the estimate); None: none usable yet.
+    state: VehicleState | None
+    #: the state is recent (real time: younger than the state timeout) and usable.
+    fresh: bool
+    #: the state-loss failsafe is flying.
+    failsafe: bool
+    #: the estimator's state, the hold point's source (:mod:`fc.estimate`); None: the hold point
+    #: is the state's own position and yaw.
+    estimate: EstimatorState | None
+    #: every field of the latest state was measured (False: dead reckoning, or unusable).
+    estimate_ok: bool
 
 
 class Commander:
@@ -43,21 +61,16 @@ class Commander:
         home: Home,
         event: Callable[[int, str], None],
         *,
-        mav: mavlink.MAVLink | None = None,
-        send_to: Callable[[mavlink.MAVLink_message, tuple[str, int]], None] | None = None,
-        broadcast: Callable[[mavlink.MAVLink_message], None] | None = None,
+        item_reached: Callable[[int], None] | None = None,
     ) -> None:
-        """``mav`` encodes ground messages; ``send_to``/``broadcast`` reach ground stations
-        (None: no ground link, e.g. the in-process runner)."""
+        """``event`` hears every event; ``item_reached`` every mission item reached (the FC's
+        ground edge sends ``MISSION_ITEM_REACHED``; None: nobody hears it)."""
         self.flight = flight
         self.home = home
         self._event = event
-        self._mav = mav if mav is not None else mavlink.MAVLink(None)
-        self._broadcast = broadcast
-        self.mission = MissionProtocol(
-            self._mav, send_to if send_to is not None else (lambda m, a: None), self.on_mission_changed, self.on_set_current,
-            home=lambda: self.home, fence=lambda: self.config.fence,
-        )
+        self._item_reached = item_reached
+        #: the stored mission (the ground protocol at the FC's edge fills it; AUTO flies it).
+        self.mission = MissionStore(self.on_mission_changed, self.on_set_current)
         self.state: VehicleState | None = None
         self.state_fresh = False
         #: the flight core's estimate after the latest tick and its settings (:mod:`fc.estimate`),
@@ -76,6 +89,26 @@ class Commander:
         # GCS-loss failsafe
         self._gcs_last_hb_s: float | None = None
         self._gcs_failsafe = False
+
+    # -- what the flight core tells it -----------------------------------------------------------
+    def observe(self, inp: CommanderInput) -> None:
+        """The vehicle as the flight core sees it now (the one way in: no attribute writes)."""
+        self.state = inp.state
+        self.state_fresh = inp.fresh
+        self.failsafe_active = inp.failsafe
+        self.estimate = inp.estimate
+        self.estimate_ok = inp.estimate_ok
+
+    @property
+    def ground_armed_s(self) -> float:
+        """How long the vehicle has sat armed on the ground with nothing to do (the disarm delay), s."""
+        return self._ground_armed_s
+
+    def resume(self, t_s: float, ground_armed_s: float) -> None:
+        """After ticks flown elsewhere (the compiled flight, :mod:`lab.fast`, which checks the
+        disarm delay and the mode's watch itself): the last tick's time and the disarm delay's count."""
+        self.t_s = t_s
+        self._ground_armed_s = ground_armed_s
 
     # -- helpers --------------------------------------------------------------------------------
     @property
@@ -111,9 +144,9 @@ class Commander:
         return st._replace(x_m=h.x_m, y_m=h.y_m, z_m=h.z_m, psi_rad=h.psi_rad)
 
     def item_reached(self, seq: int) -> None:
-        """``MISSION_ITEM_REACHED`` to every ground station."""
-        if self._broadcast is not None:
-            self._broadcast(self._mav.mission_item_reached_encode(seq))
+        """Mission item ``seq`` reached (the ground edge tells every station)."""
+        if self._item_reached is not None:
+            self._item_reached(seq)
 
     def on_ground(self) -> bool:
         st = self.state

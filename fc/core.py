@@ -34,7 +34,7 @@ from typing import NamedTuple
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from fc.commander import Commander
+from fc.commander import Commander, CommanderInput
 from fc.config import FcConfig
 from fc.estimate import (
     EST_ATTITUDE_LOST,
@@ -87,14 +87,13 @@ class FlightCore:
         home: Home = Home(),
         plan: Sequence[PlanStep] = (),
         event: EventSink | None = None,
-        mav: mavlink.MAVLink | None = None,
-        send_to: Callable[[mavlink.MAVLink_message, tuple[str, int]], None] | None = None,
-        broadcast: Callable[[mavlink.MAVLink_message], None] | None = None,
+        item_reached: Callable[[int], None] | None = None,
         estimator: EstimatorConfig | None = None,
     ) -> None:
-        """``event`` receives every event as it happens; ``mav``/``send_to``/``broadcast`` reach
-        ground stations for the mission protocol (None: no ground link); ``estimator`` sets the
-        dead reckoning and the hold filter (None: the defaults; ``FS_POS_TMO`` in the FC)."""
+        """``event`` receives every event as it happens; ``item_reached`` every mission item
+        reached (the FC's ground edge sends ``MISSION_ITEM_REACHED``; the mission protocol itself
+        lives there too, over :attr:`Commander.mission`); ``estimator`` sets the dead reckoning and
+        the hold filter (None: the defaults; ``FS_POS_TMO`` in the FC)."""
         self.config = config
         self.vehicle = vehicle
         self.home = home
@@ -103,7 +102,7 @@ class FlightCore:
         self._events: list[tuple[int, str]] = []
         self._in_tick = False
         self.flight = FlightControl(config, vehicle)
-        self.commander = Commander(self.flight, home, self.event, mav=mav, send_to=send_to, broadcast=broadcast)
+        self.commander = Commander(self.flight, home, self.event, item_reached=item_reached)
         self.plan = PlanRunner(plan)
         #: the latest state (paper frame), None before the first one.
         self.state: VehicleState | None = None
@@ -179,10 +178,7 @@ class FlightCore:
         if state is not None:
             self.state = state
         c = self.commander
-        c.state = self.state
-        c.state_fresh = fresh and self.state is not None
-        c.failsafe_active = self.failsafe
-        c.estimate = None
+        c.observe(CommanderInput(self.state, fresh and self.state is not None, self.failsafe, None, c.estimate_ok))
 
     def on_gcs_heartbeat(self, wall_s: float) -> None:
         """A ground station's heartbeat at wall time ``wall_s``: keeps the GCS-loss failsafe away."""
@@ -230,14 +226,12 @@ class FlightCore:
         self._est_missing = missing
         c = self.commander
         if status > EST_DEAD_RECKONING:
-            self.set_state(None, False)
-            c.estimate_ok = False
+            c.observe(CommanderInput(self.state, False, self.failsafe, None, False))
             return None, status
         if status == EST_DEAD_RECKONING:
             self.dead_reckoning_ticks += 1
-        self.set_state(est, fresh)
-        c.estimate = self._est
-        c.estimate_ok = status == EST_OK
+        self.state = est
+        c.observe(CommanderInput(est, fresh, self.failsafe, self._est, status == EST_OK))
         return est, status
 
     def _estimate_event(self, status: int, missing: int) -> None:

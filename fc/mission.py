@@ -147,21 +147,52 @@ _RESULT_NAMES = {v: e.name for v, e in mavlink.enums["MAV_MISSION_RESULT"].items
 SendTo = Callable[[mavlink.MAVLink_message, Address], None]
 
 
+def _nothing() -> None:
+    return None
+
+
+def _nothing_at(seq: int) -> None:
+    return None
+
+
+class MissionStore:
+    """The stored mission the vehicle flies: items (0 is home) and the current one.
+
+    The commander owns it (AUTO flies it); the ground protocol (:class:`MissionProtocol`, at the
+    FC's edge) fills it and reads it. ``on_change`` hears a new or cleared mission,
+    ``on_set_current`` a new current item (the commander restarts AUTO's item)."""
+
+    def __init__(self, on_change: Callable[[], None] = _nothing, on_set_current: Callable[[int], None] = _nothing_at) -> None:
+        self.items: list[MissionItem] = []
+        self.current = 0
+        self.on_change = on_change
+        self.on_set_current = on_set_current
+
+    def set_current(self, seq: int) -> bool:
+        """Make item ``seq`` current (False: no such item)."""
+        if not 0 <= seq < len(self.items):
+            return False
+        self.current = seq
+        self.on_set_current(seq)
+        return True
+
+
 class MissionProtocol:
-    """Vehicle side of the mission protocol. ``send_to`` sends to one ground station."""
+    """Vehicle side of the mission protocol, over a :class:`MissionStore`. ``send_to`` sends to one
+    ground station."""
 
     def __init__(
         self,
+        store: MissionStore,
         mav: mavlink.MAVLink,
         send_to: SendTo,
-        on_change: Callable[[], None],
-        on_set_current: Callable[[int], None],
         home: Callable[[], Home] | None = None,
         fence: Callable[[], Fence] | None = None,
     ) -> None:
         """``home``: the home position now, sent as item 0 while no mission is stored (None: no
         item 0 then). ``fence``: the geofence now; an uploaded item outside it ends the upload
         (:func:`fence_refusal`; None: the default fence)."""
+        self.store = store
         self.mav = mav
         self._home = home
         self._fence = fence if fence is not None else (lambda: DEFAULT_FENCE)
@@ -170,10 +201,6 @@ class MissionProtocol:
         #: stations (addresses) that used the float protocol (MISSION_ITEM / MISSION_REQUEST).
         self.legacy_stations: set[Address] = set()
         self._send_to = send_to
-        self._on_change = on_change
-        self._on_set_current = on_set_current
-        self.items: list[MissionItem] = []
-        self.current = 0
         # Upload in progress
         self._partner: Address | None = None
         self._partner_heard_s = -math.inf
@@ -192,6 +219,15 @@ class MissionProtocol:
         self._last_upload: tuple[Address, int, float] | None = None
         self.uploads_completed = 0
         self.uploads_failed = 0
+
+    @property
+    def items(self) -> list[MissionItem]:
+        """The stored items (the store's)."""
+        return self.store.items
+
+    @property
+    def current(self) -> int:
+        return self.store.current
 
     @property
     def uploading(self) -> bool:
@@ -249,9 +285,9 @@ class MissionProtocol:
             return
         if m.count == 0:
             self._end_upload()
-            self.items = []
-            self.current = 0
-            self._on_change()
+            self.store.items = []
+            self.store.current = 0
+            self.store.on_change()
             self._ack(addr, m.get_srcSystem(), m.get_srcComponent(), mavlink.MAV_MISSION_ACCEPTED)
             return
         self._partner = addr
@@ -309,13 +345,13 @@ class MissionProtocol:
         if len(self._incoming) < self._count:
             self._request()
             return
-        self.items = [replace(it, current=0) for it in self._incoming]
-        self.current = 1 if len(self.items) > 1 else 0
+        self.store.items = [replace(it, current=0) for it in self._incoming]
+        self.store.current = 1 if len(self.store.items) > 1 else 0
         self.uploads_completed += 1
         self._last_upload = (addr, self._count, now_s)
         self._ack(addr, self._partner_sys, self._partner_comp, mavlink.MAV_MISSION_ACCEPTED)
         self._end_upload()
-        self._on_change()
+        self.store.on_change()
 
     def on_request_list(self, m: mavlink.MAVLink_message, addr: Address) -> None:
         if getattr(m, "mission_type", 0) != mavlink.MAV_MISSION_TYPE_MISSION:
@@ -364,17 +400,13 @@ class MissionProtocol:
         if getattr(m, "mission_type", 0) not in (mavlink.MAV_MISSION_TYPE_MISSION, mavlink.MAV_MISSION_TYPE_ALL):
             self._ack(addr, m.get_srcSystem(), m.get_srcComponent(), mavlink.MAV_MISSION_UNSUPPORTED)
             return
-        self.items = []
-        self.current = 0
-        self._on_change()
+        self.store.items = []
+        self.store.current = 0
+        self.store.on_change()
         self._ack(addr, m.get_srcSystem(), m.get_srcComponent(), mavlink.MAV_MISSION_ACCEPTED)
 
     def set_current(self, seq: int) -> bool:
-        if not 0 <= seq < len(self.items):
-            return False
-        self.current = seq
-        self._on_set_current(seq)
-        return True
+        return self.store.set_current(seq)
 
     def tick(self, now_s: float) -> None:
         """Re-request a missing item after the timeout; give up after ``MAX_RETRIES``."""

@@ -175,10 +175,9 @@ class Rig:
     def __init__(self, config: FcConfig = FcConfig(), env: EnvironmentParams | None = None) -> None:
         self.events: list[str] = []
         self.reached: list[int] = []
-        mav = mavlink.MAVLink(None)
         self.core = FlightCore(
-            config, DEFAULT_VEHICLE, home=HOME, event=lambda sev, text: self.events.append(text), mav=mav,
-            broadcast=lambda m: self.reached.append(m.seq) if m.get_type() == "MISSION_ITEM_REACHED" else None,
+            config, DEFAULT_VEHICLE, home=HOME, event=lambda sev, text: self.events.append(text),
+            item_reached=self.reached.append,
         )  # fmt: skip
         self.flight = self.core.flight
         self.commander = self.core.commander

@@ -176,12 +176,12 @@ class _Recorder:
 
 
 def _protocol():
-    from fc.mission import MissionProtocol
+    from fc.mission import MissionProtocol, MissionStore
     from smcpilot.geo import Home
 
     rec = _Recorder()
     home = Home(HOME_LAT, HOME_LON, 584.0)
-    return MissionProtocol(M.MAVLink(None), rec, lambda: None, lambda seq: None, home=lambda: home), rec
+    return MissionProtocol(MissionStore(), M.MAVLink(None), rec, home=lambda: home), rec
 
 
 def _item(mav, seq, *, as_int: bool, lat=HOME_LAT, lon=HOME_LON, alt=3.0, current=0):

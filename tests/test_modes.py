@@ -17,7 +17,7 @@ from fc.core import FlightCore
 from fc.estimate import HoldPoint
 from fc.flight import FlightControl, VehicleState
 from fc.gcs import GcsHandler
-from fc.mission import MissionItem, MissionProtocol
+from fc.mission import MissionItem, MissionProtocol, MissionStore
 from fc.modes import (
     AltHoldMode,
     AutoMode,
@@ -136,7 +136,7 @@ class Host:
     def __init__(self, config: FcConfig = FcConfig(), items: list[MissionItem] | None = None) -> None:
         self.flight = FlightControl(config, DEFAULT_VEHICLE)
         self.home = HOME
-        self.mission = MissionProtocol(M.MAVLink(None), lambda m, a: None, lambda: None, lambda seq: None)
+        self.mission = MissionStore()
         self.mission.items = list(items or [])
         self.mission.current = 1 if len(self.mission.items) > 1 else 0
         self.in_air = True
@@ -360,7 +360,9 @@ def _handler(core: FlightCore):
         configs.append(cfg)
         core.reconfigure(cfg)
 
-    h = GcsHandler(core=core, mission=core.commander.mission, params=params, streams=streams, link=link,
+    mission = MissionProtocol(core.commander.mission, link.mav, link.send_to, home=lambda: core.commander.home,
+                              fence=lambda: core.config.fence)  # fmt: skip
+    h = GcsHandler(core=core, mission=mission, params=params, streams=streams, link=link,
                    event=lambda sev, text: events.append((sev, text)), log=lambda line: None, snapshot=snap,
                    apply_config=apply, wall_s=lambda: 0.0)  # fmt: skip
     return h, link, events, configs

@@ -21,6 +21,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from fc.config import FcConfig
 from fc.core import FlightCore
 from fc.gcs import GcsHandler
+from fc.mission import MissionProtocol
 from fc.params import ParamStore
 from fc.streams import StreamScheduler
 from fc.telemetry import snapshot
@@ -70,10 +71,12 @@ class Fc:
         self.texts: list[str] = []
         self.store = ParamStore(config)
         mav = M.MAVLink(None)
-        self.core = FlightCore(config, DEFAULT_VEHICLE, home=HOME, event=lambda sev, text: self.texts.append(text), mav=mav)
+        self.core = FlightCore(config, DEFAULT_VEHICLE, home=HOME, event=lambda sev, text: self.texts.append(text))
+        self.mission = MissionProtocol(self.core.commander.mission, mav, lambda m, a: None, home=lambda: self.core.commander.home,
+                                       fence=lambda: self.core.config.fence)  # fmt: skip
         self.streams = StreamScheduler(config.telemetry_rate_hz)
         self.handler = GcsHandler(
-            core=self.core, mission=self.core.commander.mission, params=self.store, streams=self.streams, link=None,
+            core=self.core, mission=self.mission, params=self.store, streams=self.streams, link=None,
             event=lambda sev, text: self.texts.append(text), log=lambda line: None,
             snapshot=lambda: snapshot(self.core, time_us=self.t_us, state=self.core.state, body_rates=(0.0, 0.0, 0.0), overruns=0),
             apply_config=self.core.reconfigure, wall_s=lambda: self.wall_s,
@@ -213,7 +216,7 @@ def test_takeoff_and_guided_items_and_plan_steps_use_the_rule() -> None:
 def test_a_mission_upload_with_an_item_outside_the_fence_is_refused_with_the_reason() -> None:
     fc = Fc()
     acks: list[int] = []
-    fc.core.commander.mission._send_to = lambda m, a: acks.append(m.type) if m.get_type() == "MISSION_ACK" else None
+    fc.mission._send_to = lambda m, a: acks.append(m.type) if m.get_type() == "MISSION_ACK" else None
     far = _lat_lon_int(350.0, 0.0)
     near = _lat_lon_int(10.0, 0.0)
     items = [(0, M.MAV_CMD_NAV_WAYPOINT, *near, 0.0), (1, M.MAV_CMD_NAV_TAKEOFF, 0, 0, 3.0), (2, M.MAV_CMD_NAV_WAYPOINT, *near, 3.0),

@@ -38,7 +38,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from fc.config import FcConfig
     from fc.estimate import HoldPoint
     from fc.flight import FlightControl, VehicleState
-    from fc.mission import MissionProtocol
+    from fc.mission import MissionStore
     from smcpilot.geo import Home
 
 #: a take-off (and RTL's climb) counts as done within this height of its target, m.
@@ -85,7 +85,7 @@ class ModeHost(Protocol):
 
     flight: FlightControl
     home: Home
-    mission: MissionProtocol
+    mission: MissionStore
 
     @property
     def config(self) -> FcConfig: ...

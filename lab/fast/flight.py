@@ -30,6 +30,7 @@ import numpy as np
 
 from fc import estimate as estimate_mod
 from fc import pipeline as pipeline_mod
+from fc.commander import CommanderInput
 from fc.control.base import Diagnostics
 from fc.control.law import LawFunctions
 from fc.control.purity import law_problems, pure_closure
@@ -356,7 +357,7 @@ class _Bridge:
         nmt, ngs = mt_export(self._noise_rng) if self.noise_on else self._empty_mt
         cmd, armed = flight.pipeline_inputs(), flight.armed
         self.fc_f[0] = core.config.disarm_delay_s
-        self.fc_f[1] = c._ground_armed_s
+        self.fc_f[1] = c.ground_armed_s
         io = self.io
         io[:] = 0
         io[6] = core._est_missing
@@ -406,16 +407,11 @@ class _Bridge:
             core._est = es
             state = VehicleState(*est)
             core.state = state
-            c.state = state
-            c.state_fresh = True
-            c.failsafe_active = False
-            c.estimate = es
-            c.estimate_ok = core.estimate_status == EST_OK
+            c.observe(CommanderInput(state, True, False, es, core.estimate_status == EST_OK))
+            c.resume((last_us - core.t0_us) * 1e-6, float(self.io_f[1]))
             core.states_missing += int(io[4])
             core.dead_reckoning_ticks += int(io[5])
             core._est_missing = int(io[6])
-            c.t_s = (last_us - core.t0_us) * 1e-6
-            c._ground_armed_s = float(self.io_f[1])
             flight.pipeline_state = ps
             core.last = self._tick_output(out)
             if n_rec and rec is not None:
