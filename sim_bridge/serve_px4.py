@@ -190,6 +190,8 @@ class Px4Server(ServerBase):
         assert self.conn is not None
         try:
             self.conn.sendall(self._sensors())
+        except (BrokenPipeError, ConnectionResetError):
+            raise WatchdogError("PX4 closed the connection; stopping") from None
         except TimeoutError:
             raise WatchdogError(f"PX4 has read nothing for {self.options.watchdog_s:g} s (its receive buffer is full); stopping") from None
         except OSError as exc:
@@ -257,6 +259,8 @@ class Px4Server(ServerBase):
             if ready:
                 try:
                     data = conn.recv(65536)
+                except ConnectionResetError:
+                    data = b""
                 except OSError as exc:
                     raise WatchdogError(f"the connection to PX4 broke ({exc.strerror or exc}); stopping") from None
                 if not data:
