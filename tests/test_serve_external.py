@@ -499,3 +499,30 @@ def test_the_servers_leave_the_port_free_when_they_stop() -> None:
     assert run.stop() == 0
     again = Px4Server(Scenario(), ServeOptions(kind="px4", port=port), out=io.StringIO())
     again.close()
+
+
+def _dropout(sensor: str, start_s: float) -> Scenario:
+    return Scenario(faults=(FaultSpec(kind="sensor", start_s=start_s, sensor=sensor, mode="dropout"),))
+
+
+def test_a_sensor_dropout_holds_the_last_json_value_and_clears_px4s_bits() -> None:
+    run = _serve("ardupilot-json", _dropout("position", 0.3))
+    try:
+        client = ArduPilotClient(run.server.address)  # type: ignore[attr-defined]
+        before = client.fly([2000] * 4, 299)["position"]
+        after = client.fly([2000] * 4, 50)  # climbing on, position dropped out: the last value again, finite
+        client.close()
+    finally:
+        run.stop()
+    assert after["position"] == before and before[2] < -0.1 and after["velocity"][2] < -1.0
+    assert run.summary()["held_values"] == 50
+    run = _serve("px4", _dropout("gyro", 0.02))
+    try:
+        px = Px4Client(run.server.address)  # type: ignore[attr-defined]
+        early, _ = px.fly([0.0] * 4, 1)
+        late, _ = px.fly([0.0] * 4, 10)
+        px.close()
+    finally:
+        run.stop()
+    assert early.fields_updated & GYRO_BITS == GYRO_BITS and late.fields_updated & GYRO_BITS == 0
+    assert late.fields_updated & ACCEL_BITS == ACCEL_BITS
