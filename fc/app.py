@@ -69,7 +69,6 @@ from smcpilot.clock import SimClock, WallClock
 from smcpilot.errors import LinkError, RateMismatchError, TlogError, WatchdogError
 from smcpilot.fastcodec import encode_debug_float_array, encode_hil_actuator_controls
 from smcpilot.faults import SIM_PARAM_INDEX
-from smcpilot.frames import body_rates_to_euler_rates, euler_frd_to_flu, ned_to_nwu, rates_frd_to_flu
 from smcpilot.geo import Home
 from smcpilot.impair import LinkImpairment
 from smcpilot.link import Address, MavlinkUdp
@@ -78,6 +77,7 @@ from smcpilot.protocol import ACTUATOR_FLAG_LOCKSTEP, FC_COMPONENT_ID, OVERRUN_N
 from smcpilot.signing import Signing
 from smcpilot.tlog import TlogWriter
 from smcpilot.vehicle import VehicleParams
+from smcpilot.wire import paper_of_wire
 
 FC_COMPONENT = FC_COMPONENT_ID
 
@@ -218,13 +218,8 @@ def state_from_mavlink(att: mavlink.MAVLink_attitude_message, pos: mavlink.MAVLi
             missing = max(missing, 1 if v != v else 2)
     if missing:
         vals = tuple(v if _isfinite(v) else _NAN for v in vals)
-    roll, pitch, yaw, ps, qs, rs, xn, yn, zn, vxn, vyn, vzn = vals
-    phi, theta, psi = euler_frd_to_flu(roll, pitch, yaw)
-    p, q, r = rates_frd_to_flu(ps, qs, rs)
-    phi_d, theta_d, psi_d = body_rates_to_euler_rates(phi, theta, p, q, r)
-    x, y, z = ned_to_nwu((xn, yn, zn))
-    vx, vy, vz = ned_to_nwu((vxn, vyn, vzn))
-    return VehicleState(x, y, z, vx, vy, vz, phi, theta, psi, phi_d, theta_d, psi_d), (p, q, r), missing
+    s = paper_of_wire(*vals)  # smcpilot.wire: the one wire <-> paper-frame conversion
+    return VehicleState(*s[:12]), (s[12], s[13], s[14]), missing
 
 
 class FlightControllerApp:

@@ -34,41 +34,26 @@ from lab.fast.flight import FastRecord, fast_note, fast_simulate, fast_unsupport
 from sim_bridge.faults import FaultEvent
 from sim_bridge.plants.base import Plant
 from sim_bridge.sensors import VehicleObservation
-from smcpilot.frames import (
-    body_rates_to_euler_rates,
-    euler_flu_to_frd,
-    euler_frd_to_flu,
-    ned_to_nwu,
-    nwu_to_ned,
-    rates_flu_to_frd,
-    rates_frd_to_flu,
-)
 from smcpilot.geo import Home
 from smcpilot.plan import PlanStep
 from smcpilot.vehicle import VehicleParams
+from smcpilot.wire import paper_of_wire, wire_of_paper
 
 _f32 = struct.Struct("<12f")
+_tuple_new = tuple.__new__
 _f32x4 = struct.Struct("<4f")
 
 
 def wire_values(obs: VehicleObservation) -> tuple[float, ...]:
     """The 12 wire values of an observation, NED/FRD, rounded to float32 as MAVLink carries them:
-    roll, pitch, yaw, p, q, r (rad, rad/s), x, y, z (m), vx, vy, vz (m/s)."""
-    roll, pitch, yaw = euler_flu_to_frd(*obs.euler_rad)
-    p, q, r = rates_flu_to_frd(*obs.body_rates_radps)
-    xn, yn, zn = nwu_to_ned(obs.position_m)
-    vxn, vyn, vzn = nwu_to_ned(obs.velocity_mps)
-    return _f32.unpack(_f32.pack(roll, pitch, yaw, p, q, r, xn, yn, zn, vxn, vyn, vzn))
+    roll, pitch, yaw, p, q, r (rad, rad/s), x, y, z (m), vx, vy, vz (m/s) (:mod:`smcpilot.wire`)."""
+    (phi, theta, psi), (p, q, r), (x, y, z), (vx, vy, vz) = obs.euler_rad, obs.body_rates_radps, obs.position_m, obs.velocity_mps
+    return _f32.unpack(_f32.pack(*wire_of_paper(phi, theta, psi, p, q, r, x, y, z, vx, vy, vz)))
 
 
 def state_of_wire(v: Sequence[float]) -> VehicleState:
     """The FC's state (paper frame) of the 12 wire values of :func:`wire_values`."""
-    phi, theta, psi = euler_frd_to_flu(v[0], v[1], v[2])
-    pf, qf, rf = rates_frd_to_flu(v[3], v[4], v[5])
-    phi_d, theta_d, psi_d = body_rates_to_euler_rates(phi, theta, pf, qf, rf)
-    x, y, z = ned_to_nwu((v[6], v[7], v[8]))
-    vx, vy, vz = ned_to_nwu((v[9], v[10], v[11]))
-    return VehicleState(x, y, z, vx, vy, vz, phi, theta, psi, phi_d, theta_d, psi_d)
+    return _tuple_new(VehicleState, paper_of_wire(*v)[:12])
 
 
 def wire_state(obs: VehicleObservation) -> VehicleState:

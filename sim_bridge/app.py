@@ -52,9 +52,9 @@ from sim_bridge.plants.base import Plant
 from smcpilot.errors import DivergenceError, WatchdogError
 from smcpilot.fastcodec import encode_attitude, encode_local_position_ned
 from smcpilot.faults import SIM_PARAM_INDEX, SIM_PARAMS, FaultError
-from smcpilot.frames import euler_flu_to_frd, nwu_to_ned, rates_flu_to_frd
 from smcpilot.link import MavlinkUdp
 from smcpilot.protocol import SIM_COMPONENT_ID
+from smcpilot.wire import wire_of_paper
 
 #: Component id the bridge sends from (a sensor-ish component of the vehicle's system).
 SIM_COMPONENT = SIM_COMPONENT_ID
@@ -159,10 +159,8 @@ class SimBridgeApp:
         link = self.link
         sysid, comp = link.source
         t_ms = (self._t_us // 1000) & 0xFFFFFFFF
-        roll, pitch, yaw = euler_flu_to_frd(*obs.euler_rad)
-        p, q, r = rates_flu_to_frd(*obs.body_rates_radps)
-        x, y, z = nwu_to_ned(obs.position_m)
-        vx, vy, vz = nwu_to_ned(obs.velocity_mps)
+        (phi, theta, psi), (pf, qf, rf), (xw, yw, zw), (vxw, vyw, vzw) = obs.euler_rad, obs.body_rates_radps, obs.position_m, obs.velocity_mps
+        roll, pitch, yaw, p, q, r, x, y, z, vx, vy, vz = wire_of_paper(phi, theta, psi, pf, qf, rf, xw, yw, zw, vxw, vyw, vzw)
         # The per-tick pair, encoded straight to bytes (smcpilot.fastcodec; the same bytes as pymavlink).
         packets = (
             encode_attitude(link.take_seq(), sysid, comp, t_ms, roll, pitch, yaw, p, q, r),

@@ -32,8 +32,9 @@ from fc.modes.base import WATCH_DIST2, WATCH_DIST3, WATCH_NONE, WATCH_TIME, WATC
 from fc.pipeline import VehicleState, pipeline_step
 from lab.fast.mt import mt_gauss
 from sim_bridge.plants.rigid_body import rigid_body_substep, rigid_body_targets
-from smcpilot.frames import body_rates_to_euler_rates, euler_from_quat, wrap_pi
+from smcpilot.frames import euler_from_quat, wrap_pi
 from smcpilot.protocol import FLAG_ARMED, FLAG_LANDING, FLAG_POSITION_HOLD
+from smcpilot.wire import paper_of_wire, wire_of_paper
 
 #: return codes of :func:`fly_span` (``io[1]``).
 SPAN_DONE = 0  # flew the ticks asked for
@@ -261,26 +262,17 @@ def fly_span(
         obs[14] = oay
         obs[15] = oaz
         obs[16] = 1.0 if att_lost else 0.0
-        # wire: NED/FRD float32, then back to the paper frame (lab.runner.wire_values / state_of_wire)
-        if (_f32_overflows(o_phi) or _f32_overflows(o_theta) or _f32_overflows(o_psi) or _f32_overflows(op)
-                or _f32_overflows(oq) or _f32_overflows(o_r) or _f32_overflows(ox) or _f32_overflows(oy)
-                or _f32_overflows(oz) or _f32_overflows(ovx) or _f32_overflows(ovy) or _f32_overflows(ovz)):  # fmt: skip
+        # the wire (smcpilot.wire): NED/FRD float32, then back to the paper frame
+        w = wire_of_paper(o_phi, o_theta, o_psi, op, oq, o_r, ox, oy, oz, ovx, ovy, ovz)
+        if (_f32_overflows(w[0]) or _f32_overflows(w[1]) or _f32_overflows(w[2]) or _f32_overflows(w[3])
+                or _f32_overflows(w[4]) or _f32_overflows(w[5]) or _f32_overflows(w[6]) or _f32_overflows(w[7])
+                or _f32_overflows(w[8]) or _f32_overflows(w[9]) or _f32_overflows(w[10]) or _f32_overflows(w[11])):  # fmt: skip
             code = 3
             break
-        m_phi = _f32(o_phi)
-        m_theta = -_f32(-o_theta)
-        m_psi = -_f32(-o_psi)
-        m_p = _f32(op)
-        m_q = -_f32(-oq)
-        m_r = -_f32(-o_r)
-        m_x = _f32(ox)
-        m_y = -_f32(-oy)
-        m_z = -_f32(-oz)
-        m_vx = _f32(ovx)
-        m_vy = -_f32(-ovy)
-        m_vz = -_f32(-ovz)
-        phi_d, theta_d, psi_d = body_rates_to_euler_rates(m_phi, m_theta, m_p, m_q, m_r)
-        st = VehicleState(m_x, m_y, m_z, m_vx, m_vy, m_vz, m_phi, m_theta, m_psi, phi_d, theta_d, psi_d)
+        w32 = (_f32(w[0]), _f32(w[1]), _f32(w[2]), _f32(w[3]), _f32(w[4]), _f32(w[5]), _f32(w[6]), _f32(w[7]),
+               _f32(w[8]), _f32(w[9]), _f32(w[10]), _f32(w[11]))  # fmt: skip
+        pw = paper_of_wire(w32[0], w32[1], w32[2], w32[3], w32[4], w32[5], w32[6], w32[7], w32[8], w32[9], w32[10], w32[11])
+        st = VehicleState(pw[0], pw[1], pw[2], pw[3], pw[4], pw[5], pw[6], pw[7], pw[8], pw[9], pw[10], pw[11])
         # -- the FC's tick: the estimate, the plan, the commander, the pipeline ------------------
         es_new, est_new, status, missing = estimate_step(es, st, dt_ctrl, ep)
         if status != est_prev or status > EST_DEAD_RECKONING:
@@ -329,19 +321,12 @@ def fly_span(
         if rec_every > 0 and (rec_k0 + k) % rec_every == 0:
             row = rec[n_rec]
             row[0] = t_us * 1e-6
-            if rec_truth:
-                rphi = _f32(phi_t)
-                rth = -_f32(-theta_t)
-                rpsi = -_f32(-psi_t)
-                row[1] = _f32(x)
-                row[2] = -_f32(-y)
-                row[3] = -_f32(-z)
-                row[4] = _f32(vx)
-                row[5] = -_f32(-vy)
-                row[6] = -_f32(-vz)
-                row[7] = rphi
-                row[8] = rth
-                row[9] = rpsi
+            if rec_truth:  # lab.runner.wire_state of the truth: its own wire round trip
+                tw = wire_of_paper(phi_t, theta_t, psi_t, p_, q_, r_, x, y, z, vx, vy, vz)
+                tp = paper_of_wire(_f32(tw[0]), _f32(tw[1]), _f32(tw[2]), _f32(tw[3]), _f32(tw[4]), _f32(tw[5]),
+                                   _f32(tw[6]), _f32(tw[7]), _f32(tw[8]), _f32(tw[9]), _f32(tw[10]), _f32(tw[11]))  # fmt: skip
+                for j in range(9):
+                    row[1 + j] = tp[j]
             else:
                 for j in range(9):
                     row[1 + j] = st[j]
@@ -366,18 +351,8 @@ def fly_span(
         if log_on:
             lr = lg[k]
             lr[0] = t_us
-            lr[1] = m_phi
-            lr[2] = -m_theta
-            lr[3] = -m_psi
-            lr[4] = m_p
-            lr[5] = -m_q
-            lr[6] = -m_r
-            lr[7] = m_x
-            lr[8] = -m_y
-            lr[9] = -m_z
-            lr[10] = m_vx
-            lr[11] = -m_vy
-            lr[12] = -m_vz
+            for j in range(12):
+                lr[1 + j] = w32[j]
             mo = out[0]
             chi = out[5]
             sg = out[4]
