@@ -330,6 +330,7 @@ def test_the_robustness_study_cases_fly_the_same_compiled(case: str) -> None:
     _assert_same(_fly(sc, False, truth=True), _fly(sc, True, truth=True), case + " (truth)")
 
 
+@pytest.mark.slow  # compiles a kernel for a law nobody compiled before (20-50 s)
 def test_a_plug_in_law_flies_in_cpython_until_it_is_compiled_and_then_the_same(tmp_path: Path) -> None:
     """A single flight of a plug-in law whose kernel is not compiled flies in CPython (said once);
     ``fast=True`` (what campaigns pass) compiles it, and the flight is the same."""
