@@ -4,7 +4,7 @@ Defaults follow docs/gcs-protocol.md; ``SET_MESSAGE_INTERVAL`` and ``REQUEST_DAT
 them. Scheduling is pure: :meth:`StreamScheduler.due` returns the message ids due at a time.
 
 Bounds (hostile or mistaken requests): an interval shorter than :data:`MIN_INTERVAL_US` gets
-that one (the fastest we stream), one longer than :data:`MAX_INTERVAL_US` is refused, and the
+that one (the fastest we stream; a REQUEST_DATA_STREAM group at most :data:`MAX_STREAM_RATE_HZ`), one longer than :data:`MAX_INTERVAL_US` is refused, and the
 heartbeat is never slower than :data:`MAX_HEARTBEAT_INTERVAL_US` nor off (ground stations take
 a vehicle silent for a few seconds as lost). :func:`interval_refusal` says why a request is
 refused.
@@ -17,6 +17,9 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 M = mavlink
 #: the shortest interval streamed, µs (200 Hz); shorter requests get this one.
 MIN_INTERVAL_US = 5_000
+#: the fastest a REQUEST_DATA_STREAM group streams, Hz (ArduPilot's ``SRn_*`` rates range 0-50 Hz);
+#: faster requests get this rate. One message can still be asked faster with SET_MESSAGE_INTERVAL.
+MAX_STREAM_RATE_HZ = 50
 #: the longest interval accepted, µs (one minute); longer requests are refused.
 MAX_INTERVAL_US = 60_000_000
 #: the heartbeat's longest interval, µs (1 Hz, the MAVLink heartbeat rate).
@@ -113,7 +116,8 @@ class StreamScheduler:
 
     def request_stream(self, stream_id: int, rate_hz: int, start: bool) -> str | None:
         """REQUEST_DATA_STREAM: set a group's rate (0 Hz or stop: off; faster than
-        1/:data:`MIN_INTERVAL_US`: that rate). Returns why it was refused (unknown group), or None."""
+        :data:`MAX_STREAM_RATE_HZ`: that rate, as ArduPilot bounds its ``SRn_*`` rates). Returns why
+        it was refused (unknown group), or None."""
         if stream_id == M.MAV_DATA_STREAM_ALL:
             ids: tuple[int, ...] = tuple(m for ids in STREAM_GROUPS.values() for m in ids)
         elif stream_id in STREAM_GROUPS:
@@ -121,7 +125,7 @@ class StreamScheduler:
         else:
             return f"Data stream: group {stream_id} unknown"
         for mid in ids:
-            self.set_interval(mid, max(MIN_INTERVAL_US, int(1e6 / rate_hz)) if start and rate_hz > 0 else -1)
+            self.set_interval(mid, int(1e6 / min(rate_hz, MAX_STREAM_RATE_HZ)) if start and rate_hz > 0 else -1)
         return None
 
     def defer(self, ids: list[int], t_us: int) -> None:

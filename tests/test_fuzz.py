@@ -476,7 +476,7 @@ def _cmd(h, command: int, *params: float, src: tuple[int, int] = (255, 190), add
 
 
 def test_message_intervals_are_bounded() -> None:
-    from fc.streams import MAX_INTERVAL_US, MIN_INTERVAL_US
+    from fc.streams import MAX_INTERVAL_US, MAX_STREAM_RATE_HZ, MIN_INTERVAL_US
 
     _core, h, link, events, _now = _handler_with_clock()
     hb = M.MAVLINK_MSG_ID_HEARTBEAT
@@ -491,7 +491,7 @@ def test_message_intervals_are_bounded() -> None:
     rds = M.MAVLink_request_data_stream_message(1, 1, M.MAV_DATA_STREAM_ALL, 65535, 1)
     rds._header = M.MAVLink_header(rds.id, srcSystem=255, srcComponent=190)
     h.handle(rds, ("127.0.0.1", 14550))
-    assert min(v for v in h.streams.interval_us.values() if v > 0) == MIN_INTERVAL_US
+    assert min(v for v in h.streams.interval_us.values() if v > 0) == int(1e6 / MAX_STREAM_RATE_HZ)  # a group: ArduPilot's 50 Hz
     assert h.rejected["bad_interval"] == 3 + 1
 
 
