@@ -363,3 +363,24 @@ def test_a_plug_in_law_flies_in_cpython_until_it_is_compiled_and_then_the_same(t
     a = _fly(sc, False)
     b = _fly(sc, True)  # compiles the kernel for this law
     _assert_same(a, b, "plug-in law")
+
+
+def test_a_law_numba_cannot_compile_flies_in_cpython_and_says_why(tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
+    """In the pure style, but its state changes shape between branches (numba cannot type it): the
+    flight falls back to CPython before anything changed, says so once, and is the CPython flight."""
+    tag = random.SystemRandom().randrange(1 << 30)
+    prefix = "FR" + "".join(chr(65 + int(d)) for d in str(tag)[:5])
+    src = (ROOT / "examples" / "law-plugin" / "smcpilot_pd_law" / "pd_law.py").read_text()
+    src = src.replace('name="pd_feedback", stage="attitude", prefix="PDL"', f'name="pd_shape_{tag}", stage="attitude", prefix="{prefix}"')
+    src = src.replace("    return u, (iz,), (zero, zero, zero, zero)", "    return u, ((iz,) if iz < 1e9 else (iz, 0.0)), (zero, zero, zero, zero)")
+    assert f"pd_shape_{tag}" in src and "(iz, 0.0)" in src
+    law_file = tmp_path / f"shape_{tag}.py"
+    law_file.write_text(src)
+    sc = Scenario.from_toml(ROOT / "examples" / "scenarios" / "hover.toml").with_changes(duration_s=3.0, controller=f"{law_file}:PD_LAW")
+    a = _fly(sc, False)
+    capfd.readouterr()
+    b = _fly(sc, True)
+    err = capfd.readouterr().err
+    assert f"the control law pd_shape_{tag} could not be compiled" in err, err
+    _assert_same(a, b, "a law numba cannot compile")
+    assert a["armed"] and a["rows"][-1][3] > 0.5, "it flew (took off)"

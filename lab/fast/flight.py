@@ -93,7 +93,7 @@ def compiled_kernel(law_functions: LawFunctions, full_stack: bool) -> _Kernel:
     return k
 
 
-_ENTRIES: dict[tuple, Callable[..., Any]] = {}
+_ENTRIES: dict[tuple, Callable[..., Any] | None] = {}
 
 
 def _entry_point(kernel: _Kernel, args: tuple, flight: Any) -> Callable[..., Any]:
@@ -105,8 +105,10 @@ def _entry_point(kernel: _Kernel, args: tuple, flight: Any) -> Callable[..., Any
     typeof = numba.typeof
     arg_types = tuple(typeof(a) for a in args[1:])
     key = (id(kernel), arg_types)
-    found = _ENTRIES.get(key)
-    if found is not None:
+    if key in _ENTRIES:
+        found = _ENTRIES[key]
+        if found is None:
+            raise KernelUnavailable("compiling it failed before in this process")
         return found
     try:
         ps = flight.pipeline_state
@@ -148,10 +150,24 @@ def _entry_point(kernel: _Kernel, args: tuple, flight: Any) -> Callable[..., Any
             return kernel_entry(law_fns, *rest)
 
     except Exception as exc:  # numba's typing of first-class functions has limits: compile per process instead
-        say_once(f"the flight kernel is compiled in every process ({type(exc).__name__}: {str(exc).splitlines()[0][:120]})")
+        try:
+            kernel.fly.compile(tuple(typeof(a) for a in args))
+        except Exception as exc2:  # the law is in the pure style but numba cannot type it (e.g. its state's shape changes)
+            _ENTRIES[key] = None
+            raise KernelUnavailable(_first_line(exc2)) from None
+        say_once(f"the flight kernel is compiled in every process ({type(exc).__name__}: {_first_line(exc)})")
         entry = kernel.fly
     _ENTRIES[key] = entry
     return entry
+
+
+class KernelUnavailable(Exception):
+    """numba could not compile the kernel for this flight's law (the flight goes on in CPython)."""
+
+
+def _first_line(exc: BaseException) -> str:
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    return f"{type(exc).__name__}: {(lines[0] if lines else '')[:160]}"
 
 
 _ADDRESSED: Any = None
@@ -486,10 +502,16 @@ def fast_simulate(
     t_us = 0
     k = 0
     python_run = 0
+    compiled = True
     while k < n_ticks:
-        n = bridge.ticks_allowed(t_us, min(CHUNK_TICKS, n_ticks - k)) if python_run == 0 else 0
+        n = bridge.ticks_allowed(t_us, min(CHUNK_TICKS, n_ticks - k)) if (python_run == 0 and compiled) else 0
         if n > 0:
-            flown, code, t_us = bridge.fly(t_us, k, n)
+            try:
+                flown, code, t_us = bridge.fly(t_us, k, n)
+            except KernelUnavailable as exc:  # raised before the kernel ran: nothing has changed
+                fast_note(f"the control law {core.flight.law.name} could not be compiled ({exc})")
+                compiled = False
+                continue
             k += flown
             if code == kernel_mod.SPAN_DONE:
                 if stop is not None and stop():
