@@ -42,7 +42,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from sim_bridge.serve import ServeOptions, ServerBase, imu_frd
 from smcpilot.errors import WatchdogError
-from smcpilot.frames import flu_to_frd, nwu_to_ned, quat_nwu_flu_to_ned_frd, quat_rotate_inverse, rates_flu_to_frd
+from smcpilot.frames import flu_to_frd, ned_to_nwu, nwu_to_ned, quat_nwu_flu_to_ned_frd, quat_rotate_inverse, rates_flu_to_frd
 from smcpilot.geo import Home, ned_to_global
 from smcpilot.protocol import SIM_COMPONENT_ID
 from smcpilot.scenario import Scenario
@@ -141,7 +141,7 @@ class Px4Server(ServerBase):
         mav = self.mav
         t_us = self.t_us
         gyro, accel = imu_frd(obs, truth, self.gravity)
-        mag = flu_to_frd(quat_rotate_inverse(truth.quaternion, nwu_to_ned(MAG_FIELD_NED_GAUSS)))
+        mag = flu_to_frd(quat_rotate_inverse(truth.quaternion, ned_to_nwu(MAG_FIELD_NED_GAUSS)))
         pos_ned = nwu_to_ned(obs.position_m)
         alt = self.home.alt_m - pos_ned[2]
         fields = MAG_BITS

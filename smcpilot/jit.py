@@ -114,27 +114,25 @@ def compile_pure(
     fns: tuple[Any, ...] = tuple(dict.fromkeys(functions))
     rebind = rebind or {}
     tag = sources_hash(fns, extra=repr(sorted((f.__qualname__, sorted((n, t.__qualname__) for n, t in m.items())) for f, m in rebind.items())))
-    globals_of: dict[int, dict[str, Any]] = {}
+    per_module: dict[int, dict[str, Any]] = {}  # one globals copy per module; a rebound function gets its own
+    copies: list[tuple[dict[str, Any], Mapping[str, Callable[..., Any]]]] = []
     twins: dict[Callable[..., Any], Any] = {}
-    own: list[tuple[dict[str, Any], Mapping[str, Callable[..., Any]]]] = []
     for f in fns:
-        if f in rebind:
+        g = per_module.get(id(f.__globals__))
+        if g is None or f in rebind:
             g = dict(f.__globals__)
-            own.append((g, rebind[f]))
-        else:
-            g = globals_of.setdefault(id(f.__globals__), dict(f.__globals__))
+            copies.append((g, rebind.get(f, {})))
+            if f not in rebind:
+                per_module[id(f.__globals__)] = g
         twin = types.FunctionType(f.__code__, g, f.__name__, f.__defaults__, f.__closure__)
         twin.__qualname__ = f"{f.__qualname__}__{tag}"
         twin.__module__ = f.__module__
         twin.__doc__ = f.__doc__
         twins[f] = numba.njit(cache=cache, error_model="numpy")(twin)
-        if f in rebind:
-            globals_of[-len(own)] = g
-    for g in globals_of.values():
+    for g, names in copies:  # now every twin exists: point the copies' names at them
         for name, value in list(g.items()):
             if isinstance(value, types.FunctionType) and value in twins:
                 g[name] = twins[value]
-    for g, names in own:
         for name, target in names.items():
             g[name] = twins[target]
     return twins

@@ -330,20 +330,31 @@ def test_the_robustness_study_cases_fly_the_same_compiled(case: str) -> None:
     _assert_same(_fly(sc, False, truth=True), _fly(sc, True, truth=True), case + " (truth)")
 
 
+def _pd_law_copy(tmp_path: Path, stem: str, change: tuple[str, str] | None = None) -> tuple[str, str]:
+    """A copy of the example PD law as a new law (new sources, so nothing is compiled for it; its
+    own name and parameter prefix, beside the example's and other copies in this process), with
+    one line of its source changed: (its name, its ``file.py:NAME`` reference)."""
+    tag = random.SystemRandom().randrange(1 << 30)
+    name = f"{stem}_{tag}"
+    prefix = "F" + "".join(chr(65 + int(d)) for d in str(tag)[:7])
+    src = (ROOT / "examples" / "law-plugin" / "smcpilot_pd_law" / "pd_law.py").read_text()
+    head = 'name="pd_feedback", stage="attitude", prefix="PDL"'
+    assert head in src
+    src = src.replace(head, f'name="{name}", stage="attitude", prefix="{prefix}"')
+    if change is not None:
+        assert change[0] in src
+        src = src.replace(*change)
+    law_file = tmp_path / f"{name}.py"
+    law_file.write_text(src + f"\n# {tag}: a new law\n")
+    return name, f"{law_file}:PD_LAW"
+
+
 @pytest.mark.slow  # compiles a kernel for a law nobody compiled before (20-50 s)
 def test_a_plug_in_law_flies_in_cpython_until_it_is_compiled_and_then_the_same(tmp_path: Path) -> None:
     """A single flight of a plug-in law whose kernel is not compiled flies in CPython (said once);
     ``fast=True`` (what campaigns pass) compiles it, and the flight is the same."""
-    src = (ROOT / "examples" / "law-plugin" / "smcpilot_pd_law" / "pd_law.py").read_text()
-    tag = random.SystemRandom().randrange(1 << 30)
-    law_file = tmp_path / f"my_pd_{tag}.py"
-    # a new law (its own name and parameter prefix, beside the example's and other tests' copies)
-    prefix = "FQ" + "".join(chr(65 + int(d)) for d in str(tag)[:5])
-    src = src.replace('name="pd_feedback", stage="attitude", prefix="PDL"', f'name="pd_copy_{tag}", stage="attitude", prefix="{prefix}"')
-    assert f"pd_copy_{tag}" in src
-    law_file.write_text(src + f"\n# {tag}: nothing compiled for it yet\n")
-    sc = Scenario.from_toml(ROOT / "examples" / "scenarios" / "hover.toml").with_changes(
-        duration_s=4.0, controller=f"{law_file}:PD_LAW")
+    _name, ref = _pd_law_copy(tmp_path, "pd_copy")
+    sc = Scenario.from_toml(ROOT / "examples" / "scenarios" / "hover.toml").with_changes(duration_s=4.0, controller=ref)
     code = (
         "import sys\n"
         "from smcpilot.scenario import Scenario\n"
@@ -368,19 +379,13 @@ def test_a_plug_in_law_flies_in_cpython_until_it_is_compiled_and_then_the_same(t
 def test_a_law_numba_cannot_compile_flies_in_cpython_and_says_why(tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
     """In the pure style, but its state changes shape between branches (numba cannot type it): the
     flight falls back to CPython before anything changed, says so once, and is the CPython flight."""
-    tag = random.SystemRandom().randrange(1 << 30)
-    prefix = "FR" + "".join(chr(65 + int(d)) for d in str(tag)[:5])
-    src = (ROOT / "examples" / "law-plugin" / "smcpilot_pd_law" / "pd_law.py").read_text()
-    src = src.replace('name="pd_feedback", stage="attitude", prefix="PDL"', f'name="pd_shape_{tag}", stage="attitude", prefix="{prefix}"')
-    src = src.replace("    return u, (iz,), (zero, zero, zero, zero)", "    return u, ((iz,) if iz < 1e9 else (iz, 0.0)), (zero, zero, zero, zero)")
-    assert f"pd_shape_{tag}" in src and "(iz, 0.0)" in src
-    law_file = tmp_path / f"shape_{tag}.py"
-    law_file.write_text(src)
-    sc = Scenario.from_toml(ROOT / "examples" / "scenarios" / "hover.toml").with_changes(duration_s=3.0, controller=f"{law_file}:PD_LAW")
+    name, ref = _pd_law_copy(tmp_path, "pd_shape", ("    return u, (iz,), (zero, zero, zero, zero)",
+                                                    "    return u, ((iz,) if iz < 1e9 else (iz, 0.0)), (zero, zero, zero, zero)"))  # fmt: skip
+    sc = Scenario.from_toml(ROOT / "examples" / "scenarios" / "hover.toml").with_changes(duration_s=3.0, controller=ref)
     a = _fly(sc, False)
     capfd.readouterr()
     b = _fly(sc, True)
     err = capfd.readouterr().err
-    assert f"the control law pd_shape_{tag} could not be compiled" in err, err
+    assert f"the control law {name} could not be compiled" in err, err
     _assert_same(a, b, "a law numba cannot compile")
     assert a["armed"] and a["rows"][-1][3] > 0.5, "it flew (took off)"

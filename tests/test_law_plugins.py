@@ -315,8 +315,9 @@ def test_the_tutorials_fly_it_commands_run_as_written(tmp_path: Path) -> None:
 def test_a_law_too_slow_for_the_rate_in_real_time_is_failed_and_the_failsafe_flies(tmp_path: Path) -> None:
     """Real time at 100 Hz, a law that takes 15 ms a tick once armed: after 25 ticks (net) over the
     10 ms period the FC announces it, and the open-loop failsafe (cheap) keeps the rate."""
+    from sitl_helpers import HANG_TIMEOUT_S, sitl_options
+
     from ground.sitl import Sitl
-    from tests.sitl_helpers import HANG_TIMEOUT_S, sitl_options
 
     f = tmp_path / "slow_law.py"
     f.write_text(_FAILING.replace("{failure}", "time.sleep(0.015)").replace("import math", "import math\nimport time")

@@ -134,24 +134,7 @@ def _function_problems(fn: Callable, pure: Iterable[Callable] = (), *, called: l
 
 def law_problems(law: Law) -> list[str]:
     """What keeps ``law`` from the pure style: its functions and all they call, transitively."""
-    todo: list[types.FunctionType] = []
-    problems: list[str] = []
-    for fn in (law.initial_state, law.step, law.anti_windup):
-        f = _python_function(fn)
-        if f is None:
-            problems.append(f"{getattr(fn, '__name__', repr(fn))}: not a Python function")
-        else:
-            todo.append(f)
-    seen: set[types.FunctionType] = set()
-    while todo:
-        f = todo.pop()
-        if f in seen:
-            continue
-        seen.add(f)
-        called: list[types.FunctionType] = []
-        problems.extend(function_problems(f, called=called))
-        todo.extend(called)
-    return problems
+    return pure_closure((law.initial_state, law.step, law.anti_windup))[1]
 
 
 def pure_closure(functions: Iterable[Callable]) -> tuple[tuple[types.FunctionType, ...], list[str]]:

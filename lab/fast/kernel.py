@@ -76,6 +76,13 @@ def _f32_overflows(x: float) -> bool:
     return _isfinite(x) and (x > _F32_MAX or x < -_F32_MAX) and not _isfinite(_f32(x))
 
 
+def _noisy3(mt: np.ndarray, gs: np.ndarray, a: float, b: float, c: float, std: float) -> tuple[float, float, float]:
+    """Three values with white noise of ``std`` from the stream (unchanged, nothing drawn, for 0)."""
+    if std <= 0.0:
+        return a, b, c
+    return a + mt_gauss(mt, gs, 0.0, std), b + mt_gauss(mt, gs, 0.0, std), c + mt_gauss(mt, gs, 0.0, std)
+
+
 def _watch_holds(kind: int, a: float, b: float, c: float, r: float, x: float, y: float, z: float, t_s: float) -> bool:
     """The mode's watched condition holds now, or is too close to call (Python decides)."""
     if kind == WATCH_NONE:
@@ -179,22 +186,11 @@ def fly_span(
                 o_phi = wrap_pi(o_phi + mt_gauss(nmt, ngs, 0.0, s_att))
                 o_theta = o_theta + mt_gauss(nmt, ngs, 0.0, s_att)
                 o_psi = wrap_pi(o_psi + mt_gauss(nmt, ngs, 0.0, s_att))
-            if s_pos > 0.0:
-                ox = ox + mt_gauss(nmt, ngs, 0.0, s_pos)
-                oy = oy + mt_gauss(nmt, ngs, 0.0, s_pos)
-                oz = oz + mt_gauss(nmt, ngs, 0.0, s_pos)
-            if s_vel > 0.0:
-                ovx = ovx + mt_gauss(nmt, ngs, 0.0, s_vel)
-                ovy = ovy + mt_gauss(nmt, ngs, 0.0, s_vel)
-                ovz = ovz + mt_gauss(nmt, ngs, 0.0, s_vel)
-            if s_rate > 0.0:
-                op = op + mt_gauss(nmt, ngs, 0.0, s_rate)
-                oq = oq + mt_gauss(nmt, ngs, 0.0, s_rate)
-                o_r = o_r + mt_gauss(nmt, ngs, 0.0, s_rate)
-            if s_acc > 0.0:
-                oax = oax + mt_gauss(nmt, ngs, 0.0, s_acc)
-                oay = oay + mt_gauss(nmt, ngs, 0.0, s_acc)
-                oaz = oaz + mt_gauss(nmt, ngs, 0.0, s_acc)
+            # the order of sim_bridge.sensors.SensorNoise.apply: position, velocity, rates, accel
+            ox, oy, oz = _noisy3(nmt, ngs, ox, oy, oz, s_pos)
+            ovx, ovy, ovz = _noisy3(nmt, ngs, ovx, ovy, ovz, s_vel)
+            op, oq, o_r = _noisy3(nmt, ngs, op, oq, o_r, s_rate)
+            oax, oay, oaz = _noisy3(nmt, ngs, oax, oay, oaz, s_acc)
         # the sensor faults, sensor by sensor in SENSORS order, each sensor's in their order
         att_lost = False
         for si in range(5):
@@ -489,4 +485,4 @@ def fly_span(
 
 #: the kernel and what it calls of its own (compiled with the pipeline's, the estimate's, the
 #: plant's and the random streams' pure functions: :data:`lab.fast.flight.KERNEL_FUNCTIONS`).
-KERNEL_FUNCTIONS = (fly_span, _watch_holds, _f32, _f32_overflows)
+KERNEL_FUNCTIONS = (fly_span, _noisy3, _watch_holds, _f32, _f32_overflows)
