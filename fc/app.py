@@ -52,13 +52,13 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TextIO
+from typing import Any, TextIO
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from fc import telemetry
 from fc.config import FcConfig
-from fc.core import FlightCore
+from fc.core import FlightCore, TickOutput
 from fc.flight import VehicleState
 from fc.gcs import GcsHandler
 from fc.intake import OTHER, Intake, classify
@@ -278,11 +278,7 @@ class FlightControllerApp:
         try:
             # The sim link logs nothing itself: this app logs each state it flies and each answer
             # once, so a re-sent or duplicated datagram never changes the log (lockstep: bit for bit).
-            self.sim = MavlinkUdp(
-                sim_url, source_system=sim_sysid, source_component=FC_COMPONENT, accept_system=sim_sysid,
-                tlog=None, clock_us=clock_us, monotonic_s=monotonic, impairment=sim_impairment, impair_seed=impair_seed,
-            )  # fmt: skip
-            self.sim.report_peer_errors()
+            self.sim = self._open_sim(sim_url, sim_sysid, clock_us, sim_impairment, impair_seed)
             self.gcs = self._open_gcs(gcs_url, gcs_port, sysid, clock_us, gcs_trusted, gcs_impairment, impair_seed + 1) if gcs_url else None
         except Exception:
             if self.tlog is not None:  # a configuration error must not leave an empty log behind
@@ -342,6 +338,17 @@ class FlightControllerApp:
         self._gcs_tick_s = 0.0
         self._stop = False
         self._exit_code = EXIT_OK
+
+    def _open_sim(
+        self, url: str, sysid: int, clock_us: Callable[[], int], impairment: LinkImpairment | None, impair_seed: int
+    ) -> MavlinkUdp:
+        """The simulator link (our simulator's UDP; :mod:`fc.sim_px4` opens PX4's TCP instead)."""
+        link = MavlinkUdp(
+            url, source_system=sysid, source_component=FC_COMPONENT, accept_system=sysid,
+            tlog=None, clock_us=clock_us, monotonic_s=self._mono, impairment=impairment, impair_seed=impair_seed,
+        )  # fmt: skip
+        link.report_peer_errors()
+        return link
 
     def _open_gcs(
         self, url: str, port: int, sysid: int, clock_us: Callable[[], int], trusted: bool,
@@ -420,6 +427,7 @@ class FlightControllerApp:
             summary["cpu_s"] = round(time.process_time(), 3)
             summary["rx_rejected"] = self.rejected_summary()
             summary["tlog"] = str(self.tlog.path) if self.tlog is not None else None
+            summary.update(self._summary_extra())
             if self.tlog is not None and not self.tlog.closed:  # the run's own overrun count, for the log's readers
                 lm, now_us = self._logmav, self.clock.now_us()
                 count = lm.named_value_int_encode((now_us // 1000) & 0xFFFFFFFF, OVERRUN_NAME.encode(), self.stats.overruns)
@@ -442,6 +450,10 @@ class FlightControllerApp:
             }  # fmt: skip
             self.say("FC_SUMMARY " + json.dumps(summary, sort_keys=True))
         return self._exit_code
+
+    def _summary_extra(self) -> dict[str, Any]:
+        """More of FC_SUMMARY (a link's own counters: :mod:`fc.sim_px4`)."""
+        return {}
 
     def rejected_summary(self) -> dict[str, int]:
         """Every rejected packet by reason (the links' counters and the ground protocol's), 0s left out."""
@@ -843,12 +855,7 @@ class FlightControllerApp:
         if core.ticks == 0:
             self.say(f"FC_READY t={t_us * 1e-6:.3f}s controller={self.cfg.controller} lockstep={self.lockstep}")
         out = core.tick(t_us, self.state, fresh=not stale, wall_s=self._mono() if self.gcs is not None else None)
-        m = out.motors
-        sim = self.sim
-        act = encode_hil_actuator_controls(
-            sim.take_seq(), *sim.source, t_us, [m[0], m[1], m[2], m[3]] + _ZEROS12,
-            _ARMED if out.armed else 0, ACTUATOR_FLAG_LOCKSTEP if self.lockstep else 0,
-        )  # fmt: skip
+        act = self._actuator_packet(t_us, out)
         self._answer_sim((act,))
         self._last_actuator = act
         self._last_tick_ms = self._state_ms
@@ -869,6 +876,15 @@ class FlightControllerApp:
         self.gcs_handler.on_tick(t_us, None if self.lockstep else t_ground + TELEMETRY_SHARE * self.cfg.period_s)
         self._gcs_tick_s = self._mono() - t_ground
         self._period_no += 1
+
+    def _actuator_packet(self, t_us: int, out: TickOutput) -> bytes:
+        """The tick's answer to the simulator: HIL_ACTUATOR_CONTROLS, controls[0..3] our rotors 1..4."""
+        m = out.motors
+        sim = self.sim
+        return encode_hil_actuator_controls(
+            sim.take_seq(), *sim.source, t_us, [m[0], m[1], m[2], m[3]] + _ZEROS12,
+            _ARMED if out.armed else 0, ACTUATOR_FLAG_LOCKSTEP if self.lockstep else 0,
+        )  # fmt: skip
 
     def _item_reached(self, seq: int) -> None:
         """``MISSION_ITEM_REACHED`` to every ground station."""

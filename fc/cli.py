@@ -9,12 +9,14 @@ import time
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 from fc.app import EXIT_CONFIG, FlightControllerApp, install_signal_handlers
 from fc.config import FcConfig
 from fc.control import registry
 from fc.control.purity import law_problems
 from fc.params import ParamStore, apply_scenario
+from fc.sim_px4 import PX4_FRAMES, PX4_MOTOR_MODELS, Px4FlightControllerApp, Px4Output, is_px4_url, parse_px4_url
 from smcpilot.errors import SmcpilotError
 from smcpilot.geo import Home
 from smcpilot.impair import parse_impairment
@@ -34,7 +36,15 @@ def build_parser() -> argparse.ArgumentParser:
         " the simulator bridge, sends HIL_ACTUATOR_CONTROLS back, and serves ground stations.",
     )
     p.add_argument("--sim", default="udpin:127.0.0.1:14560", metavar="URL",
-                   help="simulator link (default udpin:127.0.0.1:14560; udpin:HOST:0 picks a free port)")
+                   help="simulator link: our simulator over UDP (default udpin:127.0.0.1:14560; udpin:HOST:0 picks a free"
+                   " port), or px4[:tcp:HOST[:PORT]]: PX4's simulator API (Gazebo, jMAVSim, AirSim, rotorpy, smcpilot sim"
+                   " --serve px4), connecting to HOST:PORT (default 127.0.0.1:4560) as PX4 does; always lockstep")
+    p.add_argument("--px4-frame", choices=PX4_FRAMES, default="quad-x",
+                   help="with --sim px4: the motor order of HIL_ACTUATOR_CONTROLS: quad-x (PX4's quadrotor X, default) or"
+                   " plus (our rotors 1..4, as smcpilot sim --serve px4 reads them)")
+    p.add_argument("--px4-motor", choices=PX4_MOTOR_MODELS, default="speed",
+                   help="with --sim px4: what a control in [0, 1] sets: the rotor speed, omega = c * rotor_speed_max (speed,"
+                   " default: Gazebo, rotorpy) or the thrust above idle (thrust: our plant)")
     p.add_argument("--gcs", default=DEFAULT_GCS_URL, metavar="URL",
                    help="ground link: udp:HOST:PORT sends telemetry there and answers whoever writes to our"
                    " port; udpin:HOST:PORT listens there (default udp:127.0.0.1:14550; 'none' for no ground link)")
@@ -172,7 +182,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             args.signing_timestamps if args.signing_timestamps is not None else tlog.parent / "signing-timestamp"
         )
         signing = Signing(load_key(args.signing_key) if args.signing_key is not None else None, store=signing_store)
-        app = FlightControllerApp(
+        px4 = is_px4_url(args.sim)
+        app_class: type[FlightControllerApp] = FlightControllerApp
+        extra: dict[str, Any] = {}
+        if px4:
+            parse_px4_url(args.sim)  # a bad URL: one line, exit 2
+            app_class = Px4FlightControllerApp
+            extra["px4_output"] = Px4Output(args.px4_frame, args.px4_motor)
+        app = app_class(
             params.config,
             vehicle,
             sim_url=args.sim,
@@ -193,6 +210,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             gcs_impairment=parse_impairment(args.gcs_link, "--gcs-link") if args.gcs_link is not None
             else (scenario.gcs_link if scenario is not None else None),
             impair_seed=scenario.seed if scenario is not None else 0,
+            **extra,
         )
         if not kept:
             params.save()  # the run's own file says from the start what flew

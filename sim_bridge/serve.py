@@ -29,6 +29,7 @@ from sim_bridge.build import plant_for
 from sim_bridge.plants.paper_vehicle import PaperVehiclePlant
 from sim_bridge.plants.rigid_body import RigidBodyPlant
 from sim_bridge.sensors import VehicleObservation
+from smcpilot.complaints import Complaints
 from smcpilot.errors import ConfigError, DivergenceError, WatchdogError
 from smcpilot.frames import flu_to_frd, quat_rotate_inverse, rates_flu_to_frd
 from smcpilot.scenario import Scenario
@@ -84,37 +85,6 @@ def imu_frd(obs: VehicleObservation, truth: VehicleObservation, g: float) -> tup
     and accelerometer faults are the observation's); the specific force is rotated with the true
     attitude (the accelerometer sits on the real body, whatever an attitude fault says)."""
     return rates_flu_to_frd(*obs.body_rates_radps), specific_force_frd(obs.accel_mps2, truth.quaternion, g)
-
-
-class Complaints:
-    """Bad input: counted per kind; a message the first time a kind is seen, then at most one
-    every ``every_s`` wall seconds saying how many more came."""
-
-    def __init__(self, say: Callable[[str], None], prefix: str, clock: Callable[[], float] = time.monotonic, every_s: float = 5.0) -> None:
-        self._say = say
-        self._prefix = prefix
-        self._clock = clock
-        self._every_s = every_s
-        self.counts: dict[str, int] = {}
-        self._last_said = -math.inf
-        self._unsaid = 0
-
-    @property
-    def total(self) -> int:
-        return sum(self.counts.values())
-
-    def bad(self, kind: str, text: str) -> None:
-        """One piece of bad input of ``kind`` (e.g. ``short``), described by ``text``; dropped."""
-        first = kind not in self.counts
-        self.counts[kind] = self.counts.get(kind, 0) + 1
-        now = self._clock()
-        if first or now - self._last_said >= self._every_s:
-            more = f" (and {self._unsaid} more bad since the last message)" if self._unsaid else ""
-            self._say(f"{self._prefix}: dropped {text}; {self.total} bad so far{more}")
-            self._last_said = now
-            self._unsaid = 0
-        else:
-            self._unsaid += 1
 
 
 class ServerBase:

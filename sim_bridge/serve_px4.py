@@ -44,6 +44,7 @@ from sim_bridge.serve import ServeOptions, ServerBase, imu_frd
 from smcpilot.errors import WatchdogError
 from smcpilot.frames import flu_to_frd, ned_to_nwu, nwu_to_ned, quat_nwu_flu_to_ned_frd, quat_rotate_inverse, rates_flu_to_frd
 from smcpilot.geo import Home, ned_to_global
+from smcpilot.link import PacketSink
 from smcpilot.protocol import SIM_COMPONENT_ID
 from smcpilot.scenario import Scenario
 
@@ -70,21 +71,6 @@ def _i16(v: float) -> int:
     return int(max(-32768, min(32767, round(v))))
 
 
-class _Sink:
-    """The file pymavlink writes packed messages to: collects them for one ``sendall``."""
-
-    def __init__(self) -> None:
-        self.parts: list[bytes] = []
-
-    def write(self, data: bytes) -> None:
-        self.parts.append(bytes(data))
-
-    def take(self) -> bytes:
-        data = b"".join(self.parts)
-        self.parts.clear()
-        return data
-
-
 class Px4Server(ServerBase):
     """Listens on TCP ``options.host:options.port``; :meth:`run` serves one PX4 until stopped."""
 
@@ -104,7 +90,7 @@ class Px4Server(ServerBase):
             raise
         self.address: tuple[str, int] = self.listener.getsockname()
         self.conn: socket.socket | None = None
-        self._sink = _Sink()
+        self._sink = PacketSink()
         self.mav = mavlink.MAVLink(self._sink, srcSystem=1, srcComponent=SIM_COMPONENT_ID)
         self.mav.robust_parsing = True
         self.commands = (0.0, 0.0, 0.0, 0.0)

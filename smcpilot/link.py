@@ -68,6 +68,7 @@ __all__ = [
     "Endpoint",
     "LinkCounters",
     "MavlinkUdp",
+    "PacketSink",
     "parse_endpoint",
     "DEFAULT_PEER_TIMEOUT_S",
     "DEFAULT_MAX_DATAGRAM_BYTES",
@@ -223,6 +224,23 @@ class LinkCounters:
         """Set every counter back to zero."""
         for name in self.__slots__:  # type: ignore[attr-defined]
             setattr(self, name, 0)
+
+
+class PacketSink:
+    """The file pymavlink writes packed messages to, collecting them for one send (a stream link:
+    PX4's simulator API over TCP, both sides)."""
+
+    def __init__(self) -> None:
+        self.parts: list[bytes] = []
+
+    def write(self, data: bytes) -> None:
+        self.parts.append(bytes(data))
+
+    def take(self) -> bytes:
+        """Everything written since the last take, joined."""
+        data = b"".join(self.parts)
+        self.parts.clear()
+        return data
 
 
 class _LinkWriter:
