@@ -29,7 +29,9 @@ from smcpilot.errors import SmcpilotError
 from smcpilot.geo import Home
 from smcpilot.impair import parse_impairment
 from smcpilot.plan import load_plan
+from smcpilot.protocol import DEFAULT_GCS_URL, FC_GROUND_PORT
 from smcpilot.scenario import Scenario
+from smcpilot.swarm import fc_ground_port
 from smcpilot.vehicle import VehicleParams
 
 #: at the end of a run, how long the launcher waits for the other process to exit by itself (s);
@@ -185,8 +187,16 @@ class Sitl:
         self.python = python
         self.fc: Child | None = None
         self.sim: Child | None = None
+        #: every vehicle's FC (one for a single vehicle: ``fc``), in the order of the swarm's vehicles.
+        self.fcs: list[Child] = []
+        #: a swarm's ground router (None for one vehicle, or without a ground link).
+        self.router: Child | None = None
         self.sim_port: int | None = None
         self.gcs_address: str | None = None
+        #: a swarm: every vehicle's system id, FC ground address and tlog, in order.
+        self.sysids: list[int] = []
+        self.gcs_addresses: list[str] = []
+        self.tlogs: list[Path] = []
         self.tlog: Path | None = None
         #: the scenario file both processes were started with (beside the tlog).
         self.scenario_file: Path | None = None
@@ -214,14 +224,14 @@ class Sitl:
                 line = raw.rstrip("\n")
                 child.tail.append(line)
                 del child.tail[:-40]
-                if line.startswith(("FC_SUMMARY ", "SIM_SUMMARY ")):
+                if line.startswith(("FC_SUMMARY ", "SIM_SUMMARY ", "ROUTER_SUMMARY ")):
                     try:
                         child.summary = json.loads(line.split(" ", 1)[1])
                     except ValueError:
                         pass
                     continue
                 child.lines.put(line)
-                if not line.startswith(("FC_LISTENING", "SIM_READY", "FC_READY")):
+                if not line.startswith(("FC_LISTENING", "SIM_READY", "FC_READY", "ROUTER_READY")):
                     self.echo(f"[{name}] {line}")
 
         child.thread = threading.Thread(target=pump, name=f"{name}-output", daemon=True)
@@ -249,7 +259,7 @@ class Sitl:
 
     @staticmethod
     def _tail(child: Child) -> str:
-        lines = [ln for ln in child.tail if not ln.startswith(("FC_SUMMARY", "SIM_SUMMARY"))][-8:]
+        lines = [ln for ln in child.tail if not ln.startswith(("FC_SUMMARY", "SIM_SUMMARY", "ROUTER_SUMMARY"))][-8:]
         return (":\n  " + "\n  ".join(lines)) if lines else ""
 
     def start(self, ready_timeout_s: float = 30.0) -> Sitl:
@@ -264,87 +274,152 @@ class Sitl:
         # The flight goes to both processes as one file, kept beside the log: `smcpilot run FILE`
         # flies it again (in-process, or with --sitl as here).
         self.scenario_file = sc.save(tlog.with_name(tlog.stem + ".scenario.toml"))
-        timed = ["--duration", repr(sc.duration_s)] if o.timed else []
-        fc_args = ["fc", "--sim", "udpin:127.0.0.1:0", "--gcs", o.gcs or "none", "--scenario", str(self.scenario_file),
-                   "--tlog", str(tlog), "--watchdog-s", f"{o.watchdog_s:g}"]  # fmt: skip
-        if o.lockstep:
-            fc_args.append("--lockstep")
-        if o.param_file is not None:  # else the FC starts from defaults with a file of its own (NAME.parm)
-            fc_args += ["--param-file", str(o.param_file)]
-        fc_args += ["--signing-timestamps", str(tlog.parent / "signing-timestamp")]
-        if o.signing_key is not None:
-            fc_args += ["--signing-key", str(o.signing_key)]
-        if o.lockstep:
-            fc_args += timed
-        fc_args += list(o.fc_args)
+        if sc.swarm is not None:
+            return self._start_swarm(tlog, ready_timeout_s)
+        self.sysids = [1]
+        self.tlogs = [tlog]
+        fc_args = self._fc_args(self.scenario_file, tlog, o.gcs or "none", None, o.param_file, tlog.parent / "signing-timestamp")
         self.started_wall = time.monotonic()
         self.fc = self._spawn("fc", fc_args)
+        self.fcs = [self.fc]
         listening = self._await_line(self.fc, "FC_LISTENING", 20.0)
         fields = dict(part.split("=", 1) for part in listening.split()[1:] if "=" in part)
         self.sim_port = int(fields["sim"].rsplit(":", 1)[1])
         self.gcs_address = fields.get("gcs")
-        sim_args = ["sim_bridge", "--fc", f"udp:127.0.0.1:{self.sim_port}", "--scenario", str(self.scenario_file),
-                    "--watchdog-s", f"{o.watchdog_s:g}"]  # fmt: skip
+        self.gcs_addresses = [self.gcs_address or "-"]
+        self.sim = self._spawn("sim", self._sim_args([self.sim_port]))
+        self._await_line(self.fc, "FC_READY", ready_timeout_s)
+        return self
+
+    def _fc_args(self, scenario_file: Path, tlog: Path, gcs: str, gcs_port: int | None, param_file: Path | None,
+                 signing_timestamps: Path, sysid: int | None = None) -> list[str]:  # fmt: skip
+        o = self.options
+        timed = ["--duration", repr(o.scenario.duration_s)] if o.timed else []
+        fc_args = ["fc", "--sim", "udpin:127.0.0.1:0", "--gcs", gcs, "--scenario", str(scenario_file),
+                   "--tlog", str(tlog), "--watchdog-s", f"{o.watchdog_s:g}"]  # fmt: skip
+        if gcs_port is not None:
+            fc_args += ["--gcs-port", str(gcs_port)]
+        if sysid is not None:
+            fc_args += ["--sysid", str(sysid)]
+        if o.lockstep:
+            fc_args.append("--lockstep")
+        if param_file is not None:  # else the FC starts from defaults with a file of its own (NAME.parm)
+            fc_args += ["--param-file", str(param_file)]
+        fc_args += ["--signing-timestamps", str(signing_timestamps)]
+        if o.signing_key is not None:
+            fc_args += ["--signing-key", str(o.signing_key)]
+        if o.lockstep:
+            fc_args += timed
+        return fc_args + list(o.fc_args)
+
+    def _sim_args(self, ports: list[int]) -> list[str]:
+        o = self.options
+        assert self.scenario_file is not None
+        sim_args = ["sim_bridge"]
+        for port in ports:
+            sim_args += ["--fc", f"udp:127.0.0.1:{port}"]
+        sim_args += ["--scenario", str(self.scenario_file), "--watchdog-s", f"{o.watchdog_s:g}"]
         if o.lockstep:
             sim_args.append("--lockstep")
         if o.speed is not None:
             sim_args += ["--speed", f"{o.speed:g}"]
-        sim_args += timed
-        sim_args += list(o.sim_args)
-        self.sim = self._spawn("sim", sim_args)
-        self._await_line(self.fc, "FC_READY", ready_timeout_s)
+        if o.timed:
+            sim_args += ["--duration", repr(o.scenario.duration_s)]
+        return sim_args + list(o.sim_args)
+
+    def _start_swarm(self, tlog: Path, ready_timeout_s: float) -> Sitl:
+        """K flight controllers (system ids from the scenario's [swarm]), one ground router, one
+        simulator stepping every plant (see :mod:`smcpilot.swarm`)."""
+        o = self.options
+        fleet = o.scenario.fleet()
+        default_ground = o.gcs == DEFAULT_GCS_URL
+        self.started_wall = time.monotonic()
+        fc_gcs = "none"
+        if o.gcs:
+            router_args = ["ground.router", "--ground", o.gcs]
+            if default_ground:
+                router_args += ["--ground-port", str(FC_GROUND_PORT)]
+            self.router = self._spawn("router", router_args)
+            ready = self._await_line(self.router, "ROUTER_READY", 20.0)
+            fields = dict(part.split("=", 1) for part in ready.split()[1:] if "=" in part)
+            fc_gcs = f"udp:{fields['vehicles']}"
+            self.gcs_address = fields["ground"]
+        for v in fleet:
+            vlog = tlog.with_name(f"{tlog.stem}-v{v.sysid}.tlog")
+            vfile = v.scenario.save(vlog.with_name(vlog.stem + ".scenario.toml"))
+            param_file = None if o.param_file is None else o.param_file.with_name(f"{o.param_file.stem}-v{v.sysid}{o.param_file.suffix}")
+            gcs_port = (fc_ground_port(v.index) if default_ground else 0) if o.gcs else None
+            args = self._fc_args(vfile, vlog, fc_gcs, gcs_port, param_file, tlog.parent / f"signing-timestamp-v{v.sysid}", v.sysid)
+            self.fcs.append(self._spawn(f"fc{v.sysid}", args))
+            self.sysids.append(v.sysid)
+            self.tlogs.append(vlog)
+        self.fc = self.fcs[0]
+        ports = []
+        for child in self.fcs:
+            listening = self._await_line(child, "FC_LISTENING", 20.0 + 2.0 * len(fleet))
+            fields = dict(part.split("=", 1) for part in listening.split()[1:] if "=" in part)
+            ports.append(int(fields["sim"].rsplit(":", 1)[1]))
+            self.gcs_addresses.append(fields.get("gcs", "-"))
+        self.sim_port = ports[0]
+        if self.router is None:
+            self.gcs_address = self.gcs_addresses[0]
+        self.sim = self._spawn("sim", self._sim_args(ports))
+        for child in self.fcs:
+            self._await_line(child, "FC_READY", ready_timeout_s + 0.5 * len(fleet))
         return self
 
     # -- run and stop ----------------------------------------------------------------------------
     def poll(self) -> tuple[int | None, int | None]:
-        return (
-            self.fc.proc.poll() if self.fc else None,
-            self.sim.proc.poll() if self.sim else None,
-        )
+        """(the FC's exit code or None while it runs, the simulator's); in a swarm, the first FC that ended."""
+        fc_rc = next((c.proc.poll() for c in self.fcs if c.proc.poll() is not None), None)
+        return (fc_rc, self.sim.proc.poll() if self.sim else None)
+
+    def _vehicle_children(self) -> list[Child]:
+        return [c for c in (self.sim, *self.fcs) if c is not None]
 
     def wait(self, timeout_s: float | None = None) -> int:
         """Wait until the run ends (the bridge reaches its duration, or a child exits).
 
-        Returns 0 when both children ended cleanly; raises :class:`SitlError` naming the child and
+        Returns 0 when every child ended cleanly; raises :class:`SitlError` naming the child and
         showing its last output when one failed.
         """
         assert self.fc is not None and self.sim is not None
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        children = self._vehicle_children()
         while True:
-            fc_rc, sim_rc = self.poll()
-            if sim_rc is not None or fc_rc is not None:
+            ended = [(c, c.proc.poll()) for c in children if c.proc.poll() is not None]
+            if ended:
                 break
             if deadline is not None and time.monotonic() > deadline:
                 raise SitlError(f"SITL did not finish within {timeout_s:g} s")
             time.sleep(0.05)
-        # The child that ended first is the one to name when something went wrong (the other one
-        # then only reports that its peer is gone).
-        first: Child
-        first_rc: int | None
-        if sim_rc is not None and fc_rc is not None:  # both seen ended at once: the one killed by a signal
-            first, first_rc = (self.fc, fc_rc) if fc_rc < 0 <= sim_rc else (self.sim, sim_rc)
-        else:
-            first, first_rc = (self.sim, sim_rc) if sim_rc is not None else (self.fc, fc_rc)
-        # One side ended; the other ends by itself: in lockstep at the same simulated time, in real
-        # time on the simulator's end-of-run heartbeat (the FC) or its watchdog (the simulator).
+        # The child that ended first is the one to name when something went wrong (the others
+        # then only report that their peer is gone); seen ended at once: the one killed by a signal.
+        first, first_rc = next(((c, rc) for c, rc in ended if rc is not None and rc < 0), ended[0])
+        if len(ended) > 1 and first is not self.sim and all(rc is not None and rc >= 0 for _, rc in ended):
+            first, first_rc = next(((c, rc) for c, rc in ended if c is self.sim), ended[0])
+        # One side ended; the others end by themselves: in lockstep at the same simulated time, in
+        # real time on the simulator's end-of-run heartbeat (the FCs) or its watchdog (the simulator).
         # A child still running after END_GRACE_S is stopped, and that is a failure of the run.
         signalled = self.stop(grace_s=END_GRACE_S)
-        fc_rc = self.fc.proc.returncode
-        sim_rc = self.sim.proc.returncode
         clean = (0, -signal.SIGTERM, -signal.SIGINT)
         if first_rc not in clean:
             raise SitlError(f"{first.name} {_how(first_rc)}{self._tail(first)}")
-        for child, rc in ((self.sim, sim_rc), (self.fc, fc_rc)):
+        for child in children:
+            rc = child.proc.returncode
             if child.name in signalled:
                 raise SitlError(f"{child.name} did not exit by itself within {END_GRACE_S:g} s of the run's end: stopped ({_how(rc)}){self._tail(child)}")
             if rc not in clean:
                 raise SitlError(f"{child.name} {_how(rc)}{self._tail(child)}")
+        if self.router is not None and self.router.proc.returncode not in clean:
+            raise SitlError(f"router {_how(self.router.proc.returncode)}{self._tail(self.router)}")
         return 0
 
     def stop(self, grace_s: float = 5.0) -> list[str]:
-        """Stop both children: let them finish for ``grace_s``, then SIGTERM, then SIGKILL. Returns
-        the names of the children that had to be signalled."""
-        children = [c for c in (self.sim, self.fc) if c is not None]
+        """Stop every child: let them finish for ``grace_s``, then SIGTERM, then SIGKILL. Returns
+        the names of the children that had to be signalled (the router, which only ever ends on
+        a signal, is stopped last and not counted)."""
+        children = self._vehicle_children()
         signalled: list[str] = []
         deadline = time.monotonic() + grace_s
         for c in children:
@@ -356,6 +431,10 @@ class Sitl:
             if c.proc.poll() is None:
                 c.proc.send_signal(signal.SIGTERM)
                 signalled.append(c.name)
+        if self.router is not None:
+            if self.router.proc.poll() is None:
+                self.router.proc.send_signal(signal.SIGTERM)
+            children.append(self.router)
         for c in children:
             try:
                 c.proc.wait(timeout=5.0)
@@ -371,7 +450,7 @@ class Sitl:
 
     def terminate(self) -> None:
         """Stop now (Ctrl-C): SIGTERM both, then wait."""
-        for c in (self.sim, self.fc):
+        for c in (self.sim, *self.fcs, self.router):
             if c is not None and c.proc.poll() is None:
                 c.proc.send_signal(signal.SIGTERM)
         self.stop(grace_s=0.0)
@@ -394,6 +473,15 @@ class Sitl:
     def sim_summary(self) -> dict | None:
         return self.sim.summary if self.sim else None
 
+    @property
+    def fc_summaries(self) -> list[dict | None]:
+        """Every vehicle's FC summary, in the order of :attr:`sysids`."""
+        return [c.summary for c in self.fcs]
+
+    @property
+    def router_summary(self) -> dict | None:
+        return self.router.summary if self.router else None
+
 
 def _how(rc: int | None) -> str:
     """How a child ended, for a message: "exited with code 3", "was killed by SIGKILL (exit code -9)"."""
@@ -412,15 +500,24 @@ QGC_DEFAULT_PORT = 14550
 
 def print_connect_help(sitl: Sitl, out: TextIO = sys.stdout) -> None:
     o = sitl.options
+    where = f"logs {sitl.tlogs[0].parent}/{sitl.tlog.stem if sitl.tlog else ''}-v*.tlog" if len(sitl.fcs) > 1 else f"log {sitl.tlog}"
     print(f"SITL running: {'lockstep' if o.lockstep else 'real time'}, controller {o.scenario.controller}, plant {o.scenario.plant},"
-          f" log {sitl.tlog}", file=out)  # fmt: skip
+          f" {where}", file=out)  # fmt: skip
     if o.gcs and o.gcs.startswith(("udp:", "udpout:")):
         target = o.gcs.split(":", 1)[1]
         port = target.rsplit(":", 1)[-1]
         qgc = ("QGroundControl listens there by default" if port == str(QGC_DEFAULT_PORT) else
                f"QGroundControl listens on {QGC_DEFAULT_PORT} by default: add a UDP comm link on port {port}")  # fmt: skip
         print(f"  telemetry goes to {target} ({qgc}; MAVProxy: mavproxy.py --master=udpin:{target})", file=out)
-    if sitl.gcs_address and sitl.gcs_address != "-":
+    if len(sitl.fcs) > 1:
+        print(f"  {len(sitl.fcs)} vehicles, system ids {', '.join(map(str, sitl.sysids))}: every vehicle's telemetry goes there"
+              " through one router, which sends each station's packets to the vehicle their target system names"
+              " (MAVProxy: vehicle N; QGroundControl: the vehicle selector)", file=out)  # fmt: skip
+        if sitl.router is not None and sitl.gcs_address:
+            print(f"  the router answers on {sitl.gcs_address} (a GCS may also connect there: --master=udpout:{sitl.gcs_address})", file=out)
+        for sysid, addr, tlog in zip(sitl.sysids, sitl.gcs_addresses, sitl.tlogs):
+            print(f"    vehicle {sysid}: its own FC port {addr}, log {tlog}", file=out)
+    elif sitl.gcs_address and sitl.gcs_address != "-":
         print(f"  the FC answers on {sitl.gcs_address} (any GCS may also connect there: --master=udpout:{sitl.gcs_address})", file=out)
     if o.signing_key is not None:
         print("  the ground link is signed: sign with the same key (MAVProxy: module load signing; signing key"

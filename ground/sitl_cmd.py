@@ -9,6 +9,7 @@ import signal
 import sys
 import time
 from collections.abc import Callable
+from dataclasses import replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -22,6 +23,7 @@ from smcpilot.link import parse_endpoint
 from smcpilot.protocol import FC_CONTROLLERS
 from smcpilot.scenario import Scenario
 from smcpilot.signing import load_key
+from smcpilot.swarm import MAX_VEHICLES, SwarmSpec, check_count
 
 
 def _ned_triple(text: str) -> tuple[float, float, float]:
@@ -76,6 +78,12 @@ def add_sitl_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scenario", type=Path, metavar="FILE",
                    help="fly this scenario (TOML, see `smcpilot run`): its vehicle, environment, seed, controller,"
                    " parameters and plan (the flags above change it); runs until Ctrl-C unless --duration is given")  # fmt: skip
+    p.add_argument("--count", type=int, metavar="K",
+                   help=f"fly K vehicles (1..{MAX_VEHICLES}) in one simulator on one clock: one FC each, system ids"
+                   " from --sysid, spawned on a grid, all on the one ground URL (a router sends each station's"
+                   " packets to the vehicle they name); default: the scenario's [swarm] count, else 1")  # fmt: skip
+    p.add_argument("--sysid", type=int, metavar="N",
+                   help="system id of the (first) vehicle; the others count up from it (default 1)")
 
 
 def _options(args: argparse.Namespace, **extra: Any) -> SitlOptions:
@@ -116,7 +124,7 @@ _CHILD_EXIT_CONFIG = 2
 
 def _startup_config_error(sitl: Sitl) -> str | None:
     """The one-line reason if a child ended during start-up with a configuration error, else None."""
-    for child in (sitl.fc, sitl.sim):
+    for child in (*sitl.fcs, sitl.sim, sitl.router):
         if child is not None and child.proc.poll() == _CHILD_EXIT_CONFIG:
             errors = [ln.split("error:", 1)[1].strip() for ln in child.tail if "error:" in ln]
             return errors[-1] if errors else f"{child.name} rejected its configuration"
@@ -209,6 +217,28 @@ def _tidy_log_dir(log_dir: Path) -> None:
               f" the newest {KEEP_PLAIN} stay plain; `smcpilot log clean` deletes old flights)")  # fmt: skip
 
 
+def _with_count(opts: SitlOptions, count: int | None, sysid: int | None) -> SitlOptions:
+    """``--count`` and ``--sysid`` over the scenario's [swarm] table (checked: one line, exit 2)."""
+    if count is None and sysid is None:
+        return opts
+    sc = opts.scenario
+    swarm = sc.swarm if sc.swarm is not None else SwarmSpec()
+    changes: dict[str, Any] = {}
+    if count is not None:
+        check_count(count)
+        changes["count"] = count
+    if sysid is not None:
+        if not 1 <= sysid <= 255:
+            raise ConfigError(f"--sysid must be a system id in 1..255, got {sysid}")
+        changes["sysid_base"] = sysid
+    swarm = replace(swarm, **changes)
+    if swarm.count == 1 and sc.swarm is None and sysid is None:
+        return opts
+    scenario = sc.with_changes(swarm=swarm)
+    scenario.fleet()  # every vehicle's flight checked now, before anything starts
+    return replace(opts, scenario=scenario)
+
+
 def sitl_main(args: argparse.Namespace) -> int:
     if args.plan is not None and not args.plan.is_file():
         raise ConfigError(f"plan file not found: {args.plan}")
@@ -231,6 +261,7 @@ def sitl_main(args: argparse.Namespace) -> int:
         sim_link=args.sim_link,
         gcs_link=args.gcs_link,
     )
+    opts = _with_count(opts, args.count, args.sysid)
 
     def started(sitl: Sitl) -> None:
         print_connect_help(sitl)
@@ -242,6 +273,15 @@ def sitl_main(args: argparse.Namespace) -> int:
     fcs = sitl.fc_summary or {}
     # The simulator's clock is the simulated time (the FC's runs from its own start in real time).
     sim_s = (sitl.sim_summary or {}).get("sim_time_s", fcs.get("sim_time_s"))
+    if len(sitl.fcs) > 1:
+        print(f"SITL ended: {'—' if sim_s is None else f'{sim_s:.2f}'} simulated s in {wall:.2f} wall s, {len(sitl.fcs)} vehicles")
+        for sysid, summary, tlog in zip(sitl.sysids, sitl.fc_summaries, sitl.tlogs):
+            s = summary or {}
+            print(f"  vehicle {sysid}: {s.get('ticks', 0)} control ticks, {s.get('overruns', 0)} overruns; log {tlog};"
+                  f" {rejected_line(s.get('rx_rejected') or {}).strip()}")  # fmt: skip
+        print(proximity_line((sitl.sim_summary or {}).get("proximity")))
+        _tidy_log_dir(args.log_dir)
+        return 0
     print(
         f"SITL ended: {'—' if sim_s is None else f'{sim_s:.2f}'} simulated s in {wall:.2f} wall s,"
         f" {fcs.get('ticks', 0)} control ticks, {fcs.get('overruns', 0)} overruns; log {sitl.tlog}"
@@ -249,6 +289,19 @@ def sitl_main(args: argparse.Namespace) -> int:
     _tidy_log_dir(args.log_dir)
     print(rejected_line(fcs.get("rx_rejected") or {}))
     return 0
+
+
+def proximity_line(prox: dict | None) -> str:
+    """A swarm's closest approach, separation events and contacts (the simulator's summary), one line."""
+    if not prox or prox.get("min_separation_m") is None:
+        return "  separation: not measured"
+    a, b = prox["min_pair"]
+    line = (f"  separation: min {prox['min_separation_m']:.2f} m (vehicles {a} and {b} at t = {prox['min_at_s']:.2f} s);"
+            f" {len(prox['events'])} closer than {prox['separation_m']:g} m")  # fmt: skip
+    contacts = prox.get("contacts") or []
+    if contacts:
+        line += "; CONTACT: " + ", ".join(f"{c['vehicles'][0]}-{c['vehicles'][1]} at {c['t_s']:.2f} s" for c in contacts)
+    return line
 
 
 def rejected_line(rejected: dict[str, int]) -> str:

@@ -38,10 +38,11 @@ from __future__ import annotations
 import json
 import math
 import os
+import select
 import signal
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TextIO
 
@@ -49,6 +50,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from sim_bridge.faults import SEVERITY_REJECTED, SimFaults
 from sim_bridge.plants.base import Plant
+from sim_bridge.proximity import Proximity
 from smcpilot.errors import DivergenceError, WatchdogError
 from smcpilot.fastcodec import encode_attitude, encode_local_position_ned
 from smcpilot.faults import SIM_PARAM_INDEX, SIM_PARAMS, FaultError
@@ -102,32 +104,24 @@ class BridgeTiming:
         return int(round(1e6 / self.rate_hz))
 
 
-class SimBridgeApp:
-    def __init__(
-        self,
-        plant: Plant,
-        *,
-        fc_url: str,
-        timing: BridgeTiming,
-        system_id: int = 1,
-        out: TextIO = sys.stdout,
-        monotonic: Callable[[], float] = time.monotonic,
-        sleep: Callable[[float], None] = time.sleep,
-    ) -> None:
+class SimVehicle:
+    """One simulated vehicle of the bridge: its plant, its link to its own flight controller, its
+    motor commands and its counters. The bridge steps every vehicle on one clock."""
+
+    def __init__(self, plant: Plant, *, fc_url: str, system_id: int, clock_us: Callable[[], int],
+                 offset_ne_m: tuple[float, float] = (0.0, 0.0)) -> None:  # fmt: skip
         self.plant = plant
-        self.timing = timing
-        self.out = out
-        self._mono = monotonic
-        self._sleep = sleep
-        self._t_us = 0
+        self.system_id = system_id
+        #: where this vehicle's local frame lies from the swarm's home (north, east, m).
+        self.offset_ne_m = offset_ne_m
         self.link = MavlinkUdp(
             fc_url, source_system=system_id, source_component=SIM_COMPONENT, accept_system=system_id,
-            clock_us=lambda: self._t_us,
+            clock_us=clock_us,
         )  # fmt: skip
         self.link.report_peer_errors()
+        self._clock_us = clock_us
         #: the FC's address: motor commands and parameters are taken from it only.
-        self._fc_addr = self.link.peers[0]
-        self.system_id = system_id
+        self.fc_addr = self.link.peers[0]
         self.faults: SimFaults | None = getattr(plant, "faults", None)
         self.commands = (0.0, 0.0, 0.0, 0.0)
         self.armed = False
@@ -140,25 +134,28 @@ class SimBridgeApp:
         self.foreign_msgs = 0
         #: actuator messages with a NaN or infinite motor value (that motor keeps its last command).
         self.nonfinite_actuator_msgs = 0
-        #: lockstep: running mean round trip state -> answer, wall s.
-        self.rtt_s = 0.0
-        self._last_state: tuple[bytes, ...] = ()
-        self._stop = False
-        self._exit = EXIT_OK
-        self._wall_start = 0.0
+        self.last_state: tuple[bytes, ...] = ()
+        #: lockstep: when the state was last sent (wall s), when first sent, the re-send interval.
+        self.sent_at = 0.0
+        self.first_sent = 0.0
+        self.resend_after = 0.0
+        self.last_answer = 0.0
+        self.answered = False
+        #: in a swarm: the vehicle crashed into another (its motors stopped for good).
+        self.crashed = False
+        #: lockstep: messages that came after this vehicle's answer, acted on from the next state.
+        self.deferred: list = []
 
-    def say(self, line: str) -> None:
-        print(line, file=self.out, flush=True)
-
-    def request_stop(self, *_: object) -> None:
-        self._stop = True
+    @property
+    def name(self) -> str:
+        return f"vehicle {self.system_id}"
 
     # -- wire ------------------------------------------------------------------------------------
-    def _send_state(self) -> None:
+    def send_state(self) -> None:
         obs = self.plant.observe()
         link = self.link
         sysid, comp = link.source
-        t_ms = (self._t_us // 1000) & 0xFFFFFFFF
+        t_ms = (self._clock_us() // 1000) & 0xFFFFFFFF
         (phi, theta, psi), (pf, qf, rf), (xw, yw, zw), (vxw, vyw, vzw) = obs.euler_rad, obs.body_rates_radps, obs.position_m, obs.velocity_mps
         roll, pitch, yaw, p, q, r, x, y, z, vx, vy, vz = wire_of_paper(phi, theta, psi, pf, qf, rf, xw, yw, zw, vxw, vyw, vzw)
         # The per-tick pair, encoded straight to bytes (smcpilot.fastcodec; the same bytes as pymavlink).
@@ -167,12 +164,12 @@ class SimBridgeApp:
             encode_local_position_ned(link.take_seq(), sysid, comp, t_ms, x, y, z, vx, vy, vz),
         )
         link.send_packets(packets)
-        self._last_state = packets
+        self.last_state = packets
         faults = self.faults
         if faults is not None and faults.events:
-            self._announce()
+            self.announce()
 
-    def _say_goodbye(self) -> None:
+    def say_goodbye(self) -> None:
         """A clean end: HEARTBEAT with MAV_STATE_POWEROFF (a few copies: the link may lose some), so
         the FC stops cleanly instead of taking the closed port for a dead simulator."""
         mav = self.link.mav
@@ -180,12 +177,15 @@ class SimBridgeApp:
         for _ in range(GOODBYE_COPIES):  # one datagram each (sending never raises)
             self.link.send(hb)
 
-    def _announce(self) -> None:
+    def announce(self) -> None:
         """Every fault start/stop (and refusal) since the last call, as STATUSTEXT to the FC."""
         assert self.faults is not None
-        mav = self.link.mav
         for ev in self.faults.take_events():
-            self.link.send(mav.statustext_encode(ev.severity, ev.text[:50].encode("ascii", "replace")))
+            self.say(ev.severity, ev.text)
+
+    def say(self, severity: int, text: str) -> None:
+        """One STATUSTEXT to this vehicle's FC (which relays it to its ground stations)."""
+        self.link.send(self.link.mav.statustext_encode(severity, text[:50].encode("ascii", "replace")))
 
     # -- live simulator parameters ------------------------------------------------------------------
     def _for_me(self, msg: mavlink.MAVLink_message) -> bool:
@@ -197,12 +197,12 @@ class SimBridgeApp:
             name.encode("ascii"), self.faults.param_value(name), _REAL32, len(SIM_PARAMS), SIM_PARAM_INDEX[name]
         )
 
-    def _on_param(self, msg: mavlink.MAVLink_message) -> None:
+    def on_param(self, msg: mavlink.MAVLink_message) -> None:
         """PARAM_SET / PARAM_REQUEST_READ / PARAM_REQUEST_LIST addressed to the simulator."""
         if not self._for_me(msg):
             return
         faults = self.faults
-        t_s = self._t_us * 1e-6
+        t_s = self._clock_us() * 1e-6
         mid = msg.id
         if faults is None:
             if mid == _PARAM_SET:
@@ -219,7 +219,7 @@ class SimBridgeApp:
                 self.link.send(self._param_value(name))
             else:
                 faults.reject(t_s, f"unknown parameter {name}")
-                self._announce()
+                self.announce()
             return
         name = msg.param_id
         try:
@@ -231,9 +231,9 @@ class SimBridgeApp:
             self.params_set += 1
         if name in SIM_PARAM_INDEX:
             self.link.send(self._param_value(name))
-        self._announce()
+        self.announce()
 
-    def _apply(self, msg: mavlink.MAVLink_hil_actuator_controls_message) -> None:
+    def apply(self, msg: mavlink.MAVLink_hil_actuator_controls_message) -> None:
         c = msg.controls
         c0, c1, c2, c3 = c[0], c[1], c[2], c[3]
         if not (_isfinite(c0) and _isfinite(c1) and _isfinite(c2) and _isfinite(c3)):
@@ -244,22 +244,173 @@ class SimBridgeApp:
         self.armed = bool(msg.mode & _ARMED)
         self.actuator_msgs += 1
 
+    def crash(self, t_s: float, other: SimVehicle, distance_m: float) -> None:
+        """Contact with ``other``: every motor of this vehicle stops for good (SIM_MOT_OFF = 15,
+        announced as the fault it is), and the FC hears why."""
+        if self.crashed:
+            return
+        self.crashed = True
+        self.say(mavlink.MAV_SEVERITY_CRITICAL, f"SIM: contact with vehicle {other.system_id} ({distance_m:.2f} m)")
+        if self.faults is not None:
+            self.faults.set_param("SIM_MOT_OFF", 15.0, t_s)
+            self.announce()
+
+    def position_ned_m(self) -> tuple[float, float, float]:
+        """The true position in the swarm's frame: NED, m, from the swarm's home."""
+        x, y, z = self.plant.truth().position_m  # type: ignore[attr-defined]
+        return (x + self.offset_ne_m[0], -y + self.offset_ne_m[1], -z)
+
+    def summary(self) -> dict:
+        return {
+            "system_id": self.system_id,
+            "actuator_msgs": self.actuator_msgs,
+            "stale_actuator_msgs": self.stale_actuator_msgs,
+            "resends": self.resends,
+            "foreign_msgs": self.foreign_msgs,
+            "nonfinite_actuator_msgs": self.nonfinite_actuator_msgs,
+            "params_set": self.params_set,
+            "params_rejected": self.params_rejected,
+            "faults_started": self.faults.started if self.faults is not None else 0,
+            "faults_stopped": self.faults.stopped if self.faults is not None else 0,
+            "crashed": self.crashed,
+            "link": self.link.counters.as_dict(),
+        }
+
+
+class SimBridgeApp:
+    """The simulator process: one or more vehicles (a swarm) stepped on one clock.
+
+    In lockstep the world advances one control period only when every vehicle's FC has answered
+    the state stamped with the current time, so a swarm is as deterministic as one vehicle and no
+    vehicle's clock runs ahead of another's; in real time every plant integrates on the same
+    physics clock. A vehicle's FC that dies or falls silent ends a lockstep run with a message
+    naming the vehicle; in real time that vehicle's plant holds its last commands (its own
+    failsafe is gone with its FC) and the others fly on.
+    """
+
+    def __init__(
+        self,
+        plant: Plant | None = None,
+        *,
+        fc_url: str | None = None,
+        timing: BridgeTiming,
+        system_id: int = 1,
+        vehicles: Sequence[tuple[Plant, str, int, tuple[float, float]]] = (),
+        proximity: Proximity | None = None,
+        out: TextIO = sys.stdout,
+        monotonic: Callable[[], float] = time.monotonic,
+        sleep: Callable[[float], None] = time.sleep,
+    ) -> None:
+        """One vehicle (``plant``, ``fc_url``, ``system_id``) or many (``vehicles``: (plant, FC
+        URL, system id, spawn offset north/east m) each, with ``proximity`` checking their separation)."""
+        self.timing = timing
+        self.out = out
+        self._mono = monotonic
+        self._sleep = sleep
+        self._t_us = 0
+        specs = list(vehicles)
+        if plant is not None:
+            if fc_url is None:
+                raise ValueError("a plant needs its fc_url")
+            specs.insert(0, (plant, fc_url, system_id, (0.0, 0.0)))
+        if not specs:
+            raise ValueError("no vehicle to simulate")
+        self.vehicles: list[SimVehicle] = []
+        clock = self._clock_us
+        try:
+            for p, url, sid, offset in specs:
+                self.vehicles.append(SimVehicle(p, fc_url=url, system_id=sid, clock_us=clock, offset_ne_m=offset))
+        except BaseException:
+            for v in self.vehicles:
+                v.link.close()
+            raise
+        self.proximity = proximity if len(self.vehicles) > 1 else None
+        #: lockstep: running mean round trip state -> answer (the slowest vehicle's), wall s.
+        self.rtt_s = 0.0
+        self._stop = False
+        self._exit = EXIT_OK
+        self._wall_start = 0.0
+
+    def _clock_us(self) -> int:
+        return self._t_us
+
+    # The single vehicle's parts, by their names of a one-vehicle bridge.
+    @property
+    def plant(self) -> Plant:
+        return self.vehicles[0].plant
+
+    @property
+    def link(self) -> MavlinkUdp:
+        return self.vehicles[0].link
+
+    def say(self, line: str) -> None:
+        print(line, file=self.out, flush=True)
+
+    def request_stop(self, *_: object) -> None:
+        self._stop = True
+
     def _integrate(self, n_steps: int) -> None:
         dt = 1.0 / self.timing.physics_hz
-        step = self.plant.step
-        cmds = self.commands
-        armed = self.armed
+        dt_us = int(round(dt * 1e6))
+        vehicles = self.vehicles
+        if len(vehicles) == 1:
+            v = vehicles[0]
+            step, cmds, armed = v.plant.step, v.commands, v.armed
+            for _ in range(n_steps):
+                step(self._t_us * 1e-6, dt, cmds, armed)
+                self._t_us += dt_us
+            return
         for _ in range(n_steps):
-            step(self._t_us * 1e-6, dt, cmds, armed)
-            self._t_us += int(round(dt * 1e6))
+            t_s = self._t_us * 1e-6
+            for v in vehicles:
+                v.plant.step(t_s, dt, v.commands, v.armed)
+            self._t_us += dt_us
+
+    def _check_proximity(self) -> None:
+        prox = self.proximity
+        if prox is None:
+            return
+        vehicles = self.vehicles
+        t_s = self._t_us * 1e-6
+        for kind, i, j, dist in prox.check(t_s, [v.position_ned_m() for v in vehicles]):
+            a, b = vehicles[i], vehicles[j]
+            if kind == "contact":
+                self.say(f"sim: vehicles {a.system_id} and {b.system_id} touched at t = {t_s:.3f} s ({dist:.2f} m apart): both crash")
+                a.crash(t_s, b, dist)
+                b.crash(t_s, a, dist)
+            else:
+                text = f"SIM: vehicles {a.system_id} and {b.system_id} within {dist:.1f} m"
+                a.say(mavlink.MAV_SEVERITY_WARNING, text)
+                b.say(mavlink.MAV_SEVERITY_WARNING, text)
+
+    def _recv(self, timeout_s: float) -> list[tuple[SimVehicle, list]]:
+        """Messages from every vehicle's link (waiting at most ``timeout_s`` for the first)."""
+        vehicles = self.vehicles
+        if len(vehicles) == 1:
+            v = vehicles[0]
+            return [(v, v.link.recv(timeout_s))]
+        fds = [v.link.fileno() for v in vehicles]
+        try:
+            ready, _, _ = select.select(fds, [], [], max(0.0, timeout_s))
+        except (OSError, ValueError):
+            ready = fds
+        if not ready:
+            return []
+        out = []
+        for v, fd in zip(vehicles, fds):
+            if fd in ready:
+                out.append((v, v.link.recv(0.0)))
+        return out
 
     # -- loops -----------------------------------------------------------------------------------
     def run(self) -> int:
         tm = self.timing
-        self.say(
-            f"SIM_READY fc={self.link.endpoint.url} local={self.link.local_address[0]}:{self.link.local_address[1]}"
-            f" lockstep={tm.lockstep} physics_hz={tm.physics_hz:g} rate_hz={tm.rate_hz:g} pid={os.getpid()}"
-        )
+        v0 = self.vehicles[0]
+        fcs = " ".join(f"fc={v.link.endpoint.url}" for v in self.vehicles)
+        local = " ".join("local={}:{}".format(*v.link.local_address) for v in self.vehicles)
+        count = f" vehicles={len(self.vehicles)}" if len(self.vehicles) > 1 else ""
+        self.say(f"SIM_READY {fcs} {local} lockstep={tm.lockstep} physics_hz={tm.physics_hz:g} rate_hz={tm.rate_hz:g}{count}"
+                 f" pid={os.getpid()}")  # fmt: skip
         self._wall_start = self._mono()
         try:
             if tm.lockstep:
@@ -274,30 +425,28 @@ class SimBridgeApp:
             self._exit = EXIT_DIVERGED
         finally:
             wall = self._mono() - self._wall_start
-            summary = {
-                "sim_time_s": self._t_us * 1e-6,
-                "wall_s": wall,
-                "speed": (self._t_us * 1e-6 / wall) if wall > 0 else None,
-                "actuator_msgs": self.actuator_msgs,
-                "stale_actuator_msgs": self.stale_actuator_msgs,
-                "resends": self.resends,
-                "foreign_msgs": self.foreign_msgs,
-                "nonfinite_actuator_msgs": self.nonfinite_actuator_msgs,
-                "rtt_mean_s": self.rtt_s,
-                "params_set": self.params_set,
-                "params_rejected": self.params_rejected,
-                "faults_started": self.faults.started if self.faults is not None else 0,
-                "faults_stopped": self.faults.stopped if self.faults is not None else 0,
-                "link": self.link.counters.as_dict(),
-            }
-            if self._exit == EXIT_OK:
-                self._say_goodbye()
-            self.link.close()
+            summary: dict = {"sim_time_s": self._t_us * 1e-6, "wall_s": wall, "speed": (self._t_us * 1e-6 / wall) if wall > 0 else None,
+                             "rtt_mean_s": self.rtt_s}  # fmt: skip
+            if len(self.vehicles) == 1:
+                summary.update(v0.summary())
+                del summary["system_id"], summary["crashed"]
+            else:
+                per = [v.summary() for v in self.vehicles]
+                summary["vehicles"] = per
+                for key in ("actuator_msgs", "stale_actuator_msgs", "resends", "foreign_msgs", "nonfinite_actuator_msgs",
+                            "params_set", "params_rejected", "faults_started", "faults_stopped"):  # fmt: skip
+                    summary[key] = sum(p[key] for p in per)
+                if self.proximity is not None:
+                    summary["proximity"] = self.proximity.summary([v.system_id for v in self.vehicles])
+            for v in self.vehicles:
+                if self._exit == EXIT_OK:
+                    v.say_goodbye()
+                v.link.close()
             self.say("SIM_SUMMARY " + json.dumps(summary, sort_keys=True))
         return self._exit
 
     def _run_lockstep(self) -> None:
-        """State out, wait for the answer stamped with its time, integrate, repeat.
+        """States out, wait for every answer stamped with their time, integrate, repeat.
 
         Busy-polls for ``spin_s`` after sending (the answer usually comes within tens of
         microseconds; waking a blocked process costs as much again), then blocks.
@@ -306,45 +455,44 @@ class SimBridgeApp:
         substeps = tm.substeps
         duration_us = None if tm.duration_s is None else int(round(tm.duration_s * 1e6))
         mono = self._mono
-        recv = self.link.recv
         spin_s = tm.spin_s
-        fc_addr = self._fc_addr
-        link = self.link
-        self._send_state()
-        sent_at = first_sent = last_answer = mono()
-        resend_after = tm.resend_s
-        answered = False
-        final = False  # the last state (at the duration) is out: its answer ends the run
+        vehicles = self.vehicles
+        pending: set[SimVehicle] = set()
+
+        def send_all() -> None:
+            now = mono()
+            resend_after = min(tm.resend_s, max(tm.resend_min_s, 4.0 * self.rtt_s)) if self.rtt_s else tm.resend_s
+            for v in vehicles:
+                v.send_state()
+            now = mono()
+            for v in vehicles:
+                v.sent_at = v.first_sent = now
+                v.resend_after = resend_after
+            pending.update(vehicles)
+
+        send_all()
+        start = mono()
+        for v in vehicles:
+            v.last_answer = start
+        final = False  # the last state (at the duration) is out: its answers end the run
         while not self._stop:
             now = mono()
-            msgs = recv(0.0 if now - sent_at < spin_s else min(0.05, resend_after))
-            if link.peer_refused:
-                if final:
-                    return  # a timed FC stops on the last state: its answer was lost, it is gone
-                raise WatchdogError("the flight controller's port is closed (the FC process has died); stopping")
-            advanced = False
-            for msg, addr in msgs:  # in arrival order: a PARAM_SET before the answer acts on this period
-                if addr != fc_addr:
-                    self.foreign_msgs += 1
-                    continue
-                mid = msg.id
-                if mid != _ACTUATORS:
-                    if mid == _PARAM_SET or mid == _PARAM_READ or mid == _PARAM_LIST:
-                        self._on_param(msg)
-                    continue
-                if advanced:
-                    continue  # a duplicate answer in the same batch
-                if msg.time_usec != self._t_us:
-                    self.stale_actuator_msgs += 1
-                    continue
+            oldest = min(v.sent_at for v in pending) if pending else now
+            wait = 0.0 if now - oldest < spin_s else min(0.05, min(v.resend_after for v in pending) if pending else 0.05)
+            batches = self._recv(wait)
+            for v in vehicles:
+                if v.link.peer_refused:
+                    if final:
+                        pending.discard(v)  # a timed FC stops on the last state: its answer was lost, it is gone
+                        continue
+                    raise WatchdogError(f"the flight controller of {v.name} has closed its port (the FC process has died); stopping")
+            for v, msgs in batches:
+                v.deferred.extend(self._take_answer(v, msgs, pending, final))
+            if not pending:
                 if final:
                     return
-                self._apply(msg)
-                answered = True
-                if sent_at == first_sent:  # a clean round trip (no re-send): the running mean
-                    rtt = mono() - first_sent
-                    self.rtt_s += 0.05 * (rtt - self.rtt_s) if self.rtt_s else rtt
                 self._integrate(substeps)
+                self._check_proximity()
                 if duration_us is not None and self._t_us >= duration_us:
                     # The final state: a lockstep FC with the same duration stops on it. Re-sent like
                     # any other until it is answered (or the timed FC has gone), so a loss cannot cut it.
@@ -353,27 +501,60 @@ class SimBridgeApp:
                     ahead = self._t_us * 1e-6 / tm.speed - (mono() - self._wall_start)
                     if ahead > 0.0:
                         self._sleep(ahead)
-                self._send_state()
-                sent_at = first_sent = last_answer = mono()
-                resend_after = min(tm.resend_s, max(tm.resend_min_s, 4.0 * self.rtt_s))
-                advanced = True
-                # the rest of the batch came after this answer: it acts from the state just sent
-            if advanced:
-                continue
-            if now - sent_at < spin_s:
-                _yield()  # let the FC have this core if the machine is oversubscribed
+                send_all()
+                for v in vehicles:  # what came after a vehicle's answer acts from the state just sent
+                    if v.deferred:
+                        rest, v.deferred = v.deferred, []
+                        v.deferred.extend(self._take_answer(v, rest, pending, final))
                 continue
             now = mono()
-            limit = tm.watchdog_s if answered else tm.startup_timeout_s
-            if now - last_answer > limit:
-                what = "never answered" if not answered else f"has been silent for {now - last_answer:.1f} s"
-                raise WatchdogError(f"flight controller {what} (lockstep watchdog {limit:g} s); stopping")
-            if now - sent_at > resend_after:
-                self.resends += 1
-                # The same bytes again (a lost state or a lost answer): a copy cannot change the FC's log.
-                self.link.send_packets(self._last_state)
-                sent_at = now
-                resend_after = min(tm.resend_s, 2.0 * resend_after)
+            if now - oldest < spin_s:
+                _yield()  # let the FCs have the cores if the machine is oversubscribed
+                continue
+            for v in list(pending):
+                limit = tm.watchdog_s if v.answered else tm.startup_timeout_s
+                if now - v.last_answer > limit:
+                    what = "never answered" if not v.answered else f"has been silent for {now - v.last_answer:.1f} s"
+                    who = "flight controller" if len(vehicles) == 1 else f"the flight controller of {v.name}"
+                    raise WatchdogError(f"{who} {what} (lockstep watchdog {limit:g} s); stopping")
+                if now - v.sent_at > v.resend_after:
+                    v.resends += 1
+                    # The same bytes again (a lost state or a lost answer): a copy cannot change the FC's log.
+                    v.link.send_packets(v.last_state)
+                    v.sent_at = now
+                    v.resend_after = min(tm.resend_s, 2.0 * v.resend_after)
+
+    def _take_answer(self, v: SimVehicle, msgs: list, pending: set[SimVehicle], final: bool) -> list:
+        """Lockstep: handle ``v``'s messages in arrival order up to its answer to the state stamped
+        now; return the ones after it (they act from the next state: the log cannot depend on how
+        datagrams were batched)."""
+        fc_addr = v.fc_addr
+        for k, (msg, addr) in enumerate(msgs):
+            if addr != fc_addr:
+                v.foreign_msgs += 1
+                continue
+            mid = msg.id
+            if mid != _ACTUATORS:
+                if mid == _PARAM_SET or mid == _PARAM_READ or mid == _PARAM_LIST:
+                    v.on_param(msg)
+                continue
+            if v not in pending:
+                continue  # a duplicate answer
+            if msg.time_usec != self._t_us:
+                v.stale_actuator_msgs += 1
+                continue
+            pending.discard(v)
+            if final:
+                return []
+            v.apply(msg)
+            v.answered = True
+            t_now = self._mono()
+            v.last_answer = t_now
+            if v.sent_at == v.first_sent:  # a clean round trip (no re-send): the running mean
+                rtt = t_now - v.first_sent
+                self.rtt_s += 0.05 * (rtt - self.rtt_s) if self.rtt_s else rtt
+            return msgs[k + 1:]
+        return []
 
     def _run_realtime(self) -> None:
         tm = self.timing
@@ -382,33 +563,39 @@ class SimBridgeApp:
         substeps = tm.substeps
         duration_us = None if tm.duration_s is None else int(round(tm.duration_s * 1e6))
         mono = self._mono
-        recv = self.link.recv
-        last_answer = mono()
-        answered = False
+        vehicles = self.vehicles
+        alive = list(vehicles)
+        start = mono()
+        for v in vehicles:
+            v.last_answer = start
         deadline = mono()
         k = 0
-        fc_addr = self._fc_addr
-        link = self.link
         while not self._stop:
             now = mono()
             wait = deadline - now
             if wait > 0.0:
-                for msg, addr in recv(wait):
-                    if addr != fc_addr:
-                        self.foreign_msgs += 1
-                        continue
-                    mid = msg.id
-                    if mid == _ACTUATORS:
-                        self._apply(msg)
-                        answered = True
-                        last_answer = mono()
-                    elif mid == _PARAM_SET or mid == _PARAM_READ or mid == _PARAM_LIST:
-                        self._on_param(msg)
-                if link.peer_refused:
-                    raise WatchdogError("the flight controller's port is closed (the FC process has died); stopping")
+                for v, msgs in self._recv(wait):
+                    fc_addr = v.fc_addr
+                    for msg, addr in msgs:
+                        if addr != fc_addr:
+                            v.foreign_msgs += 1
+                            continue
+                        mid = msg.id
+                        if mid == _ACTUATORS:
+                            v.apply(msg)
+                            v.answered = True
+                            v.last_answer = mono()
+                        elif mid == _PARAM_SET or mid == _PARAM_READ or mid == _PARAM_LIST:
+                            v.on_param(msg)
+                for v in alive:
+                    if v.link.peer_refused:
+                        self._lost(v, alive, "has closed its port (the FC process has died)")
+                        break
                 continue
             if k % substeps == 0:
-                self._send_state()
+                for v in alive:
+                    v.send_state()
+                self._check_proximity()
             self._integrate(1)
             k += 1
             deadline += dt_wall
@@ -416,10 +603,23 @@ class SimBridgeApp:
                 deadline = now
             if duration_us is not None and self._t_us >= duration_us:
                 return
-            limit = tm.watchdog_s if answered else tm.startup_timeout_s
-            if now - last_answer > limit:
-                what = "never answered" if not answered else f"has been silent for {now - last_answer:.1f} s"
-                raise WatchdogError(f"flight controller {what} (real-time watchdog {limit:g} s); stopping")
+            for v in alive:
+                limit = tm.watchdog_s if v.answered else tm.startup_timeout_s
+                if now - v.last_answer > limit:
+                    what = "never answered" if not v.answered else f"has been silent for {now - v.last_answer:.1f} s"
+                    self._lost(v, alive, f"{what} (real-time watchdog {limit:g} s)")
+                    break
+
+    def _lost(self, v: SimVehicle, alive: list[SimVehicle], why: str) -> None:
+        """Real time: a vehicle's FC is gone. One vehicle: the run ends (WatchdogError). In a swarm
+        the others fly on; that plant keeps its last commands, is said once, and is no longer sent to."""
+        if len(self.vehicles) == 1:
+            raise WatchdogError(f"flight controller {why}; stopping")
+        alive.remove(v)
+        self.say(f"sim_bridge: warning: the flight controller of {v.name} {why}; its plant holds its last motor"
+                 f" commands, the other {len(alive)} vehicle{'s' if len(alive) != 1 else ''} fly on")  # fmt: skip
+        if not alive:
+            raise WatchdogError("every flight controller is gone; stopping")
 
 
 def install_signal_handlers(app: SimBridgeApp) -> None:

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from sim_bridge.app import BridgeTiming, SimBridgeApp, install_signal_handlers
 from sim_bridge.build import make_plant, plant_for
+from sim_bridge.proximity import Proximity
 from smcpilot.errors import ConfigError, SmcpilotError
 from smcpilot.scenario import PLANTS, EnvironmentSpec, Scenario
 from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
@@ -33,7 +34,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="Simulator bridge: integrates the quadrotor and exchanges MAVLink with the flight controller"
         " (state out as ATTITUDE + LOCAL_POSITION_NED, motor commands in as HIL_ACTUATOR_CONTROLS).",
     )
-    p.add_argument("--fc", default="udp:127.0.0.1:14560", metavar="URL", help="flight controller's simulator port (default udp:127.0.0.1:14560)")
+    p.add_argument("--fc", action="append", default=None, metavar="URL",
+                   help="flight controller's simulator port (default udp:127.0.0.1:14560); a swarm scenario takes one"
+                   " --fc per vehicle, in the order of its vehicles")  # fmt: skip
     p.add_argument("--plant", choices=PLANTS, default="rigid-body",
                    help="rigid-body (default: 6-DOF, motor lag and limits) or paper (the corrected eq. 10 model, ideal actuators)")
     p.add_argument("--vehicle", type=Path, metavar="FILE", help="vehicle TOML (default: the spec's parameters)")
@@ -72,6 +75,21 @@ def build_plant(args: argparse.Namespace, vehicle: VehicleParams):
     return make_plant(args.plant, vehicle, env, args.seed)
 
 
+def swarm_app(scenario: Scenario, fc_urls: Sequence[str], timing: BridgeTiming) -> SimBridgeApp:
+    """The bridge of a swarm scenario: every vehicle's plant (its own seed, faults, spawn) on one clock."""
+    fleet = scenario.fleet()
+    if len(fc_urls) != len(fleet):
+        raise ConfigError(f"the scenario flies {len(fleet)} vehicles: give one --fc per vehicle, got {len(fc_urls)}")
+    swarm = scenario.swarm
+    assert swarm is not None
+    contact = swarm.contact_m if swarm.contact_m is not None else 2.0 * scenario.vehicle.arm_length_m
+    return SimBridgeApp(
+        timing=timing,
+        vehicles=[(plant_for(v.scenario), url, v.sysid, v.offset_ne_m) for v, url in zip(fleet, fc_urls)],
+        proximity=Proximity(len(fleet), swarm.separation_m, contact),
+    )
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
@@ -99,8 +117,14 @@ def main(argv: Sequence[str] | None = None) -> int:
             watchdog_s=args.watchdog_s,
             startup_timeout_s=args.startup_timeout_s,
         )
-        plant = plant_for(scenario) if scenario is not None else build_plant(args, vehicle)
-        app = SimBridgeApp(plant, fc_url=args.fc, timing=timing, system_id=args.sysid)
+        fc_urls = args.fc or ["udp:127.0.0.1:14560"]
+        if scenario is not None and scenario.swarm is not None:
+            app = swarm_app(scenario, fc_urls, timing)
+        else:
+            if len(fc_urls) != 1:
+                raise ConfigError(f"{len(fc_urls)} --fc links for one vehicle (a swarm scenario takes one per vehicle)")
+            plant = plant_for(scenario) if scenario is not None else build_plant(args, vehicle)
+            app = SimBridgeApp(plant, fc_url=fc_urls[0], timing=timing, system_id=args.sysid)
     except (SmcpilotError, OSError) as exc:
         print(f"sim_bridge: error: {exc}", file=sys.stderr)
         return EXIT_CONFIG

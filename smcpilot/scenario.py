@@ -61,6 +61,9 @@ north, east, altitude up)::
     start_s = 15.0
     torque_frd_n_m = [0.0, 0.0, 0.05]
 
+    [swarm]                    # many vehicles in one flight (smcpilot.swarm): count, spawn grid, per-vehicle tables
+    count = 4
+
 Errors name the file and the key (:class:`ScenarioError`; a fault's errors name it as
 ``fault[N] (kind)``, counting from 1).
 """
@@ -76,9 +79,11 @@ from typing import Any
 
 from smcpilot.errors import ConfigError, ScenarioError
 from smcpilot.faults import FaultSpec
+from smcpilot.geo import Home
 from smcpilot.impair import ImpairmentError, LinkImpairment
 from smcpilot.lawref import law_reference_problem, normalise_reference
 from smcpilot.plan import PlanError, PlanStep, load_plan, parse_plan
+from smcpilot.swarm import SEED_STEP, SwarmSpec, spawn_point
 from smcpilot.tomlfile import read_toml
 from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
 
@@ -87,7 +92,7 @@ PLANTS = ("rigid-body", "paper")
 #: body rate rad/s, position m, velocity m/s.
 DEFAULT_NOISE_STD = (0.002, 0.01, 0.01, 0.02)
 
-__all__ = ["PLANTS", "DEFAULT_NOISE_STD", "ScenarioError", "EnvironmentSpec", "Scenario", "dumps_toml", "toml_string"]
+__all__ = ["PLANTS", "DEFAULT_NOISE_STD", "ScenarioError", "EnvironmentSpec", "Scenario", "FleetVehicle", "dumps_toml", "toml_string"]
 
 
 @dataclass(frozen=True)
@@ -156,6 +161,8 @@ class Scenario:
     sim_link: LinkImpairment = field(default_factory=LinkImpairment)
     #: impairment of the FC's ground link (``[link] gcs``).
     gcs_link: LinkImpairment = field(default_factory=LinkImpairment)
+    #: many vehicles (``[swarm]``, :mod:`smcpilot.swarm`); None: one vehicle.
+    swarm: SwarmSpec | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.name, str) or not self.name:
@@ -200,6 +207,36 @@ class Scenario:
     def n_ticks(self) -> int:
         """Control ticks of a full flight: t = 0, one period, ..., ``duration_s`` (both ends)."""
         return int(round(self.duration_s * self.rate_hz)) + 1
+
+    @property
+    def count(self) -> int:
+        """How many vehicles fly this scenario (1 without a ``[swarm]`` table)."""
+        return self.swarm.count if self.swarm is not None else 1
+
+    def fleet(self) -> tuple[FleetVehicle, ...]:
+        """Every vehicle's own flight: its system id, spawn and one-vehicle scenario (no ``swarm``).
+
+        Without a ``[swarm]`` table, the one vehicle is this scenario itself (system id 1).
+        Raises :class:`ScenarioError` naming the vehicle table and key that cannot fly.
+        """
+        if self.swarm is None:
+            return (FleetVehicle(0, 1, (0.0, 0.0), self),)
+        spec = self.swarm
+        try:
+            sysids = spec.sysids()
+            swarm_home = Home(*self.home) if self.home is not None else Home()
+            out = []
+            for i, sid in enumerate(sysids):
+                table = spec.vehicles[i] if i < len(spec.vehicles) else {}
+                spawn = spawn_point(swarm_home, i, spec, table)
+                changes: dict[str, Any] = {"swarm": None, "name": f"{self.name}-v{sid}", "seed": self.seed + SEED_STEP * i}
+                if spawn.offset_ne_m != (0.0, 0.0) or "home" in table:
+                    changes["home"] = (spawn.home.lat_deg, spawn.home.lon_deg, spawn.home.alt_m)
+                changes.update(_vehicle_changes(self, i, table))
+                out.append(FleetVehicle(i, sid, spawn.offset_ne_m, replace(self, **changes)))
+        except ConfigError as exc:
+            raise ScenarioError(str(exc)) from None
+        return tuple(out)
 
     def with_changes(self, **changes: Any) -> Scenario:
         """A copy with some fields replaced (validated again)."""
@@ -259,6 +296,8 @@ class Scenario:
             doc["link"] = links
         if self.faults:
             doc["fault"] = [f.to_mapping() for f in self.faults]
+        if self.swarm is not None:
+            doc["swarm"] = self.swarm.to_mapping()
         return doc
 
     def to_toml(self) -> str:
@@ -273,7 +312,8 @@ class Scenario:
 
 
 # -- parsing ---------------------------------------------------------------------------------------
-_TOP = {"name", "description", "duration_s", "seed", "vehicle", "environment", "fc", "sim", "step", "plan", "fault", "link"}
+_TOP = {"name", "description", "duration_s", "seed", "vehicle", "environment", "fc", "sim", "step", "plan", "fault", "link",
+        "swarm"}  # fmt: skip
 _ENV_KEYS = {f.name for f in fields(EnvironmentSpec)}
 _FC_KEYS = {"controller", "rate_hz", "home", "params"}
 _SIM_KEYS = {"physics_hz"}
@@ -407,7 +447,80 @@ def _parse(doc: Mapping[str, Any], source: str, base_dir: Path | None) -> Scenar
         if not isinstance(tables, list):
             raise ScenarioError(f"fault must be [[fault]] tables, got {tables!r}")
         kw["faults"] = tuple(FaultSpec.from_mapping(t, f"fault[{i + 1}]") for i, t in enumerate(tables))
-    return Scenario(**kw)
+    if "swarm" in doc:
+        swarm = SwarmSpec.from_mapping(doc["swarm"])
+        kw["swarm"] = replace(swarm, vehicles=tuple(_resolve_paths(t, base_dir) for t in swarm.vehicles))
+    scenario = Scenario(**kw)
+    scenario.fleet()  # every vehicle's flight checked now (its key named), not when it is launched
+    return scenario
+
+
+@dataclass(frozen=True)
+class FleetVehicle:
+    """One vehicle of a scenario: its index (0-based), system id, spawn offset from the swarm's
+    home (north, east, m) and its own one-vehicle :class:`Scenario`."""
+
+    index: int
+    sysid: int
+    offset_ne_m: tuple[float, float]
+    scenario: Scenario
+
+
+def _resolve_paths(table: Mapping[str, Any], base_dir: Path | None) -> dict[str, Any]:
+    """A [[swarm.vehicle]] table with its file names (plan, vehicle, a law file) made absolute."""
+    out = dict(table)
+    if base_dir is None:
+        return out
+    for key in ("plan", "vehicle"):
+        v = out.get(key)
+        if isinstance(v, str) and not Path(v).is_absolute():
+            out[key] = str(base_dir / v)
+    if isinstance(out.get("controller"), str):
+        out["controller"] = normalise_reference(out["controller"], base_dir)
+    return out
+
+
+def _vehicle_changes(base: Scenario, i: int, table: Mapping[str, Any]) -> dict[str, Any]:
+    """The fields a [[swarm.vehicle]] table changes in the scenario's flight."""
+    where = f"swarm.vehicle[{i + 1}]"
+    kw: dict[str, Any] = {}
+    if "seed" in table:
+        seed = table["seed"]
+        if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+            raise ScenarioError(f"{where}.seed must be a whole number >= 0, got {seed!r}")
+        kw["seed"] = seed
+    if "controller" in table:
+        kw["controller"] = table["controller"]
+    if "params" in table:
+        params = table["params"]
+        if not isinstance(params, dict):
+            raise ScenarioError(f"{where}.params must be a table of NAME = value, got {params!r}")
+        merged = dict(base.params)
+        merged.update((str(k), _number(v, f"{where}.params.{k}")) for k, v in params.items())
+        kw["params"] = tuple(merged.items())
+    if "vehicle" in table:
+        vfile = table["vehicle"]
+        if not isinstance(vfile, str):
+            raise ScenarioError(f"{where}.vehicle must be a vehicle TOML file, got {vfile!r}")
+        kw["vehicle"] = VehicleParams.from_toml(vfile)
+        kw["vehicle_file"] = Path(vfile)
+    if "plan" in table and "step" in table:
+        raise ScenarioError(f"{where}: give either plan = \"FILE\" or [[swarm.vehicle.step]] tables, not both")
+    try:
+        if "step" in table:
+            kw["plan"] = parse_plan({"step": table["step"]}, f"{where}.step")
+        elif "plan" in table:
+            if not isinstance(table["plan"], str):
+                raise ScenarioError(f"{where}.plan must be a path string, got {table['plan']!r}")
+            kw["plan"] = load_plan(Path(table["plan"]))
+    except PlanError as exc:
+        raise ScenarioError(f"{where}: {exc}") from None
+    if "fault" in table:
+        tables = table["fault"]
+        if not isinstance(tables, list):
+            raise ScenarioError(f"{where}.fault must be [[swarm.vehicle.fault]] tables, got {tables!r}")
+        kw["faults"] = base.faults + tuple(FaultSpec.from_mapping(t, f"{where}.fault[{k + 1}]") for k, t in enumerate(tables))
+    return kw
 
 
 # -- a small TOML writer for the documents above ----------------------------------------------------
