@@ -13,10 +13,9 @@ signatures stay valid end to end (the router holds no key and checks none; each 
 
 Dropped and counted: a packet for a system id no vehicle has (``no_such_vehicle``), bytes that are
 not whole MAVLink packets (``rx_bad``), datagrams on the vehicle side from an address that is no
-vehicle's (``foreign``). Vehicle addresses come from ``--vehicle SYSID=HOST:PORT``; without any, the
-router learns them: the first address to send from the vehicle side under a system id is that
-vehicle (the vehicle side listens on loopback only). A vehicle that starts sending under another
-system id (SYSID_THISMAV) is routed under that id too.
+vehicle's (``foreign``). Vehicle addresses come from ``--vehicle SYSID=HOST:PORT``, or are learned
+for the system ids ``--sysids`` names: the first address to send from the vehicle side under one
+of them is that vehicle (the vehicle side listens on loopback only; any other sender is foreign).
 
 Ends on SIGTERM or SIGINT (exit 0), printing ``ROUTER_SUMMARY {json}``.
 """
@@ -127,10 +126,13 @@ class RouterCounters:
 class GroundRouter:
     """The router's two sockets and its routing (see the module docstring). Use as a context manager."""
 
-    def __init__(self, ground_url: str, vehicles: dict[int, Address], *, ground_port: int = 0,
-                 vehicle_host: str = "127.0.0.1", vehicle_port: int = 0) -> None:  # fmt: skip
-        #: no vehicles given: learn them from the vehicle side (the first address per system id).
-        self.learning = not vehicles
+    def __init__(self, ground_url: str, vehicles: dict[int, Address] | None = None, *, sysids: Sequence[int] = (),
+                 ground_port: int = 0, vehicle_host: str = "127.0.0.1", vehicle_port: int = 0) -> None:  # fmt: skip
+        vehicles = dict(vehicles or {})
+        if not vehicles and not sysids:
+            raise SmcpilotError("the router needs its vehicles: --vehicle SYSID=HOST:PORT, or the --sysids to learn")
+        #: system ids whose address is learned from the vehicle side (the first address sending as one).
+        self.learn = frozenset(sysids) - set(vehicles)
         self.ground = parse_endpoint(ground_url)
         self.counters = RouterCounters()
         self.by_sysid: dict[int, Address] = dict(vehicles)
@@ -200,11 +202,10 @@ class GroundRouter:
     def from_vehicle(self, data: bytes, addr: Address, now: float) -> None:
         src = (data[5] if data[0] == _V2 else data[3] if data[0] == _V1 else None) if len(data) >= 6 else None
         if addr not in self._vehicle_addrs:
-            if not (self.learning and src is not None and src not in self.by_sysid):
+            if src is None or src not in self.learn or src in self.by_sysid:
                 self.counters.foreign += 1
                 return
             self._vehicle_addrs.add(addr)
-        if src is not None and src not in self.by_sysid:  # the id it speaks as (SYSID_THISMAV may have changed it)
             self.by_sysid[src] = addr
         for dest in self._ground_destinations(now):
             self._send(self.gside, data, dest)
@@ -271,6 +272,16 @@ def _vehicle_arg(text: str) -> tuple[int, Address]:
     return int(sysid), (host or "127.0.0.1", int(port))
 
 
+def _sysids_arg(text: str) -> tuple[int, ...]:
+    try:
+        ids = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected system ids N,N,... (1..255), got {text!r}") from None
+    if not ids or not all(1 <= v <= 255 for v in ids):
+        raise argparse.ArgumentTypeError(f"expected system ids N,N,... (1..255), got {text!r}")
+    return ids
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="python -m ground.router",
@@ -283,8 +294,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with udp:HOST:PORT, send from this port of ours (stations may write to it; default any free port,"
                    " a taken one falls back to a free one)")  # fmt: skip
     p.add_argument("--vehicle", type=_vehicle_arg, action="append", default=[], metavar="SYSID=HOST:PORT",
-                   help="a vehicle's FC ground port (repeat for each vehicle); none: learn them (the first address"
-                   " sending under each system id)")  # fmt: skip
+                   help="a vehicle's FC ground port (repeat for each vehicle)")
+    p.add_argument("--sysids", type=_sysids_arg, default=(), metavar="N,N,...",
+                   help="learn these vehicles' addresses: the first address sending under each system id")
     return p
 
 
@@ -297,7 +309,7 @@ def main(argv: Sequence[str] | None = None, out: TextIO = sys.stdout) -> int:
             return EXIT_CONFIG
         vehicles[sysid] = addr
     try:
-        router = GroundRouter(args.ground, vehicles, ground_port=args.ground_port)
+        router = GroundRouter(args.ground, vehicles, sysids=args.sysids, ground_port=args.ground_port)
     except (SmcpilotError, EndpointError, OSError) as exc:
         print(f"router: error: {exc}", file=sys.stderr)
         return EXIT_CONFIG

@@ -336,7 +336,7 @@ class Sitl:
         self.started_wall = time.monotonic()
         fc_gcs = "none"
         if o.gcs:
-            router_args = ["ground.router", "--ground", o.gcs]
+            router_args = ["ground.router", "--ground", o.gcs, "--sysids", ",".join(str(v.sysid) for v in fleet)]
             if default_ground:
                 router_args += ["--ground-port", str(FC_GROUND_PORT)]
             self.router = self._spawn("router", router_args)

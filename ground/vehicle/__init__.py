@@ -95,6 +95,7 @@ from ground.vehicle.modes import COPTER_MODES, mode_name, mode_number
 from ground.vehicle.names import command_name, mission_result_name, result_name
 from ground.vehicle.params import Params
 from ground.vehicle.subscription import Subscription
+from ground.vehicle.swarm import Swarm, SwarmError
 from ground.vehicle.telemetry import HomePosition, StatusText, Telemetry, json_safe
 from ground.vehicle.vehicle import Vehicle
 
@@ -118,6 +119,8 @@ __all__ = [
     "SetpointRefused",
     "StatusText",
     "Subscription",
+    "Swarm",
+    "SwarmError",
     "Telemetry",
     "UnknownModeError",
     "Vehicle",

@@ -1,0 +1,398 @@
+"""Many vehicles: the [swarm] table, the ground router, and K vehicles flying in one simulator.
+
+Oracles: a vehicle of a lockstep swarm flies exactly as it flies alone (its tlog byte for byte);
+the router's target_system offsets agree with pymavlink's own encoding for every message that has
+one; real UDP sockets and real processes throughout.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from ground.router import TARGET_OFFSETS, GroundRouter, split_packets
+from ground.sitl import Sitl, SitlError, SitlOptions
+from ground.vehicle import Swarm
+from smcpilot.errors import ScenarioError
+from smcpilot.scenario import Scenario
+from smcpilot.swarm import MAX_VEHICLES, SwarmError, SwarmSpec, check_count, fc_ground_port, grid_offset
+from smcpilot.tlog import read_tlog
+
+ROOT = Path(__file__).resolve().parents[1]
+
+SWARM = """
+name = "trio"
+duration_s = {duration}
+[[step]]
+t_s = 0.0
+action = "takeoff"
+alt_m = 2.0
+[swarm]
+count = {count}
+{swarm_keys}
+"""
+
+
+def swarm_scenario(tmp_path: Path, count: int = 3, duration: float = 2.0, extra: str = "", swarm_keys: str = "") -> Scenario:
+    path = tmp_path / "swarm.toml"
+    path.write_text(SWARM.format(count=count, duration=duration, swarm_keys=swarm_keys) + extra, encoding="utf-8")
+    return Scenario.from_toml(path)
+
+
+def fly(scenario: Scenario, tmp_path: Path, name: str, **kw) -> Sitl:
+    opts = SitlOptions(scenario=scenario, timed=True, lockstep=True, gcs=kw.pop("gcs", None), tlog=tmp_path / f"{name}.tlog",
+                       log_dir=tmp_path, watchdog_s=10.0, **kw)  # fmt: skip
+    with Sitl(opts) as sitl:
+        sitl.wait(timeout_s=120.0)
+    return sitl
+
+
+# -- the [swarm] table --------------------------------------------------------------------------------
+def test_fleet_gives_each_vehicle_its_flight(tmp_path: Path) -> None:
+    sc = swarm_scenario(tmp_path, count=4, extra="""
+[[swarm.vehicle]]
+seed = 7
+params = { SMC_CHI_DZ = 0.2 }
+[[swarm.vehicle.fault]]
+kind = "motor"
+start_s = 1.0
+motor = 2
+efficiency = 0.7
+[[swarm.vehicle]]
+sysid = 9
+offset_m = [0.0, 10.0]
+controller = "cascade_pid"
+""")
+    fleet = sc.fleet()
+    assert [v.sysid for v in fleet] == [1, 9, 3, 4]
+    assert [v.offset_ne_m for v in fleet] == [(0.0, 0.0), (0.0, 10.0), grid_offset(2, 4, 4.0), grid_offset(3, 4, 4.0)]
+    assert grid_offset(2, 4, 4.0) == (4.0, 0.0) and grid_offset(3, 4, 4.0) == (4.0, 4.0)
+    v1, v2, v3, _ = (v.scenario for v in fleet)
+    assert v1.seed == 7 and v2.seed == 1000 and v3.seed == 2000
+    assert dict(v1.params) == {"SMC_CHI_DZ": 0.2} and len(v1.faults) == 1 and not v2.faults
+    assert v2.controller == "cascade_pid" and v1.controller == "adaptive_pid_smc"
+    assert v1.home is None  # the first vehicle spawns at the swarm's home: its flight is the scenario's
+    assert all(v.scenario.swarm is None and len(v.scenario.plan) == 1 for v in fleet)
+    # its home lies where its offset says (10 m east of the swarm's)
+    from smcpilot.geo import Home, global_to_ned
+
+    n, e, d = global_to_ned(Home(), *v2.home)  # type: ignore[misc]
+    assert abs(n) < 1e-6 and abs(e - 10.0) < 1e-6 and abs(d) < 1e-9
+    # the document round trip keeps the swarm
+    assert Scenario.from_mapping(sc.to_mapping()) == sc
+
+
+@pytest.mark.parametrize(
+    ("extra", "needle"),
+    [
+        ("[[swarm.vehicle]]\nsede = 3\n", "swarm.vehicle[1].sede"),
+        ("[[swarm.vehicle]]\n[[swarm.vehicle]]\nsysid = 1\n", "both have system id 1"),
+        ("[[swarm.vehicle]]\nsysid = 0\n", "1..255"),
+        ("[[swarm.vehicle]]\n[[swarm.vehicle]]\n[[swarm.vehicle]]\n[[swarm.vehicle]]\n", "4 [[swarm.vehicle]] tables for a swarm of 3"),
+        ("[[swarm.vehicle]]\noffset_m = [1.0]\n", "offset_m"),
+        ("[[swarm.vehicle]]\ncontroller = \"no_such_law\"\n", "no_such_law"),
+    ],
+)
+def test_bad_vehicle_tables_name_the_key(tmp_path: Path, extra: str, needle: str) -> None:
+    with pytest.raises(ScenarioError, match=None) as info:
+        swarm_scenario(tmp_path, extra=extra)
+    assert needle in str(info.value), str(info.value)
+
+
+def test_count_limits() -> None:
+    check_count(MAX_VEHICLES)
+    for bad in (0, -1, MAX_VEHICLES + 1):
+        with pytest.raises(SwarmError):
+            check_count(bad)
+    with pytest.raises(SwarmError, match="beyond 65535"):
+        check_count(8, base_port=65500)
+    with pytest.raises(SwarmError, match="unknown key swarm.cuont"):
+        SwarmSpec.from_mapping({"cuont": 3})
+    assert fc_ground_port(0) == 14561 and fc_ground_port(3) == 14591
+
+
+def smcpilot(*args: str | Path, cwd: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "lab.cli", *map(str, args)], cwd=cwd, capture_output=True, text=True,
+                          timeout=120, check=False)  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (("--count", str(MAX_VEHICLES + 1)), f"at most {MAX_VEHICLES} vehicles"),
+        (("--count", "0"), "whole number >= 1"),
+        (("--count", "2", "--sysid", "255"), "1..255"),
+        (("--count", "2", "--sysid", "300"), "1..255"),
+    ],
+)
+def test_sitl_count_errors_are_one_line_exit_2(tmp_path: Path, args: tuple[str, ...], needle: str) -> None:
+    r = smcpilot("sitl", "--lockstep", "--duration", "1", "--gcs", "none", *args, cwd=tmp_path)
+    lines = r.stderr.splitlines()
+    assert r.returncode == 2, (r.returncode, r.stdout, r.stderr)
+    assert len(lines) == 1 and lines[0].startswith("smcpilot sitl: error: ") and needle in lines[0], r.stderr
+    assert not (tmp_path / "logs").exists() or not list((tmp_path / "logs").iterdir())  # nothing started
+
+
+def test_sitl_unknown_vehicle_key_is_one_line_exit_2(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.toml"
+    bad.write_text(SWARM.format(count=2, duration=1.0, swarm_keys="") + "[[swarm.vehicle]]\nplann = \"x.toml\"\n", encoding="utf-8")
+    r = smcpilot("sitl", "--lockstep", "--gcs", "none", "--scenario", bad, cwd=tmp_path)
+    lines = r.stderr.splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and "swarm.vehicle[1].plann" in lines[0], r.stderr
+
+
+# -- the router ---------------------------------------------------------------------------------------
+def _default_args(cls: type) -> list:
+    args: list = []
+    for name, ftype in zip(cls.fieldnames, cls.fieldtypes):
+        n = cls.array_lengths[cls.ordered_fieldnames.index(name)]  # (in wire order)
+        if ftype == "char":
+            args.append(b"")
+        elif n:
+            args.append([0] * n)
+        else:
+            args.append(0)
+    return args
+
+
+MESSAGES_WITH_TARGET = sorted(TARGET_OFFSETS)
+
+
+def test_target_offsets_cover_every_message_with_a_target() -> None:
+    have = [mid for mid, cls in mavlink.mavlink_map.items() if "target_system" in cls.fieldnames]
+    assert sorted(have) == MESSAGES_WITH_TARGET
+    assert len(MESSAGES_WITH_TARGET) > 50
+
+
+@pytest.mark.parametrize("target", [0, 1, 77, 255])
+def test_split_packets_reads_target_system_as_pymavlink_encodes_it(target: int) -> None:
+    mav = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+    checked = 0
+    for mid in MESSAGES_WITH_TARGET:
+        cls = mavlink.mavlink_map[mid]
+        args = _default_args(cls)
+        args[cls.fieldnames.index("target_system")] = target
+        try:
+            msg = cls(*args)
+            packet = msg.pack(mav)
+        except Exception:  # a message pymavlink cannot build from zeros (none in practice): not our question
+            continue
+        (got,), bad = split_packets(packet + b"")
+        assert bad == 0 and got[0] == packet and got[1] == 255
+        assert got[2] == target, (cls.msgname, got[2], target)
+        # and pymavlink reads the same target back from the same bytes
+        assert mavlink.MAVLink(None).decode(bytearray(packet)).target_system == target
+        checked += 1
+    assert checked == len(MESSAGES_WITH_TARGET)
+
+
+def test_split_packets_keeps_signed_packets_whole_and_counts_garbage() -> None:
+    mav = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+    mav.signing.secret_key = bytes(range(32))
+    mav.signing.link_id = 1
+    mav.signing.sign_outgoing = True
+    mav.signing.timestamp = 1
+    signed = mav.command_long_encode(2, 1, 400, 0, 1, 0, 0, 0, 0, 0, 0).pack(mav)
+    plain = mavlink.MAVLink(None, srcSystem=255).heartbeat_encode(6, 8, 0, 0, 0).pack(mavlink.MAVLink(None, srcSystem=255))
+    packets, bad = split_packets(b"\x00garbage" + signed + b"\xfd\x09" + plain)
+    assert [p for p, _, _ in packets] == [signed, plain]
+    assert packets[0][2] == 2 and packets[1][2] is None  # HEARTBEAT has no target: everyone
+    assert bad == 2
+
+
+class _RouterThread:
+    def __init__(self, ground_port: int, vehicles: dict[int, tuple[str, int]] | None = None) -> None:
+        self.router = GroundRouter(f"udp:127.0.0.1:{ground_port}", vehicles, sysids=(1, 2))
+        self.thread = threading.Thread(target=self.router.serve, kwargs={"poll_s": 0.05}, daemon=True)
+
+    def __enter__(self) -> GroundRouter:
+        self.thread.start()
+        return self.router
+
+    def __exit__(self, *exc: object) -> None:
+        self.router.request_stop()
+        self.thread.join(timeout=5)
+        self.router.close()
+
+
+def _sock() -> socket.socket:
+    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    s.bind(("127.0.0.1", 0))
+    s.settimeout(2.0)
+    return s
+
+
+def _drain(s: socket.socket, wait_s: float = 0.3) -> list[bytes]:
+    out = []
+    s.settimeout(wait_s)
+    try:
+        while True:
+            out.append(s.recvfrom(65535)[0])
+    except TimeoutError:
+        return out
+
+
+def test_router_sends_each_ground_packet_to_the_vehicle_it_names() -> None:
+    ground, fc1, fc2, hostile = _sock(), _sock(), _sock(), _sock()
+    try:
+        with _RouterThread(ground.getsockname()[1]) as router:
+            vaddr = router.vehicle_address
+            for sid, s in ((1, fc1), (2, fc2)):  # each FC's first telemetry: the router learns it
+                hb = mavlink.MAVLink(None, srcSystem=sid, srcComponent=1)
+                s.sendto(hb.heartbeat_encode(2, 3, 0, 0, 4).pack(hb), vaddr)
+            got = [split_packets(d)[0][0][1] for d in (ground.recvfrom(65535)[0], ground.recvfrom(65535)[0])]
+            assert sorted(got) == [1, 2]
+            gaddr = router.ground_address
+            mav = mavlink.MAVLink(None, srcSystem=255, srcComponent=190)
+            to2 = mav.command_long_encode(2, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0).pack(mav)
+            ground.sendto(to2, gaddr)
+            assert _drain(fc2) == [to2] and _drain(fc1) == []
+            to_all = mav.param_request_list_encode(0, 0).pack(mav)
+            hostile.sendto(to_all, gaddr)
+            assert _drain(fc1) == [to_all] and _drain(fc2) == [to_all]
+            to9 = mav.command_long_encode(9, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0).pack(mav)
+            to1 = mav.command_long_encode(1, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0).pack(mav)
+            hostile.sendto(to9 + to1 + b"\xfe\x01junk", gaddr)  # one datagram: a wrong id, a right one, garbage
+            assert _drain(fc1) == [to1] and _drain(fc2) == []
+            # a stranger on the vehicle side is not a vehicle
+            hostile.sendto(to1, vaddr)
+            time.sleep(0.1)
+            c = router.counters
+            assert c.no_such_vehicle == 1 and c.rx_bad == 1 and c.foreign == 1 and c.broadcast_packets == 1
+            # the hostile station heard every vehicle's telemetry since it wrote (a ground peer)
+            fc1.sendto(mavlink.MAVLink(None, srcSystem=1).heartbeat_encode(2, 3, 0, 0, 4).pack(mavlink.MAVLink(None, srcSystem=1)), vaddr)
+            assert len(_drain(hostile)) == 1 and len(_drain(ground)) == 1
+    finally:
+        for s in (ground, fc1, fc2, hostile):
+            s.close()
+
+
+# -- K vehicles in one simulator -------------------------------------------------------------------------
+def test_each_vehicle_of_a_lockstep_swarm_flies_as_it_flies_alone(tmp_path: Path) -> None:
+    sc = swarm_scenario(tmp_path, count=3, duration=2.0)
+    swarm = fly(sc, tmp_path, "swarm")
+    assert len(swarm.tlogs) == 3 and all(p.exists() for p in swarm.tlogs)
+    sim = swarm.sim_summary
+    assert sim is not None and sim["sim_time_s"] == pytest.approx(2.0) and len(sim["vehicles"]) == 3
+    assert [v["system_id"] for v in sim["vehicles"]] == [1, 2, 3]
+    assert sim["proximity"]["min_separation_m"] == pytest.approx(4.0, abs=0.05) and not sim["proximity"]["contacts"]
+    for s in swarm.fc_summaries:
+        assert s is not None and s["ticks"] == 1001
+    # vehicle 2 alone: its own scenario, its system id: the same log, byte for byte
+    v2 = sc.fleet()[1]
+    solo = fly(v2.scenario, tmp_path, "solo", fc_args=("--sysid", "2"), sim_args=("--sysid", "2"))
+    assert solo.tlog is not None
+    assert swarm.tlogs[1].read_bytes() == solo.tlog.read_bytes()
+    # and each vehicle's messages come from its own system id
+    assert {m.get_srcSystem() for _, m in read_tlog(swarm.tlogs[2]) if m.get_type() == "ATTITUDE"} == {3}
+
+
+@pytest.mark.slow
+def test_a_lockstep_swarm_is_deterministic(tmp_path: Path) -> None:
+    sc = swarm_scenario(tmp_path, count=3, duration=2.0, extra="[environment]\nnoise = true\ngust_std_n = 0.5\n")
+    a = fly(sc, tmp_path / "a", "run")
+    b = fly(sc, tmp_path / "b", "run")
+    assert [p.read_bytes() for p in a.tlogs] == [p.read_bytes() for p in b.tlogs]
+    assert len({p.read_bytes() for p in a.tlogs}) == 3  # and the vehicles' noise streams differ
+
+
+@pytest.mark.slow
+def test_two_vehicles_that_touch_both_crash(tmp_path: Path) -> None:
+    # vehicle 2 spawns 3 m east of vehicle 1 and flies 3 m west in its own frame: onto vehicle 1
+    sc = swarm_scenario(tmp_path, count=2, duration=8.0, extra="""
+[[swarm.vehicle]]
+[[swarm.vehicle]]
+[[swarm.vehicle.step]]
+t_s = 0.0
+action = "takeoff"
+alt_m = 2.0
+[[swarm.vehicle.step]]
+t_s = 3.0
+action = "goto"
+north_m = 0.0
+east_m = -3.0
+alt_m = 2.0
+""", swarm_keys="spacing_m = 3.0")
+    sitl = fly(sc, tmp_path, "contact")
+    sim = sitl.sim_summary
+    assert sim is not None
+    prox = sim["proximity"]
+    assert [c["vehicles"] for c in prox["contacts"]] == [[1, 2]]
+    assert prox["events"] and prox["events"][0]["t_s"] <= prox["contacts"][0]["t_s"]
+    assert [v["crashed"] for v in sim["vehicles"]] == [True, True]
+    for tlog, other in zip(sitl.tlogs, (2, 1)):
+        texts = [m.text for _, m in read_tlog(tlog) if m.get_type() == "STATUSTEXT"]
+        assert any(f"SIM: contact with vehicle {other}" in t for t in texts), texts
+        assert any("within" in t for t in texts), texts
+
+
+@pytest.mark.slow
+def test_a_dead_vehicle_ends_a_lockstep_swarm_naming_it(tmp_path: Path) -> None:
+    sc = swarm_scenario(tmp_path, count=3, duration=600.0)
+    opts = SitlOptions(scenario=sc, timed=True, lockstep=True, gcs=None, speed=2.0, tlog=tmp_path / "dead.tlog",
+                       log_dir=tmp_path, watchdog_s=10.0)  # fmt: skip
+    lines: list[str] = []
+    with Sitl(opts, echo=lines.append) as sitl:
+        os.kill(sitl.fcs[1].proc.pid, signal.SIGKILL)
+        with pytest.raises(SitlError, match="fc2 was killed by SIGKILL"):
+            sitl.wait(timeout_s=60.0)
+    assert sitl.sim is not None and sitl.sim.proc.returncode == 3
+    assert any("the flight controller of vehicle 2" in ln for ln in lines), lines[-10:]
+    for tlog in (sitl.tlogs[0], sitl.tlogs[2]):  # the others' logs are whole
+        assert any(m.get_type() == "SYS_STATUS" for _, m in read_tlog(tlog))
+
+
+@pytest.mark.slow
+def test_a_dead_vehicle_in_real_time_leaves_the_others_flying(tmp_path: Path) -> None:
+    sc = swarm_scenario(tmp_path, count=2, duration=4.0)
+    opts = SitlOptions(scenario=sc, timed=True, lockstep=False, gcs=None, tlog=tmp_path / "rt.tlog", log_dir=tmp_path,
+                       watchdog_s=1.0)  # fmt: skip
+    lines: list[str] = []
+    with Sitl(opts, echo=lines.append) as sitl:
+        time.sleep(0.5)
+        os.kill(sitl.fcs[1].proc.pid, signal.SIGKILL)
+        with pytest.raises(SitlError, match="fc2 was killed"):
+            sitl.wait(timeout_s=60.0)
+    assert any("vehicle 2" in ln and "fly on" in ln for ln in lines), lines[-10:]
+    fc1 = sitl.fc_summaries[0]
+    assert fc1 is not None and fc1["sim_time_s"] >= 3.5  # vehicle 1 flew to the end
+    assert sitl.sim is not None and sitl.sim.proc.returncode == 0
+
+
+@pytest.mark.slow
+def test_a_station_on_one_ground_address_flies_one_vehicle_of_the_swarm(tmp_path: Path) -> None:
+    sc = swarm_scenario(tmp_path, count=2, duration=600.0).with_changes(plan=())
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        ground_port = probe.getsockname()[1]
+    opts = SitlOptions(scenario=sc, timed=False, lockstep=True, speed=3.0, gcs=f"udp:127.0.0.1:{ground_port}",
+                       tlog=tmp_path / "gs.tlog", log_dir=tmp_path, watchdog_s=10.0)  # fmt: skip
+    with Sitl(opts) as sitl:
+        assert sitl.router is not None and sitl.gcs_address is not None
+        with Swarm(f"udpout:{sitl.gcs_address}", [1, 2], connect_timeout_s=20) as swarm:
+            # a hostile station: arm requests to a system no vehicle has, and a disarm to everyone
+            mav = mavlink.MAVLink(None, srcSystem=250, srcComponent=190)
+            host, port = sitl.gcs_address.rsplit(":", 1)
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as hostile:
+                for target in (9, 200):
+                    hostile.sendto(mav.command_long_encode(target, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0).pack(mav),
+                                   (host, int(port)))  # fmt: skip
+            swarm[2].arm()
+            swarm[2].takeoff(2.0)
+            swarm[2].wait_altitude(2.0, tol_m=0.3, timeout_sim_s=20)
+            swarm[1].sleep_sim(1.0)
+            assert not swarm[1].armed and swarm[2].armed
+            alt1 = swarm[1].altitude_m
+            assert alt1 is not None and abs(alt1) < 0.1
+        sitl.terminate()
+    r = sitl.router_summary
+    assert r is not None and r["no_such_vehicle"] >= 2 and set(r["vehicles"]) == {"1", "2"}
