@@ -66,6 +66,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"ground telemetry rate incl. CHI_*/SIG_* (default {d.telemetry_rate_hz:g}, or TELEM_RATE_HZ)")
     p.add_argument("--watchdog-s", type=float, default=None, metavar="S",
                    help=f"exit if the simulator is silent this long, wall seconds (default {d.watchdog_s:g}, or FS_WATCHDOG)")
+    p.add_argument("--spin-s", type=float, default=0.002, metavar="S",
+                   help="lockstep: busy-poll this long for the next state before blocking (default 0.002; 0: always"
+                   " block, best when more processes than cores share the machine, as in a swarm)")  # fmt: skip
     p.add_argument("--startup-timeout-s", type=float, default=30.0, metavar="S",
                    help="exit if no simulator state arrives within this many wall seconds (default 30)")
     p.add_argument("--param-file", type=Path, metavar="PATH",
@@ -172,6 +175,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             plan = load_plan(args.plan)
         else:
             plan = scenario.plan if scenario is not None else ()
+        if not (math.isfinite(args.spin_s) and 0.0 <= args.spin_s <= 1.0):
+            raise SmcpilotError(f"--spin-s must be a number of seconds in [0, 1], got {args.spin_s}")
         if args.duration is not None and not args.duration > 0:
             raise SmcpilotError(f"--duration must be > 0 simulated seconds, got {args.duration}")
         gcs_port = args.gcs_port if args.gcs_port is not None else (FC_GROUND_PORT if args.gcs == DEFAULT_GCS_URL else 0)
@@ -201,6 +206,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             home=home,
             duration_s=args.duration,
             startup_timeout_s=args.startup_timeout_s,
+            spin_s=args.spin_s,
             sim_system_id=args.sysid if args.sysid is not None else 1,
             gcs_port=gcs_port,
             signing=signing,

@@ -350,6 +350,8 @@ class Sitl:
             param_file = None if o.param_file is None else o.param_file.with_name(f"{o.param_file.stem}-v{v.sysid}{o.param_file.suffix}")
             gcs_port = (fc_ground_port(v.index) if default_ground else 0) if o.gcs else None
             args = self._fc_args(vfile, vlog, fc_gcs, gcs_port, param_file, tlog.parent / f"signing-timestamp-v{v.sysid}", v.sysid)
+            # More processes than cores: nobody busy-polls (a spinning FC takes the core its simulator needs).
+            args[1:1] = ["--spin-s", "0"]
             self.fcs.append(self._spawn(f"fc{v.sysid}", args))
             self.sysids.append(v.sysid)
             self.tlogs.append(vlog)
@@ -363,7 +365,9 @@ class Sitl:
         self.sim_port = ports[0]
         if self.router is None:
             self.gcs_address = self.gcs_addresses[0]
-        self.sim = self._spawn("sim", self._sim_args(ports))
+        sim_args = self._sim_args(ports)
+        sim_args[1:1] = ["--spin-s", "0"]
+        self.sim = self._spawn("sim", sim_args)
         for child in self.fcs:
             self._await_line(child, "FC_READY", ready_timeout_s + 0.5 * len(fleet))
         return self

@@ -241,3 +241,12 @@ def _add_fast(sub: argparse._SubParsersAction) -> None:
 
 
 _EXTRA_TARGETS.append(_add_fast)
+
+
+def _add_swarm(sub: argparse._SubParsersAction) -> None:
+    from lab import swarm_bench
+
+    swarm_bench.add_arguments(sub)
+
+
+_EXTRA_TARGETS.append(_add_swarm)

@@ -53,6 +53,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--gust-tau", type=float, default=1.0, metavar="S", help="gust correlation time (default 1 s)")
     p.add_argument("--paper-disturbance", action="store_true", help="add the paper's disturbances fs1..fs4")
     p.add_argument("--watchdog-s", type=float, default=t.watchdog_s, metavar="S", help=f"exit if the FC is silent this long (default {t.watchdog_s:g})")
+    p.add_argument("--spin-s", type=float, default=t.spin_s, metavar="S",
+                   help=f"lockstep: busy-poll this long for the answers before blocking (default {t.spin_s:g}; 0: always block)")
     p.add_argument("--startup-timeout-s", type=float, default=t.startup_timeout_s, metavar="S", help="exit if the FC never answers within this many seconds (default 30)")
     p.add_argument("--scenario", type=Path, metavar="FILE",
                    help="scenario TOML (smcpilot.scenario): plant, vehicle, environment, faults, seed and rates come from it"
@@ -97,6 +99,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         scenario = Scenario.from_toml(args.scenario) if args.scenario is not None else None
         if scenario is not None:
             args.physics_hz, args.rate_hz, vehicle = scenario.physics_hz, scenario.rate_hz, scenario.vehicle
+        if not (math.isfinite(args.spin_s) and 0.0 <= args.spin_s <= 1.0):
+            raise ConfigError(f"--spin-s must be a number of seconds in [0, 1], got {args.spin_s}")
         if not (args.physics_hz > 0 and args.rate_hz > 0):
             raise ConfigError("--physics-hz and --rate-hz must be > 0")
         ratio = args.physics_hz / args.rate_hz
@@ -116,6 +120,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             duration_s=args.duration,
             watchdog_s=args.watchdog_s,
             startup_timeout_s=args.startup_timeout_s,
+            spin_s=args.spin_s,
         )
         fc_urls = args.fc or ["udp:127.0.0.1:14560"]
         if scenario is not None and scenario.swarm is not None:

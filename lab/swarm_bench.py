@@ -1,0 +1,111 @@
+"""``smcpilot bench swarm``: how many vehicles one machine flies, in lockstep and in real time.
+
+For each K of ``--counts`` a lockstep SITL swarm of K vehicles (K FC processes, one simulator, no
+ground link) flies ``--duration`` simulated seconds of the take-off-and-hover plan; printed per K:
+start-up wall time (launch to every FC's first tick), aggregate vehicle-seconds per wall second,
+that as a ratio of K = 1's (measured in the same run), vehicle-ticks per wall second, CPU seconds
+per vehicle per simulated second (the FCs' own), and the skew between the vehicles' clocks at the
+end (their FCs' last simulated times: zero when the lockstep holds). With ``--realtime-s S`` each K
+also flies S seconds in real time: missed control deadlines (overruns / ticks, all FCs) and the
+99th-percentile lateness of the worst FC. Figures, never pass/fail.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+from smcpilot.errors import ConfigError
+from smcpilot.swarm import MAX_VEHICLES
+
+PLAN = ({"t_s": 0.0, "action": "takeoff", "alt_m": 2.0},)
+
+
+def add_arguments(sub: argparse._SubParsersAction) -> None:
+    c = sub.add_parser("swarm", help="many vehicles: lockstep vehicle-seconds per wall second for K = 1, 4, 16 ...; real time")
+    c.add_argument("--counts", default="1,4,16", metavar="K,K,...", help=f"swarm sizes (default 1,4,16; at most {MAX_VEHICLES})")
+    c.add_argument("--duration", type=float, default=10.0, metavar="S", help="simulated seconds per lockstep run (default 10)")
+    c.add_argument("--realtime-s", type=float, default=0.0, metavar="S",
+                   help="also fly S wall seconds in real time per K, counting missed deadlines (default 0: skip)")
+    c.set_defaults(bench=bench_swarm)
+
+
+def _counts(text: str) -> list[int]:
+    try:
+        counts = [int(v) for v in text.split(",")]
+    except ValueError:
+        raise ConfigError(f"--counts must be whole numbers K,K,..., got {text!r}") from None
+    if not counts or not all(1 <= k <= MAX_VEHICLES for k in counts):
+        raise ConfigError(f"--counts must lie in 1..{MAX_VEHICLES}, got {text!r}")
+    return counts
+
+
+def _fly(k: int, duration_s: float, lockstep: bool, log_dir: Path) -> dict:
+    from ground.sitl import Sitl, SitlOptions
+    from smcpilot.plan import PlanStep
+    from smcpilot.scenario import Scenario
+    from smcpilot.swarm import SwarmSpec
+
+    scenario = Scenario(name=f"bench-{k}", duration_s=duration_s, plan=tuple(PlanStep(**s) for s in PLAN),  # type: ignore[arg-type]
+                        swarm=SwarmSpec(count=k) if k > 1 else None)  # fmt: skip
+    opts = SitlOptions(scenario=scenario, timed=True, lockstep=lockstep, gcs=None, log_dir=log_dir,
+                       tlog=log_dir / f"swarm-{k}-{'ls' if lockstep else 'rt'}.tlog", watchdog_s=30.0)  # fmt: skip
+    t0 = time.perf_counter()
+    sitl = Sitl(opts)
+    try:
+        sitl.start(ready_timeout_s=60.0 + 2.0 * k)
+        started = time.perf_counter() - t0
+        t1 = time.perf_counter()
+        sitl.wait(timeout_s=600.0 + 10.0 * k * duration_s)
+        wall = time.perf_counter() - t1
+    finally:
+        sitl.terminate()
+    fcs = [s or {} for s in sitl.fc_summaries]
+    ticks = sum(int(s.get("ticks", 0)) for s in fcs)
+    overruns = sum(int(s.get("overruns", 0)) for s in fcs)
+    sim_times = [float(s.get("sim_time_s") or 0.0) for s in fcs]
+    p99 = [s.get("lateness_p99_s") for s in fcs if s.get("lateness_p99_s") is not None]
+    return {
+        "k": k,
+        "start_s": started,
+        "wall_s": wall,
+        "vehicle_s_per_s": k * duration_s / wall if wall > 0 else float("nan"),
+        "ticks_per_s": ticks / wall if wall > 0 else float("nan"),
+        "cpu_per_vehicle": sum(float(s.get("cpu_s", 0.0)) for s in fcs) / k / duration_s,
+        "skew_s": max(sim_times) - min(sim_times) if sim_times else float("nan"),
+        "sim_cpu": float((sitl.sim_summary or {}).get("cpu_s", float("nan"))) / duration_s,
+        "missed": overruns / ticks if ticks else float("nan"),
+        "p99_ms": 1e3 * max(p99) if p99 else float("nan"),
+    }
+
+
+def bench_swarm(args: argparse.Namespace) -> int:
+    counts = _counts(args.counts)
+    if not args.duration > 0:
+        raise ConfigError(f"--duration must be > 0 simulated seconds, got {args.duration:g}")
+    print(f"bench swarm: {platform.python_implementation()} {platform.python_version()}, {os.cpu_count()} CPUs; lockstep,"
+          f" {args.duration:g} simulated s of take-off and hover per run, no ground link")  # fmt: skip
+    print(f"{'K':>4} {'start s':>8} {'wall s':>8} {'veh-s/s':>9} {'vs K=1':>7} {'ticks/s':>9} {'CPU/veh':>8} {'sim CPU':>8} {'skew s':>7}")
+    base: float | None = None
+    with tempfile.TemporaryDirectory(prefix="smcpilot-bench-swarm-") as tmp:
+        for k in counts:
+            r = _fly(k, args.duration, True, Path(tmp))
+            if k == 1 or base is None:
+                base = r["vehicle_s_per_s"] if k == 1 else base
+            ratio = r["vehicle_s_per_s"] / base if base else float("nan")
+            print(f"{k:>4} {r['start_s']:>8.2f} {r['wall_s']:>8.2f} {r['vehicle_s_per_s']:>9.2f} {ratio:>6.2f}x {r['ticks_per_s']:>9.0f}"
+                  f" {r['cpu_per_vehicle']:>8.3f} {r['sim_cpu']:>8.3f} {r['skew_s']:>7.3f}")  # fmt: skip
+        if args.realtime_s > 0:
+            print(f"real time, {args.realtime_s:g} s per K at the scenario's 500 Hz:")
+            print(f"{'K':>4} {'missed':>8} {'p99 ms':>7}")
+            for k in counts:
+                r = _fly(k, args.realtime_s, False, Path(tmp))
+                print(f"{k:>4} {100 * r['missed']:>7.3f}% {r['p99_ms']:>7.2f}")
+    print("veh-s/s: simulated vehicle-seconds per wall second (K x simulated s / wall s); vs K=1: the same, over this run's K = 1;"
+          " CPU/veh: FC CPU seconds per vehicle per simulated second; sim CPU: the simulator's CPU seconds per simulated second"
+          "; skew: spread of the FCs' final simulated times")  # fmt: skip
+    return 0
