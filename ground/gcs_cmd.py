@@ -174,7 +174,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="gcs_command", metavar="ACTION")
     sub.required = True
 
-    s = sub.add_parser("status", help="print the vehicle's state once", description="Print mode, arming, position, attitude, χ̂, σ and home once.")
+    s = sub.add_parser("status", help="print the vehicle's state once (every vehicle's, behind a swarm's router)",
+                       description="Print mode, arming, position, attitude, χ̂, σ and home once. Where several vehicles"
+                       " answer (a swarm's router), one line for each, then the first in full; --sysid N picks one."
+                       " --json: the first vehicle's object, with \"vehicles\": every vehicle's object when there are several.")  # fmt: skip
     s.add_argument("--json", action="store_true", help="print JSON (one object)")
     s.set_defaults(gcs_handler=_status)
 
@@ -407,6 +410,21 @@ def _status(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
         pass
     t = vehicle.telemetry
     why = _prearm_failure(vehicle) if t.prearm_ok is False and not t.armed else None
+    heard = vehicle.vehicles_heard() if args.sysid is None else {}
+    if len(heard) > 1:  # a swarm behind one address: every vehicle, the one we talk to in full
+        if args.json:
+            d = t.as_dict()
+            d["prearm_failure"] = why
+            others = [tel.as_dict() for sid, tel in heard.items() if sid != t.system_id]
+            out.write(json.dumps({**d, "vehicles": [d, *others]}, allow_nan=False) + "\n")
+            return EXIT_OK
+        out.write(f"{len(heard)} vehicles: system ids {', '.join(map(str, heard))} (--sysid N talks to one)\n")
+        for sid, tel in heard.items():
+            out.write(f"  vehicle {sid}: {render_line(tel)}\n")
+        out.write(render_status(t) + "\n")
+        if why is not None:
+            out.write(f"  prearm   {why}\n")
+        return EXIT_OK
     if args.json:
         d = t.as_dict()
         d["prearm_failure"] = why

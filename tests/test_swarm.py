@@ -393,6 +393,10 @@ def test_a_station_on_one_ground_address_flies_one_vehicle_of_the_swarm(tmp_path
             assert not swarm[1].armed and swarm[2].armed
             alt1 = swarm[1].altitude_m
             assert alt1 is not None and abs(alt1) < 0.1
+        # `smcpilot gcs status` on the one address lists every vehicle
+        r = smcpilot("gcs", "--connect", f"udpout:{sitl.gcs_address}", "--timeout", "20", "status", cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        assert "2 vehicles: system ids 1, 2" in r.stdout and "vehicle 2: " in r.stdout and "ARMED" in r.stdout, r.stdout
         sitl.terminate()
     r = sitl.router_summary
     assert r is not None and r["no_such_vehicle"] >= 2 and set(r["vehicles"]) == {"1", "2"}

@@ -41,6 +41,8 @@ log = logging.getLogger(__name__)
 GCS_SYSTEM_ID = 255
 GCS_COMPONENT_ID = mavlink.MAV_COMP_ID_MISSIONPLANNER  # 190
 _STATUSTEXT = mavlink.MAVLink_statustext_message
+#: other vehicles whose telemetry a link keeps (a swarm's; smcpilot flies at most 64).
+MAX_OTHER_VEHICLES = 255
 
 
 class Link:
@@ -87,6 +89,8 @@ class Link:
         self._tx_lock = threading.Lock()
         self._cond = threading.Condition()
         self._parser = TelemetryParser(system_id, statustext_history)
+        #: other vehicles heard on the same link (a swarm's router sends every vehicle's telemetry).
+        self._others: dict[int, TelemetryParser] = {}
         self._texts = StatusTextAssembler()
         self._subs: tuple[Subscription, ...] = ()
         self._subs_lock = threading.Lock()
@@ -246,6 +250,8 @@ class Link:
                     for msg in self._texts.feed(raw) if type(raw) is _STATUSTEXT else (raw,):
                         if self._parser.ingest(msg, addr):
                             accepted.append(msg)
+                        else:
+                            self._ingest_other(msg, addr)
                 self._cond.notify_all()
             subs = self._subs
             if subs and accepted:
@@ -254,6 +260,26 @@ class Link:
                     for sub in subs:
                         if sub.wants(t):
                             sub._deliver(msg)
+
+    def _ingest_other(self, msg: mavlink.MAVLink_message, addr: Address) -> None:
+        """Keep the telemetry of another vehicle heard here (its first autopilot HEARTBEAT adds it)."""
+        src = msg.get_srcSystem()
+        parser = self._others.get(src)
+        if parser is None:
+            if (msg.get_type() != "HEARTBEAT" or msg.type == mavlink.MAV_TYPE_GCS or msg.autopilot == mavlink.MAV_AUTOPILOT_INVALID
+                    or src == self._state.system_id or len(self._others) >= MAX_OTHER_VEHICLES):  # fmt: skip
+                return
+            parser = self._others[src] = TelemetryParser(src, statustext_history=10)
+        parser.ingest(msg, addr)
+
+    def vehicles_heard(self) -> dict[int, Telemetry]:
+        """Every vehicle heard on this link by system id (ours and, e.g. behind a swarm's router,
+        the others), each one's latest telemetry."""
+        with self._cond:
+            out = {sid: p.state for sid, p in self._others.items()}
+            if self._state.system_id is not None:
+                out[self._state.system_id] = self._state
+        return dict(sorted(out.items()))
 
     # ----------------------------------------------------------------------------- subscriptions
     def subscribe(
