@@ -9,6 +9,12 @@ run once the package is installed. It provides:
   Everything stops when the test ends;
 - ``sitl_process``: the running :class:`~ground.sitl.Sitl` of the test (its ``tlog`` path, the
   FC's ground address ``gcs_address``), for tests that need it;
+- the ``sitl_swarm`` fixture: a lockstep swarm (``smcpilot sitl --count K``: K flight controllers,
+  one simulator, one ground router) and a connected :class:`ground.vehicle.Swarm` of its vehicles
+  (``swarm[2].arm()``, ``swarm.wait_all(...)``); K from the marker's ``count=`` (default 3), the
+  rest of the marker as for ``sitl`` (a scenario with a ``[swarm]`` table sets its vehicles);
+  ``sitl_swarm_process`` is its :class:`~ground.sitl.Sitl` (``tlogs``, ``sim_summary`` with the
+  separation after the run);
 - command-line options ``--sitl-vehicle FILE``, ``--sitl-controller NAME``, ``--sitl-seed N``,
   ``--sitl-speed FACTOR`` (lockstep speed cap; default: as fast as possible),
   ``--sitl-log-dir DIR`` (default: a ``sitl-logs`` folder in pytest's temporary directory),
@@ -55,14 +61,18 @@ from typing import Any
 import pytest
 
 from ground.sitl import SCENARIO_KEYWORDS, Sitl, SitlOptions
-from ground.vehicle import Vehicle
+from ground.vehicle import Swarm, Vehicle
+from smcpilot.errors import ConfigError
 from smcpilot.scenario import Scenario
+from smcpilot.swarm import SwarmSpec
 
 #: SitlOptions fields the marker may not set (the fixture owns them).
 _RESERVED = frozenset({"gcs", "tlog", "log_dir", "lockstep"})
 _MARKER = "sitl_options"
 #: Wall seconds to wait for the FC's first HEARTBEAT after SITL reported ready.
 CONNECT_TIMEOUT_S = 20.0
+#: vehicles of the sitl_swarm fixture unless the marker says count=K.
+DEFAULT_SWARM_COUNT = 3
 
 
 @dataclass
@@ -109,7 +119,8 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) ->
         return
     run.failed = True
     started = run.sitl is not None and run.sitl.fc is not None
-    lines = [f"tlog kept: {run.tlog}" if started else "no tlog: SITL did not start"]
+    tlogs = run.sitl.tlogs if run.sitl is not None and len(run.sitl.tlogs) > 1 else [run.tlog]
+    lines = [f"tlog kept: {', '.join(map(str, tlogs))}" if started else "no tlog: SITL did not start"]
     if started and run.sitl is not None and run.sitl.scenario_file is not None:
         lines.append(f"its scenario: {run.sitl.scenario_file} (fly it again: smcpilot run FILE)")
     if run.output:
@@ -118,7 +129,8 @@ def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo[None]) ->
     report.sections.append(("smcpilot sitl", "\n".join(lines)))
 
 
-def _options(request: pytest.FixtureRequest, log_dir: Path, tlog: Path, param_file: Path, gcs_url: str) -> SitlOptions:
+def _options(request: pytest.FixtureRequest, log_dir: Path, tlog: Path, param_file: Path, gcs_url: str,
+             count: bool = False) -> SitlOptions:  # fmt: skip
     cfg = request.config
     kw: dict[str, Any] = {}
     if cfg.getoption("sitl_vehicle") is not None:
@@ -134,7 +146,7 @@ def _options(request: pytest.FixtureRequest, log_dir: Path, tlog: Path, param_fi
         if not speed > 0:
             raise pytest.UsageError(f"--sitl-speed must be > 0, got {speed}")
         kw["speed"] = speed
-    valid = ({f.name for f in dataclasses.fields(SitlOptions)} | SCENARIO_KEYWORDS) - _RESERVED - {"timed"}
+    valid = ({f.name for f in dataclasses.fields(SitlOptions)} | SCENARIO_KEYWORDS | ({"count"} if count else set())) - _RESERVED - {"timed"}
     # Markers closest to the test win (a test's marker over its class's over its module's).
     for marker in reversed(list(request.node.iter_markers(_MARKER))):
         if marker.args:
@@ -157,7 +169,26 @@ def _options(request: pytest.FixtureRequest, log_dir: Path, tlog: Path, param_fi
         kw["param_file"] = param_file
     else:
         kw["param_file"] = Path(kw["param_file"])
-    return SitlOptions.of(lockstep=True, gcs=gcs_url, log_dir=log_dir, tlog=tlog, **kw)
+    k = kw.pop("count", None)
+    options = SitlOptions.of(lockstep=True, gcs=gcs_url, log_dir=log_dir, tlog=tlog, **kw)
+    if count:
+        sc = options.scenario
+        if k is not None or sc.swarm is None:
+            swarm = sc.swarm if sc.swarm is not None else SwarmSpec()
+            try:
+                sc = sc.with_changes(swarm=dataclasses.replace(swarm, count=int(k if k is not None else DEFAULT_SWARM_COUNT)))
+                sc.fleet()
+            except ConfigError as exc:
+                pytest.fail(f"@pytest.mark.{_MARKER}: {exc}", pytrace=False)
+            options = dataclasses.replace(options, scenario=sc)
+    return options
+
+
+def _log_dir(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    log_dir = request.config.getoption("sitl_log_dir")
+    log_dir = Path(log_dir) if log_dir is not None else tmp_path_factory.getbasetemp() / "sitl-logs"
+    log_dir.mkdir(parents=True, exist_ok=True)
+    return log_dir
 
 
 def _safe_name(nodeid: str) -> str:
@@ -211,6 +242,53 @@ def sitl(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactor
 @pytest.fixture
 def sitl_process(sitl: Vehicle, request: pytest.FixtureRequest) -> Sitl:
     """The running :class:`ground.sitl.Sitl` behind the ``sitl`` fixture (``.tlog``, ``.gcs_address``)."""
+    run = request.node.stash[_RUN_KEY]
+    assert run.sitl is not None
+    return run.sitl
+
+
+@pytest.fixture
+def sitl_swarm(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Swarm]:
+    """A connected :class:`ground.vehicle.Swarm` flying in a fresh lockstep swarm (see the module
+    docstring); its vehicles' waits are in simulated seconds."""
+    cfg = request.config
+    log_dir = _log_dir(request, tmp_path_factory)
+    stem = f"{_safe_name(request.node.nodeid)}-{os.getpid()}-{time.strftime('%H%M%S')}-{next(_RUN_NUMBERS)}"
+    run = _SitlRun(tlog=log_dir / f"{stem}.tlog", param_file=log_dir / f"{stem}.parm")
+    request.node.stash[_RUN_KEY] = run
+    marker = request.node.get_closest_marker(_MARKER)
+    key_file = (marker.kwargs.get("signing_key") if marker is not None else None) or cfg.getoption("sitl_signing_key")
+    options = _options(request, log_dir, run.tlog, run.param_file, "udpin:127.0.0.1:0", count=True)
+    sitl_proc = Sitl(options, echo=run.output.append)
+    run.sitl = sitl_proc
+    yielded = False
+    try:
+        with sitl_proc:
+            assert sitl_proc.gcs_address is not None
+            swarm = Swarm(f"udpout:{sitl_proc.gcs_address}", sitl_proc.sysids, connect_timeout_s=CONNECT_TIMEOUT_S,
+                          signing_key=key_file)  # fmt: skip
+            if options.speed is not None:
+                for v in swarm:
+                    v.wall_per_sim_s = max(v.wall_per_sim_s, 3.0 / options.speed)
+            with swarm:
+                yielded = True
+                yield swarm
+    finally:
+        keep = cfg.getoption("sitl_keep_logs") or run.failed or not yielded
+        if not keep:
+            files = [run.tlog.with_name(run.tlog.stem + ".scenario.toml"), *sitl_proc.tlogs]
+            files += [t.with_name(t.stem + ".scenario.toml") for t in sitl_proc.tlogs]
+            files += [t.with_name(t.stem + ".parm") for t in sitl_proc.tlogs]
+            for path in files:
+                try:
+                    path.unlink()
+                except FileNotFoundError:
+                    pass
+
+
+@pytest.fixture
+def sitl_swarm_process(sitl_swarm: Swarm, request: pytest.FixtureRequest) -> Sitl:
+    """The running :class:`ground.sitl.Sitl` behind the ``sitl_swarm`` fixture (``tlogs``, ``sysids``)."""
     run = request.node.stash[_RUN_KEY]
     assert run.sitl is not None
     return run.sitl

@@ -130,3 +130,38 @@ def test_scenario(sitl, sitl_process):
     )
     result = pytester.runpytest_subprocess("-p", "no:cacheprovider")
     result.assert_outcomes(passed=1)
+
+
+SWARM_TESTS = '''
+import pytest
+
+@pytest.mark.sitl_options(count=2, speed=4.0)
+def test_two_vehicles(sitl_swarm, sitl_swarm_process):
+    assert sitl_swarm.sysids == (1, 2)
+    sitl_swarm[2].arm()
+    sitl_swarm[2].takeoff(2.0)
+    sitl_swarm[2].wait_altitude(2.0, tol_m=0.3, timeout_sim_s=20)
+    assert not sitl_swarm[1].armed
+    assert len(sitl_swarm_process.tlogs) == 2
+
+@pytest.mark.sitl_options(count=2)
+def test_swarm_fails(sitl_swarm):
+    sitl_swarm.arm_all()
+    assert False, "on purpose"
+
+@pytest.mark.sitl_options(count=0)
+def test_bad_count(sitl_swarm):
+    pass
+'''
+
+
+def test_swarm_fixture_flies_k_vehicles_and_keeps_every_log_of_a_failure(pytester: pytest.Pytester) -> None:
+    pytester.makepyfile(test_swarm_user=SWARM_TESTS)
+    logs = pytester.path / "logs"
+    result = pytester.runpytest_subprocess("--sitl-log-dir", str(logs), "-p", "no:cacheprovider")
+    result.assert_outcomes(passed=1, failed=1, errors=1)
+    out = result.stdout.str()
+    assert "test_bad_count" in out and "whole number >= 1" in out
+    kept = sorted(p.name for p in logs.glob("*.tlog"))
+    assert len(kept) == 2 and all("test_swarm_fails" in n for n in kept), kept  # the passing test's logs are gone
+    assert "tlog kept: " in out and kept[0] in out
