@@ -400,3 +400,48 @@ def test_a_station_on_one_ground_address_flies_one_vehicle_of_the_swarm(tmp_path
         sitl.terminate()
     r = sitl.router_summary
     assert r is not None and r["no_such_vehicle"] >= 2 and set(r["vehicles"]) == {"1", "2"}
+
+
+@pytest.mark.slow
+@pytest.mark.interop
+def test_mavsdk_sees_three_systems_on_one_connection_and_flies_one(tmp_path: Path) -> None:
+    mavsdk = pytest.importorskip("mavsdk", reason="MAVSDK-Python not installed (pip install mavsdk)")
+    from mavsdk.plugins.action import Action
+    from mavsdk.plugins.telemetry import Telemetry
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    sc = swarm_scenario(tmp_path, count=3, duration=600.0).with_changes(plan=())
+    opts = SitlOptions(scenario=sc, timed=False, lockstep=True, speed=2.0, gcs=f"udp:127.0.0.1:{port}", tlog=tmp_path / "mavsdk.tlog",
+                       log_dir=tmp_path, watchdog_s=10.0)  # fmt: skip
+    with Sitl(opts) as sitl:
+        drone = mavsdk.Mavsdk(mavsdk.Configuration.create_with_component_type(mavsdk.ComponentType.GROUND_STATION))
+        try:
+            assert drone.add_any_connection(f"udpin://127.0.0.1:{port}") == mavsdk.ConnectionResult.SUCCESS
+            deadline = time.monotonic() + 20
+            while len([s for s in drone.get_systems() if s.has_autopilot()]) < 3:
+                assert time.monotonic() < deadline, f"MAVSDK saw {drone.system_count()} systems"
+                time.sleep(0.2)
+            systems = {s.get_system_id(): s for s in drone.get_systems() if s.has_autopilot()}
+            assert sorted(systems) == [1, 2, 3]
+            tels = {sid: Telemetry(s) for sid, s in systems.items()}
+            deadline = time.monotonic() + 20
+            while not tels[2].health_all_ok():
+                assert time.monotonic() < deadline, f"MAVSDK health of system 2 never all ok: {tels[2].health()}"
+                time.sleep(0.2)
+            act = Action(systems[2])
+            act.set_takeoff_altitude(2.0)
+            act.arm()
+            act.takeoff()
+            deadline = time.monotonic() + 30
+            while not (tels[2].in_air() and tels[2].position().relative_altitude_m > 1.7):
+                assert time.monotonic() < deadline, f"no take-off of system 2 seen by MAVSDK: {tels[2].position()}"
+                time.sleep(0.2)
+            assert not tels[1].armed() and not tels[3].armed()
+            assert tels[1].position().relative_altitude_m < 0.2 and tels[3].position().relative_altitude_m < 0.2
+        finally:
+            drone.destroy()
+        sitl.terminate()
+    r = sitl.router_summary
+    assert r is not None and set(r["vehicles"]) == {"1", "2", "3"}
