@@ -364,7 +364,7 @@ class Px4FlightControllerApp(FlightControllerApp):
     def _open_sim(
         self, url: str, sysid: int, clock_us: Callable[[], int], impairment: LinkImpairment | None, impair_seed: int
     ) -> MavlinkUdp:
-        if impairment is not None:
+        if impairment is not None and impairment.active:
             raise EndpointError("--sim-link (impairment) works on our simulator's UDP link only, not on PX4's TCP link")
         self.px4 = Px4Link(self.px4_host, self.px4_port, source_system=sysid)
         # The app's shared code uses only what both links have (counters, impair_counters,

@@ -77,6 +77,9 @@ class SitlOptions:
     #: extra arguments for the FC / the bridge (advanced use, tests).
     fc_args: tuple[str, ...] = ()
     sim_args: tuple[str, ...] = ()
+    #: another simulator the FC connects to (``px4[:tcp:HOST[:PORT]]``, PX4's simulator API; the
+    #: FC's ``--sim``): no simulator of ours is started, and the run is lockstep on its clock.
+    sim_url: str | None = None
 
     @classmethod
     def of(cls, **kw: Any) -> SitlOptions:
@@ -287,6 +290,9 @@ class Sitl:
         self.sim_port = int(fields["sim"].rsplit(":", 1)[1])
         self.gcs_address = fields.get("gcs")
         self.gcs_addresses = [self.gcs_address or "-"]
+        if o.sim_url is not None:  # another simulator: the FC waits for it (its --startup-timeout-s)
+            self._await_line(self.fc, "FC_READY", ready_timeout_s + 60.0)
+            return self
         self.sim = self._spawn("sim", self._sim_args([self.sim_port]))
         self._await_line(self.fc, "FC_READY", ready_timeout_s)
         return self
@@ -295,7 +301,7 @@ class Sitl:
                  signing_timestamps: Path, sysid: int | None = None) -> list[str]:  # fmt: skip
         o = self.options
         timed = ["--duration", repr(o.scenario.duration_s)] if o.timed else []
-        fc_args = ["fc", "--sim", "udpin:127.0.0.1:0", "--gcs", gcs, "--scenario", str(scenario_file),
+        fc_args = ["fc", "--sim", o.sim_url or "udpin:127.0.0.1:0", "--gcs", gcs, "--scenario", str(scenario_file),
                    "--tlog", str(tlog), "--watchdog-s", f"{o.watchdog_s:g}"]  # fmt: skip
         if gcs_port is not None:
             fc_args += ["--gcs-port", str(gcs_port)]
@@ -387,7 +393,7 @@ class Sitl:
         Returns 0 when every child ended cleanly; raises :class:`SitlError` naming the child and
         showing its last output when one failed.
         """
-        assert self.fc is not None and self.sim is not None
+        assert self.fc is not None and (self.sim is not None or self.options.sim_url is not None)
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         children = self._vehicle_children()
         while True:

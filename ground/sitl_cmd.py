@@ -58,6 +58,14 @@ def add_common(p: argparse.ArgumentParser, *, lockstep_flag: bool) -> None:
 
 def add_sitl_arguments(p: argparse.ArgumentParser) -> None:
     add_common(p, lockstep_flag=True)
+    p.add_argument("--sim", metavar="URL",
+                   help="fly on another simulator instead of ours: px4[:tcp:HOST[:PORT]] (PX4's simulator API: Gazebo,"
+                   " jMAVSim, AirSim, rotorpy; the FC connects as PX4 does, default 127.0.0.1:4560); lockstep on its clock;"
+                   " docs/external-simulators.md")  # fmt: skip
+    p.add_argument("--px4-frame", choices=("quad-x", "plus"), default=None,
+                   help="with --sim px4: the motor order, quad-x (PX4's, default) or plus (ours)")
+    p.add_argument("--px4-motor", choices=("speed", "thrust"), default=None,
+                   help="with --sim px4: a control in [0, 1] sets the rotor speed (default) or the thrust above idle")
     p.add_argument("--duration", type=float, metavar="SIM_S", help="stop after this many simulated seconds (default: until Ctrl-C)")
     p.add_argument("--gcs", default="udp:127.0.0.1:14550", metavar="URL",
                    help="ground link of the FC: udp:HOST:PORT sends telemetry there (default udp:127.0.0.1:14550,"
@@ -262,6 +270,13 @@ def sitl_main(args: argparse.Namespace) -> int:
         gcs_link=args.gcs_link,
     )
     opts = _with_count(opts, args.count, args.sysid)
+    if args.sim is not None:
+        if not (args.sim == "px4" or args.sim.startswith("px4:")):
+            raise ConfigError(f"--sim must be px4[:tcp:HOST[:PORT]] (PX4's simulator API), got {args.sim!r}")
+        px4 = [*(("--px4-frame", args.px4_frame) if args.px4_frame else ()), *(("--px4-motor", args.px4_motor) if args.px4_motor else ())]
+        opts = replace(opts, sim_url=args.sim, lockstep=True, fc_args=(*opts.fc_args, *px4))
+    elif args.px4_frame or args.px4_motor:
+        raise ConfigError("--px4-frame and --px4-motor go with --sim px4:...")
 
     def started(sitl: Sitl) -> None:
         print_connect_help(sitl)

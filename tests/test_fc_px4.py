@@ -371,3 +371,27 @@ def test_flies_on_smcpilot_sim_serve_px4(tmp_path: Path) -> None:
     assert f.north[i] == pytest.approx(2.0, abs=0.05) and f.alt[i] == pytest.approx(3.0, abs=0.05)
     assert f.alt[-1] < 0.05 and not f.armed[-1]
     assert [text for _, text in f.events][-1].startswith("Landed")
+
+
+def test_smcpilot_sitl_flies_on_another_simulator(tmp_path: Path) -> None:
+    """``smcpilot sitl --sim px4:...`` starts the FC only; here our simulator serves PX4's API in its place."""
+    sim = subprocess.Popen([sys.executable, "-m", "lab.cli", "sim", "--serve", "px4:0", "--rate-hz", "500", "--duration", "6"],
+                           cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)  # fmt: skip
+    try:
+        assert sim.stdout is not None
+        ready = sim.stdout.readline()
+        port = int(ready.split("tcp=")[1].split()[0].rsplit(":", 1)[1])
+        r = subprocess.run([sys.executable, "-m", "lab.cli", "sitl", "--sim", f"px4:tcp:127.0.0.1:{port}", "--px4-frame", "plus",
+                            "--px4-motor", "thrust", "--duration", "6", "--gcs", "none", "--plan", str(ROOT / "examples/plans/hover.toml"),
+                            "--log-dir", str(tmp_path / "logs"), "--no-progress"],
+                           cwd=tmp_path, capture_output=True, text=True, timeout=120)  # fmt: skip
+        sim_out, _ = sim.communicate(timeout=WALL_S)
+    finally:
+        if sim.poll() is None:
+            sim.kill()
+            sim.wait()
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "SITL ended: 6.00 simulated s" in r.stdout and "3001 control ticks" in r.stdout, r.stdout
+    assert sim.returncode == 0, sim_out
+    bad = subprocess.run([sys.executable, "-m", "lab.cli", "sitl", "--px4-frame", "plus"], capture_output=True, text=True, timeout=WALL_S)
+    assert bad.returncode == 2 and "go with --sim px4" in bad.stderr
