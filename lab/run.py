@@ -366,6 +366,8 @@ def main(args: argparse.Namespace) -> int:
     cleared = clear_previous_run(out_dir)
     if cleared and not args.quiet:
         print(f"out: {out_dir}/: deleted the previous run's {len(cleared)} files (a run owns its output directory)", flush=True)
+    if scenario.swarm is not None:
+        return _main_swarm(args, scenario, out_dir, echo)
     written = [out_dir / f"{scenario.name}.tlog", out_dir / f"{scenario.name}.scenario.toml"]
     out_dir.mkdir(parents=True, exist_ok=True)
     record_run(out_dir, written)  # claimed before the flight: a run stopped half-way is cleared by the next too
@@ -383,6 +385,44 @@ def main(args: argparse.Namespace) -> int:
         doc["plots"] = [str(p) for p in paths]
         print(f"plots: {len(paths)} PNG files in {out_dir}/")
     print(f"log: {result.tlog}")
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(_finite(doc), indent=2, allow_nan=False) + "\n", encoding="utf-8")
+        written.append(args.json)
+        print(f"results: {args.json}")
+    record_run(out_dir, written)
+    return 0 if result.status == "ok" else 1
+
+
+def _main_swarm(args: argparse.Namespace, scenario: Scenario, out_dir: Path, echo: Any) -> int:
+    """``smcpilot run`` of a swarm scenario: every vehicle's log, summary line and figures (in
+    ``DIR/vN/``), the separation, and the results JSON (:mod:`lab.swarm_run`)."""
+    from ground.logs import load_log, plot_log
+    from lab.swarm_run import fly_swarm, print_swarm, vehicle_tlog
+
+    fleet = scenario.fleet()
+    tlog = out_dir / f"{scenario.name}.tlog"
+    written = [out_dir / f"{scenario.name}.scenario.toml", *(vehicle_tlog(tlog, v.sysid) for v in fleet)]
+    written += [vehicle_tlog(tlog, v.sysid).with_name(vehicle_tlog(tlog, v.sysid).stem + ".scenario.toml") for v in fleet]
+    written += [vehicle_tlog(tlog, v.sysid).with_suffix(".parm") for v in fleet]
+    out_dir.mkdir(parents=True, exist_ok=True)
+    record_run(out_dir, written)
+    result = fly_swarm(scenario, out_dir, sitl=args.sitl, echo=echo)
+    ticks = result.vehicles[0].ticks if result.vehicles else 0
+    sim_s = result.vehicles[0].sim_s if result.vehicles else 0.0
+    print(f"\nrun: {result.status}; {len(fleet)} vehicles, {ticks} ticks each, {sim_s:.2f} simulated s in {result.wall_s:.2f} wall s"
+          f" ({len(fleet) * sim_s / result.wall_s if result.wall_s > 0 else 0.0:.1f} vehicle-s per wall s)")  # fmt: skip
+    print_swarm(result, sys.stdout)
+    doc = result.as_json()
+    if not args.no_plots:
+        n = 0
+        for sid, r in zip(result.sysids, result.vehicles):
+            if r.summary:
+                paths = plot_log(load_log(r.tlog), out_dir / f"v{sid}")
+                written += paths
+                doc["vehicles"][result.sysids.index(sid)]["plots"] = [str(p) for p in paths]
+                n += len(paths)
+        print(f"plots: {n} PNG files in {out_dir}/vN/")
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(_finite(doc), indent=2, allow_nan=False) + "\n", encoding="utf-8")

@@ -445,3 +445,57 @@ def test_mavsdk_sees_three_systems_on_one_connection_and_flies_one(tmp_path: Pat
         sitl.terminate()
     r = sitl.router_summary
     assert r is not None and set(r["vehicles"]) == {"1", "2", "3"}
+
+
+# -- in-process ----------------------------------------------------------------------------------------
+CONTACT_VEHICLES = """
+[[swarm.vehicle]]
+[[swarm.vehicle]]
+[[swarm.vehicle.step]]
+t_s = 0.0
+action = "takeoff"
+alt_m = 2.0
+[[swarm.vehicle.step]]
+t_s = 3.0
+action = "goto"
+north_m = 0.0
+east_m = -3.0
+alt_m = 2.0
+"""
+
+
+def _motors(tlog: Path) -> list[tuple[float, ...]]:
+    return [tuple(m.controls[:4]) for _, m in read_tlog(tlog) if m.get_type() == "HIL_ACTUATOR_CONTROLS"]
+
+
+def test_smcpilot_run_flies_a_swarm_in_process(tmp_path: Path) -> None:
+    sc = swarm_scenario(tmp_path, count=3, duration=7.0, extra=CONTACT_VEHICLES, swarm_keys="spacing_m = 3.0")
+    path = tmp_path / "contact.toml"
+    sc.with_changes(name="contact").save(path)
+    r = smcpilot("run", path, "--out", tmp_path / "out", "--no-plots", "--json", tmp_path / "r.json", "--quiet", cwd=tmp_path)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "3 vehicles, 3501 ticks each" in r.stdout and "CONTACT: 1-2 at" in r.stdout, r.stdout
+    import json
+
+    doc = json.loads((tmp_path / "r.json").read_text())
+    assert [v["sysid"] for v in doc["vehicles"]] == [1, 2, 3] and doc["proximity"]["contacts"][0]["vehicles"] == [1, 2]
+    crashed = [v["metrics"]["crashed"] for v in doc["vehicles"]]
+    assert crashed[:2] == [True, True] and not crashed[2]
+    for sid in (1, 2, 3):
+        assert len(_motors(tmp_path / "out" / f"contact-v{sid}.tlog")) == 3501
+
+
+@pytest.mark.slow
+def test_in_process_swarm_gives_sitls_motor_commands_tick_for_tick_contact_included(tmp_path: Path) -> None:
+    from lab.swarm_run import fly_swarm
+
+    sc = swarm_scenario(tmp_path, count=3, duration=7.0, extra=CONTACT_VEHICLES + "[environment]\nnoise = true\ngust_std_n = 0.3\n",
+                        swarm_keys="spacing_m = 3.0")  # fmt: skip
+    ip = fly_swarm(sc, tmp_path / "ip")
+    st = fly_swarm(sc, tmp_path / "st", sitl=True)
+    assert ip.status == st.status == "ok"
+    assert ip.proximity["contacts"] and ip.proximity["contacts"] == st.proximity["contacts"]
+    for a, b in zip(ip.vehicles, st.vehicles):
+        ma, mb = _motors(a.tlog), _motors(b.tlog)
+        assert len(ma) == len(mb) == 3501
+        assert ma == mb
