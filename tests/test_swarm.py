@@ -499,3 +499,85 @@ def test_in_process_swarm_gives_sitls_motor_commands_tick_for_tick_contact_inclu
         ma, mb = _motors(a.tlog), _motors(b.tlog)
         assert len(ma) == len(mb) == 3501
         assert ma == mb
+
+
+# -- swarm missions -----------------------------------------------------------------------------------
+PAIR_MISSION = """
+name = "pair"
+[sitl]
+count = 2
+spacing_m = 5.0
+max_duration_s = 60.0
+
+[[item]]
+type = "takeoff"
+alt_m = 2.0
+[[item]]
+type = "waypoint"
+north_m = 3.0
+east_m = 0.0
+alt_m = 2.0
+[[item]]
+type = "land"
+
+[[expect]]
+kind = "landed"
+[[expect]]
+kind = "separation"
+min_m = {min_m}
+
+[[vehicle]]
+[[vehicle]]
+[[vehicle.item]]
+type = "takeoff"
+alt_m = 3.0
+[[vehicle.item]]
+type = "land"
+[[vehicle.expect]]
+kind = "reach"
+item = 1
+within_m = 0.3
+by_s = 20.0
+"""
+
+
+def test_swarm_mission_files_parse_per_vehicle_items_and_expectations() -> None:
+    import tomllib
+
+    from ground.missions import parse_mission
+    from ground.missions.errors import MissionFileError
+
+    m = parse_mission(tomllib.loads(PAIR_MISSION.format(min_m=3.0)), source="pair.toml")
+    assert m.count == 2 and m.separation_min_m == (3.0,)
+    v1, v2 = m.for_vehicle(0), m.for_vehicle(1)
+    assert len(v1.items) == 3 and [e.kind for e in v1.expectations] == ["landed"]
+    assert len(v2.items) == 2 and [(e.kind, e.number) for e in v2.expectations] == [("landed", 1), ("reach", 2)]
+    assert m.sitl.scenario("pair").count == 2
+    for doc, needle in (
+        (PAIR_MISSION.format(min_m=3.0).replace("count = 2", "count = 1"), "needs a swarm"),
+        (PAIR_MISSION.format(min_m=3.0) + "[[vehicle]]\n", "3 [[vehicle]] tables for [sitl] count = 2"),
+        (PAIR_MISSION.format(min_m=3.0).replace("[[vehicle.expect]]", "[[vehicle.expectt]]"), "expectt"),
+        (PAIR_MISSION.format(min_m=3.0).replace("kind = \"landed\"", "kind = \"reach\"\nitem = 3\nwithin_m = 1.0\nby_s = 9.0"),
+         "item 3"),
+        (PAIR_MISSION.format(min_m=0.0), "min_m"),
+        (PAIR_MISSION.format(min_m=3.0).replace("count = 2", "count = 99"), "1..64"),
+    ):
+        with pytest.raises(MissionFileError) as info:
+            parse_mission(tomllib.loads(doc), source="pair.toml")
+        assert needle in str(info.value), str(info.value)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("min_m", "code"), [(3.0, 0), (6.0, 1)])
+def test_a_swarm_mission_flies_each_vehicle_its_mission_and_judges_the_separation(tmp_path: Path, min_m: float, code: int) -> None:
+    import json
+
+    (tmp_path / "pair.toml").write_text(PAIR_MISSION.format(min_m=min_m), encoding="utf-8")
+    r = smcpilot("mission", "run", "pair.toml", "--no-plots", "--json", "r.json", cwd=tmp_path)
+    assert r.returncode == code, r.stdout[-3000:] + r.stderr
+    doc = json.loads((tmp_path / "r.json").read_text())
+    assert doc["count"] == 2 and set(doc["vehicles"]) == {"1", "2"}
+    assert all(v["passed"] for v in doc["vehicles"].values())  # each vehicle's own expectations held
+    sep = doc["separation"][0]
+    assert sep["measured_m"] == pytest.approx(5.0, abs=0.2) and sep["passed"] is (code == 0)
+    assert ("separation >= 6 m: closest" in r.stdout) is (code == 1)

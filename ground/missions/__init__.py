@@ -113,6 +113,30 @@ north/east/altitude-up metres relative to home. Only armed flight counts where i
     smoothed reference), so choose a window in which the set-point does not jump. Measured:
     the largest error and when.
 
+A swarm mission
+---------------
+``[sitl] count = K`` (2..64; ``spacing_m`` the spawn grid, default 4 m) flies the mission on K
+vehicles at once in one lockstep swarm (:mod:`ground.missions.swarm_runner`): every vehicle flies
+the shared ``[[item]]`` list, or its own, and is judged on the shared ``[[expect]]`` entries plus
+its own. The i-th ``[[vehicle]]`` table is vehicle i (system id i)::
+
+    [[vehicle]]                        # vehicle 1: the shared items and expectations
+    [[vehicle]]                        # vehicle 2
+    [[vehicle.item]]                   # its own items (replace the shared list)
+    type = "takeoff"
+    alt_m = 3.0
+    [[vehicle.expect]]                 # its own expectations (added to the shared ones)
+    kind = "reach"
+    item = 1
+    within_m = 0.3
+    by_s = 20.0
+
+A swarm mission may also expect ``kind = "separation"`` with ``min_m`` (> 0): the closest two
+vehicles' centres came over the flight (the simulator's, on the true positions) is at least
+``min_m``, and no two vehicles touched. North/east positions are each vehicle's own (its home is
+where it spawned). A swarm mission launches its own SITL (no ``--connect``). The report has one
+section per vehicle and one for the swarm; its JSON has ``vehicles`` by system id and ``separation``.
+
 The runner
 ----------
 :func:`run_mission` (``smcpilot mission run FILE``): launch lockstep SITL with ``[sitl]`` (or,

@@ -152,6 +152,13 @@ def run_mission(
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise MissionRunError(f"cannot create the output directory {out_dir}: {exc.strerror or exc}") from None
+    if mission.count > 1:
+        if connect_url is not None:
+            raise MissionRunError(f"a swarm mission ([sitl] count = {mission.count}) launches its own SITL: leave out --connect")
+        from ground.missions.swarm_runner import run_swarm_mission
+
+        return run_swarm_mission(mission, out_dir=out_dir, json_path=json_path, progress=progress, plots=plots,  # type: ignore[return-value]
+                                 report_file=report_file)  # fmt: skip
     stem = mission.path.stem if mission.path is not None else mission.name
     wall0 = time.monotonic()
     notes: list[str] = []

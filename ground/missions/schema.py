@@ -13,7 +13,7 @@ import json
 import math
 import tomllib
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +29,7 @@ from smcpilot.geo import Home, global_to_ned, ned_to_global
 from smcpilot.lawref import law_reference_problem, normalise_reference
 from smcpilot.limits import HARD_LIMITS, TAKEOFF_ALT_MIN_M, target_refusal
 from smcpilot.scenario import EnvironmentSpec, Scenario
+from smcpilot.swarm import DEFAULT_SPACING_M, MAX_VEHICLES, SwarmSpec
 from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
 
 __all__ = [
@@ -73,10 +74,13 @@ _ITEM_RANGES: dict[str, tuple[float, float]] = {
     "lon_deg": (-180.0, 180.0),
 }
 _SITL_KEYS = frozenset(
-    {"controller", "vehicle", "seed", "plant", "noise", "noise_scale", "wind_force_ned_n", "gust_std_n", "home", "max_duration_s", "fault"}
-)
+    {"controller", "vehicle", "seed", "plant", "noise", "noise_scale", "wind_force_ned_n", "gust_std_n", "home", "max_duration_s", "fault",
+     "count", "spacing_m"}
+)  # fmt: skip
 _PLANTS = ("rigid-body", "paper")
-_TOP_KEYS = frozenset({"name", "description", "sitl", "item", "expect"})
+_TOP_KEYS = frozenset({"name", "description", "sitl", "item", "expect", "vehicle"})
+#: keys of a swarm mission's [[vehicle]] table.
+_VEHICLE_KEYS = frozenset({"item", "expect"})
 
 
 class _Where:
@@ -420,10 +424,14 @@ class SitlSettings:
     max_duration_s: float = DEFAULT_MAX_DURATION_S
     #: timed faults (``[[sitl.fault]]``, the scenario's ``[[fault]]`` tables; times from SITL's start).
     faults: tuple[FaultSpec, ...] = ()
+    #: vehicles of a swarm mission (``smcpilot sitl --count``), system ids 1..count, on a grid this far apart.
+    count: int = 1
+    spacing_m: float = DEFAULT_SPACING_M
 
     def scenario(self, name: str = "mission") -> Scenario:
         """The flight these settings describe (no plan: the mission is uploaded and started)."""
         return Scenario(
+            swarm=SwarmSpec(count=self.count, spacing_m=self.spacing_m) if self.count > 1 else None,
             name=name,
             vehicle=VehicleParams.from_toml(self.vehicle) if self.vehicle is not None else DEFAULT_VEHICLE,
             vehicle_file=self.vehicle,
@@ -499,6 +507,12 @@ def _parse_sitl(where: _Where, raw: Any, base_dir: Path | None) -> SitlSettings:
             kw[key] = _number(where, table, key, 0.0, 1000.0)
         elif key == "max_duration_s":
             kw[key] = _number(where, table, key, 0.0, 86_400.0, lo_open=True)
+        elif key == "count":
+            if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= MAX_VEHICLES:
+                raise where.error(f"must be a whole number of vehicles in 1..{MAX_VEHICLES}, got {v!r}", key)
+            kw[key] = v
+        elif key == "spacing_m":
+            kw[key] = _number(where, table, key, 0.0, 1000.0)
         elif key in ("wind_force_ned_n", "home"):
             if not isinstance(v, list) or len(v) != 3:
                 what = "[north, east, down] newtons" if key == "wind_force_ned_n" else "[lat_deg, lon_deg, alt_m_amsl]"
@@ -530,6 +544,23 @@ class Mission:
     description: str = ""
     #: the file it came from (None when parsed from a dict).
     path: Path | None = None
+    #: a swarm mission's [[vehicle]] tables, the i-th for vehicle i: its own items (None: the
+    #: shared ones) and its expectations (added to the shared ones).
+    vehicles: tuple[tuple[tuple[ItemSpec, ...] | None, tuple[Expectation, ...]], ...] = ()
+    #: a swarm mission's ``separation`` expectations: the smallest allowed distance between two
+    #: vehicles' centres over the flight, m (and no contact).
+    separation_min_m: tuple[float, ...] = ()
+
+    @property
+    def count(self) -> int:
+        """Vehicles that fly it ([sitl] count)."""
+        return self.sitl.count
+
+    def for_vehicle(self, index: int) -> Mission:
+        """The one-vehicle mission vehicle ``index`` (0-based) flies."""
+        items, expect = self.vehicles[index] if index < len(self.vehicles) else (None, ())
+        return replace(self, items=items if items is not None else self.items, expectations=self.expectations + expect,
+                       vehicles=(), separation_min_m=(), name=f"{self.name} (vehicle {index + 1})")  # fmt: skip
 
     def to_items(self, home: Home | HomePosition | None) -> list[MissionItem]:
         """The items to upload, as :class:`ground.vehicle.MissionItem` (home, item 0, not
@@ -573,10 +604,62 @@ def parse_mission(doc: Mapping[str, Any], *, source: str = "<mission>", base_dir
     raw_expect = doc.get("expect", [])
     if not isinstance(raw_expect, list):
         raise top.error("must be an array of tables: write [[expect]], not [expect]", "expect")
-    expectations = tuple(_parse_expectation(_Where(source, "expect", i), raw, items) for i, raw in enumerate(raw_expect, start=1))
     sitl = _parse_sitl(_Where(source, "sitl"), doc["sitl"], base_dir) if "sitl" in doc else SitlSettings()
+    separation: list[float] = []
+    expectations_list = []
+    for i, raw in enumerate(raw_expect, start=1):
+        where = _Where(source, "expect", i)
+        if isinstance(raw, Mapping) and raw.get("kind") == "separation":
+            if sitl.count < 2:
+                raise where.error("a separation expectation needs a swarm: [sitl] count = 2 or more", "kind")
+            _check_keys(where, raw, ("kind", "min_m"), (), "a separation expectation")
+            separation.append(_number(where, raw, "min_m", 0.0, 1000.0, lo_open=True))
+            continue
+        expectations_list.append(_parse_expectation(where, raw, items))
+    expectations = tuple(expectations_list)
+    vehicles = _parse_vehicles(source, doc.get("vehicle"), sitl.count, items, len(expectations))
+    for v, (own, _) in enumerate(vehicles, start=1):  # a shared expectation that names an item must find it in the vehicle's own
+        if own is None:
+            continue
+        for e in expectations:
+            n = getattr(e, "item", None)
+            if n is not None and not (1 <= n <= len(own) and own[n - 1].type in ("waypoint", "takeoff", "loiter_time", "land")):
+                raise _Where(source, "expect", e.number).error(f"names item {n}, which vehicle {v}'s own [[vehicle.item]] list has not"
+                                                               " (or it has no position): give that vehicle its own expectation")  # fmt: skip
     name = doc.get("name") or (path.stem if path is not None else "mission")
-    return Mission(items, expectations, sitl, name, doc.get("description", ""), path)
+    return Mission(items, expectations, sitl, name, doc.get("description", ""), path, vehicles, tuple(separation))
+
+
+def _parse_vehicles(source: str, raw: Any, count: int, shared: tuple[ItemSpec, ...],
+                    n_shared: int) -> tuple[tuple[tuple[ItemSpec, ...] | None, tuple[Expectation, ...]], ...]:  # fmt: skip
+    """A swarm mission's ``[[vehicle]]`` tables: each vehicle's own items and expectations (numbered
+    after the ``n_shared`` shared ones, as the vehicle's report lists them)."""
+    if raw is None:
+        return ()
+    top = _Where(source)
+    if not isinstance(raw, list):
+        raise top.error("must be an array of tables: write [[vehicle]], not [vehicle]", "vehicle")
+    if count < 2:
+        raise top.error("[[vehicle]] tables need a swarm: [sitl] count = 2 or more", "vehicle")
+    if len(raw) > count:
+        raise top.error(f"{len(raw)} [[vehicle]] tables for [sitl] count = {count}", "vehicle")
+    out = []
+    for v, table in enumerate(raw, start=1):
+        where = _Where(source, "vehicle", v)
+        table = _table(where, table, "[[vehicle]]")
+        _check_keys(where, table, (), _VEHICLE_KEYS, "[[vehicle]]")
+        items: tuple[ItemSpec, ...] | None = None
+        if "item" in table:
+            if not isinstance(table["item"], list) or not table["item"]:
+                raise where.error("must be [[vehicle.item]] tables, at least one", "item")
+            items = tuple(_parse_item(_Where(source, f"vehicle {v} item", i), r) for i, r in enumerate(table["item"], start=1))
+        raw_expect = table.get("expect", [])
+        if not isinstance(raw_expect, list):
+            raise where.error("must be [[vehicle.expect]] tables", "expect")
+        mine = items if items is not None else shared
+        expect = tuple(_parse_expectation(_Where(source, f"vehicle {v} expect", i), r, mine) for i, r in enumerate(raw_expect, start=n_shared + 1))
+        out.append((items, expect))
+    return tuple(out)
 
 
 def load_mission(path: str | Path) -> Mission:
