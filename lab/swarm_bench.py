@@ -6,13 +6,16 @@ start-up wall time (launch to every FC's first tick), aggregate vehicle-seconds 
 that as a ratio of K = 1's (measured in the same run), vehicle-ticks per wall second, CPU seconds
 per vehicle per simulated second (the FCs' own), and the skew between the vehicles' clocks at the
 end (their FCs' last simulated times: zero when the lockstep holds). With ``--realtime-s S`` each K
-also flies S seconds in real time: missed control deadlines (overruns / ticks, all FCs) and the
-99th-percentile lateness of the worst FC. Figures, never pass/fail.
+also flies S seconds in real time: missed control deadlines (overruns / ticks, all FCs), the
+99th-percentile lateness of the worst FC, and the clock skew between vehicles (the 99th percentile
+of the wall time between the first and the last vehicle's copy of the same state; the plants share
+one physics clock). Figures, never pass/fail.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import platform
 import tempfile
@@ -80,6 +83,7 @@ def _fly(k: int, duration_s: float, lockstep: bool, log_dir: Path) -> dict:
         "sim_cpu": float((sitl.sim_summary or {}).get("cpu_s", float("nan"))) / duration_s,
         "missed": overruns / ticks if ticks else float("nan"),
         "p99_ms": 1e3 * max(p99) if p99 else float("nan"),
+        "fanout_p99_ms": 1e3 * float(((sitl.sim_summary or {}).get("fanout_skew_s") or {}).get("p99", float("nan"))),
     }
 
 
@@ -101,11 +105,13 @@ def bench_swarm(args: argparse.Namespace) -> int:
                   f" {r['cpu_per_vehicle']:>8.3f} {r['sim_cpu']:>8.3f} {r['skew_s']:>7.3f}")  # fmt: skip
         if args.realtime_s > 0:
             print(f"real time, {args.realtime_s:g} s per K at the scenario's 500 Hz:")
-            print(f"{'K':>4} {'missed':>8} {'p99 ms':>7}")
+            print(f"{'K':>4} {'missed':>8} {'p99 ms':>7} {'skew p99 ms':>12}")
             for k in counts:
                 r = _fly(k, args.realtime_s, False, Path(tmp))
-                print(f"{k:>4} {100 * r['missed']:>7.3f}% {r['p99_ms']:>7.2f}")
+                skew = "-" if math.isnan(r["fanout_p99_ms"]) else f"{r['fanout_p99_ms']:.3f}"
+                print(f"{k:>4} {100 * r['missed']:>7.3f}% {r['p99_ms']:>7.2f} {skew:>12}")
     print("veh-s/s: simulated vehicle-seconds per wall second (K x simulated s / wall s); vs K=1: the same, over this run's K = 1;"
-          " CPU/veh: FC CPU seconds per vehicle per simulated second; sim CPU: the simulator's CPU seconds per simulated second"
+          " CPU/veh: FC CPU seconds per vehicle per simulated second; skew p99 (real time): wall time from the first to the last"
+          " vehicle's copy of a state; sim CPU: the simulator's CPU seconds per simulated second"
           "; skew: spread of the FCs' final simulated times")  # fmt: skip
     return 0

@@ -327,6 +327,8 @@ class SimBridgeApp:
         self.proximity = proximity if len(self.vehicles) > 1 else None
         #: lockstep: running mean round trip state -> answer (the slowest vehicle's), wall s.
         self.rtt_s = 0.0
+        #: real time, a swarm: wall seconds from the first vehicle's state to the last one's, each period.
+        self._fanout_s: list[float] = []
         self._stop = False
         self._exit = EXIT_OK
         self._wall_start = 0.0
@@ -438,6 +440,9 @@ class SimBridgeApp:
                     summary[key] = sum(p[key] for p in per)
                 if self.proximity is not None:
                     summary["proximity"] = self.proximity.summary([v.system_id for v in self.vehicles])
+                if self._fanout_s:  # real time: how far apart in wall time the vehicles got the same state
+                    f = sorted(self._fanout_s)
+                    summary["fanout_skew_s"] = {"p50": f[len(f) // 2], "p99": f[min(len(f) - 1, int(0.99 * len(f)))], "max": f[-1]}
             for v in self.vehicles:
                 if self._exit == EXIT_OK:
                     v.say_goodbye()
@@ -593,8 +598,11 @@ class SimBridgeApp:
                         break
                 continue
             if k % substeps == 0:
+                first = mono()
                 for v in alive:
                     v.send_state()
+                if len(alive) > 1:
+                    self._fanout_s.append(mono() - first)
                 self._check_proximity()
             self._integrate(1)
             k += 1
