@@ -100,7 +100,7 @@ def test_the_qgroundcontrol_hint_is_true_for_the_port_given(gcs: str, says: str)
 
     opts = SimpleNamespace(lockstep=False, speed=None, gcs=gcs, signing_key=None, scenario=SimpleNamespace(controller="adaptive_pid_smc", plant="rigid-body"))
     buf = io.StringIO()
-    print_connect_help(SimpleNamespace(options=opts, tlog=Path("x.tlog"), gcs_address=None), buf)  # type: ignore[arg-type]
+    print_connect_help(SimpleNamespace(options=opts, tlog=Path("x.tlog"), gcs_address=None, fcs=[None], tlogs=[Path("x.tlog")], sysids=[1], router=None), buf)  # type: ignore[arg-type]
     text = buf.getvalue()
     assert says in text, text
     if not gcs.endswith("14550"):
