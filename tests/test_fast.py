@@ -19,6 +19,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as M
 from test_modes import Host, _item, _state
@@ -202,6 +203,28 @@ def test_the_kernels_random_streams_are_cpythons() -> None:
     mt, gs = mt_export(random.Random(3))
     want_rng = random.Random(3)
     assert [mt_gauss(mt, gs, 0.0, 1.0) for _ in range(5)] == [want_rng.gauss(0.0, 1.0) for _ in range(5)]
+
+
+def test_gaussian_draws_in_batches_are_the_streams_draws_one_by_one() -> None:
+    """mt_gauss_fill (the kernel's batches: a tick's sensor noise, a physics step's gusts) gives
+    the numbers n calls of random.gauss give, in order, and leaves the stream where they do:
+    batches of every size from 0 to 15, odd and even (a kept second value), across regenerations."""
+    from lab.fast.mt import MT_FUNCTIONS, mt_gauss_fill
+    from smcpilot.jit import compile_pure
+
+    jit = compile_pure(MT_FUNCTIONS)
+    out = np.zeros(16)
+    for fill in (jit[mt_gauss_fill], mt_gauss_fill):
+        rng = random.Random(11)
+        mt, gs = mt_export(rng)
+        sizes = [0, 1, 15, 2, 3, 6, 5, 4] * (60 if fill is not mt_gauss_fill else 2)  # compiled: ~2,500 draws, four regenerations
+        for n in sizes:
+            want = [0.0 + rng.gauss(0.0, 1.0) * 0.25 for _ in range(n)]
+            fill(mt, gs, out, n)
+            assert [0.0 + z * 0.25 for z in out[:n]] == want
+        back = random.Random()
+        mt_import(back, mt, gs)
+        assert back.getstate() == rng.getstate()
 
 
 # -- the modes' watch ---------------------------------------------------------------------------------

@@ -30,7 +30,7 @@ import numpy as np
 from fc.estimate import EST_DEAD_RECKONING, estimate_step
 from fc.modes.base import WATCH_DIST2, WATCH_DIST3, WATCH_NONE, WATCH_TIME, WATCH_Z_NEAR
 from fc.pipeline import VehicleState, pipeline_step
-from lab.fast.mt import mt_gauss
+from lab.fast.mt import mt_gauss, mt_gauss_fill
 from sim_bridge.plants.rigid_body import rigid_body_substep, rigid_body_targets
 from smcpilot.frames import euler_from_quat, wrap_pi
 from smcpilot.protocol import FLAG_ARMED, FLAG_LANDING, FLAG_POSITION_HOLD
@@ -76,11 +76,17 @@ def _f32_overflows(x: float) -> bool:
     return _isfinite(x) and (x > _F32_MAX or x < -_F32_MAX) and not _isfinite(_f32(x))
 
 
-def _noisy3(mt: np.ndarray, gs: np.ndarray, a: float, b: float, c: float, std: float) -> tuple[float, float, float]:
-    """Three values with white noise of ``std`` from the stream (unchanged, nothing drawn, for 0)."""
+def _noise_draws(std: float) -> int:
+    """How many draws a 3-vector's white noise of ``std`` takes (none for 0)."""
+    return 3 if std > 0.0 else 0
+
+
+def _noisy3(a: float, b: float, c: float, std: float, z0: float, z1: float, z2: float) -> tuple[float, float, float]:
+    """Three values with white noise of ``std`` (``random.gauss(0.0, std)`` of the unit deviates
+    ``z``), or unchanged for 0 (then the draws are not used)."""
     if std <= 0.0:
         return a, b, c
-    return a + mt_gauss(mt, gs, 0.0, std), b + mt_gauss(mt, gs, 0.0, std), c + mt_gauss(mt, gs, 0.0, std)
+    return a + (0.0 + z0 * std), b + (0.0 + z1 * std), c + (0.0 + z2 * std)
 
 
 def _watch_holds(kind: int, a: float, b: float, c: float, r: float, x: float, y: float, z: float, t_s: float) -> bool:
@@ -109,7 +115,7 @@ def fly_span(
     gust, gust_std, gusts_on, noise_std, noise_on, gmt, ggs, nmt, ngs,
     t_us, step_us, substeps, dt_phys, n_ticks, rec, rec_every, rec_truth, rec_k0, sigma_ok, io, io_f, obs,
     log_on, lg, diag_mask, mode_num,
-    fg, n_fg, fgmt, fggs, sp, sn, fnmt, fngs, est_prev,
+    fg, n_fg, fgmt, fggs, sp, sn, fnmt, fngs, est_prev, zb,
 ):  # fmt: skip
     """Fly up to ``n_ticks`` plain ticks from simulated time ``t_us`` (µs); returns
     ``(pipeline state, estimator state, last outputs, last estimate)``; ``io`` gets
@@ -136,7 +142,12 @@ def fly_span(
     ``n_fg`` of them) and their random stream; the sensor faults as a program per sensor (``sp``
     [sensor, op] = (mode, x, y, z) in the paper's frames, ``sn`` ops per sensor, sensors in
     :data:`smcpilot.faults.SENSORS` order) and their noise stream; the estimate's status before
-    the span (a tick whose status differs is not plain).
+    the span (a tick whose status differs is not plain); a scratch array of at least
+    ``15 + 6 + 5 n_fg`` floats for the Gaussian draws.
+
+    Random draws are taken a batch at a time (:func:`lab.fast.mt.mt_gauss_fill`: the tick's sensor
+    noise, a physics step's gusts) and arrays are indexed, never sliced into row views: compiled,
+    each array handed to a call or viewed costs atomic reference counting.
     """
     tx, ty, tz, psi_target, _armed, landing, _hold, _vxy = cmd
     disarm_delay = fc_f[0]
@@ -162,6 +173,16 @@ def fly_span(
     gb = env_f[2]
     g_tau = env_f[3]
     s_att, s_rate, s_pos, s_vel, s_acc = noise_std
+    # draws a tick (sim_bridge.sensors.SensorNoise.apply: attitude, position, velocity, rates, accel)
+    n_noise = _noise_draws(s_att) + _noise_draws(s_pos) + _noise_draws(s_vel) + _noise_draws(s_rate) + _noise_draws(s_acc)
+    # draws a physics step: the environment's gusts, then the faults' (force N, E; torque x, y, z)
+    n_gust = 0
+    for j in range(6):
+        if gust_std[j] > 0.0:
+            n_gust += 1
+    n_fgz = 0
+    for gi in range(n_fg):
+        n_fgz += (2 if fg[gi, 5] > 0.0 else 0) + (3 if fg[gi, 6] > 0.0 else 0)
     k = 0
     code = 0
     n_missing = 0
@@ -181,16 +202,22 @@ def fly_span(
         ox, oy, oz, ovx, ovy, ovz = x, y, z, vx, vy, vz
         op, oq, o_r = p_, q_, r_
         oax, oay, oaz = acc_x, acc_y, acc_z
-        if noise_on:
+        if noise_on and n_noise > 0:
+            mt_gauss_fill(nmt, ngs, zb, n_noise)
+            j = 0
             if s_att > 0.0:
-                o_phi = wrap_pi(o_phi + mt_gauss(nmt, ngs, 0.0, s_att))
-                o_theta = o_theta + mt_gauss(nmt, ngs, 0.0, s_att)
-                o_psi = wrap_pi(o_psi + mt_gauss(nmt, ngs, 0.0, s_att))
+                o_phi = wrap_pi(o_phi + (0.0 + zb[0] * s_att))
+                o_theta = o_theta + (0.0 + zb[1] * s_att)
+                o_psi = wrap_pi(o_psi + (0.0 + zb[2] * s_att))
+                j = 3
             # the order of sim_bridge.sensors.SensorNoise.apply: position, velocity, rates, accel
-            ox, oy, oz = _noisy3(nmt, ngs, ox, oy, oz, s_pos)
-            ovx, ovy, ovz = _noisy3(nmt, ngs, ovx, ovy, ovz, s_vel)
-            op, oq, o_r = _noisy3(nmt, ngs, op, oq, o_r, s_rate)
-            oax, oay, oaz = _noisy3(nmt, ngs, oax, oay, oaz, s_acc)
+            ox, oy, oz = _noisy3(ox, oy, oz, s_pos, zb[j], zb[j + 1], zb[j + 2])
+            j += _noise_draws(s_pos)
+            ovx, ovy, ovz = _noisy3(ovx, ovy, ovz, s_vel, zb[j], zb[j + 1], zb[j + 2])
+            j += _noise_draws(s_vel)
+            op, oq, o_r = _noisy3(op, oq, o_r, s_rate, zb[j], zb[j + 1], zb[j + 2])
+            j += _noise_draws(s_rate)
+            oax, oay, oaz = _noisy3(oax, oay, oaz, s_acc, zb[j], zb[j + 1], zb[j + 2])
         # the sensor faults, sensor by sensor in SENSORS order, each sensor's in their order
         att_lost = False
         for si in range(5):
@@ -209,19 +236,21 @@ def fly_span(
                 v0, v1, v2 = ovx, ovy, ovz
             dropped = False
             for oi in range(nops):
-                prog = sp[si, oi]
-                mode = prog[0]
+                mode = sp[si, oi, 0]
+                p1 = sp[si, oi, 1]
+                p2 = sp[si, oi, 2]
+                p3 = sp[si, oi, 3]
                 if mode == SF_STUCK:
-                    v0, v1, v2 = prog[1], prog[2], prog[3]
+                    v0, v1, v2 = p1, p2, p3
                 elif mode == SF_BIAS:
-                    v0, v1, v2 = v0 + prog[1], v1 + prog[2], v2 + prog[3]
+                    v0, v1, v2 = v0 + p1, v1 + p2, v2 + p3
                 elif mode == SF_NOISE:
-                    if prog[1] > 0.0:
-                        v0 = v0 + mt_gauss(fnmt, fngs, 0.0, prog[1])
-                    if prog[2] > 0.0:
-                        v1 = v1 + mt_gauss(fnmt, fngs, 0.0, prog[2])
-                    if prog[3] > 0.0:
-                        v2 = v2 + mt_gauss(fnmt, fngs, 0.0, prog[3])
+                    if p1 > 0.0:
+                        v0 = v0 + mt_gauss(fnmt, fngs, 0.0, p1)
+                    if p2 > 0.0:
+                        v1 = v1 + mt_gauss(fnmt, fngs, 0.0, p2)
+                    if p3 > 0.0:
+                        v2 = v2 + mt_gauss(fnmt, fngs, 0.0, p3)
                 else:  # dropout
                     v0 = v1 = v2 = nan
                     dropped = True
@@ -315,63 +344,61 @@ def fly_span(
         m3 = _f32(out[0][3])
         # -- the record (lab.metrics.MetricsRecorder's row) ------------------------------------
         if rec_every > 0 and (rec_k0 + k) % rec_every == 0:
-            row = rec[n_rec]
-            row[0] = t_us * 1e-6
+            rec[n_rec, 0] = t_us * 1e-6
             if rec_truth:  # lab.runner.wire_state of the truth: its own wire round trip
                 tw = wire_of_paper(phi_t, theta_t, psi_t, p_, q_, r_, x, y, z, vx, vy, vz)
                 tp = paper_of_wire(_f32(tw[0]), _f32(tw[1]), _f32(tw[2]), _f32(tw[3]), _f32(tw[4]), _f32(tw[5]),
                                    _f32(tw[6]), _f32(tw[7]), _f32(tw[8]), _f32(tw[9]), _f32(tw[10]), _f32(tw[11]))  # fmt: skip
                 for j in range(9):
-                    row[1 + j] = tp[j]
+                    rec[n_rec, 1 + j] = tp[j]
             else:
                 for j in range(9):
-                    row[1 + j] = st[j]
-            row[10] = tx
-            row[11] = ty
-            row[12] = tz
-            row[13] = yaw_target
+                    rec[n_rec, 1 + j] = st[j]
+            rec[n_rec, 10] = tx
+            rec[n_rec, 11] = ty
+            rec[n_rec, 12] = tz
+            rec[n_rec, 13] = yaw_target
             rf = out[8]
-            row[14] = rf[0]
-            row[15] = rf[1]
-            row[16] = rf[2]
-            row[17] = m0
-            row[18] = m1
-            row[19] = m2
-            row[20] = m3
-            row[21] = flags
+            rec[n_rec, 14] = rf[0]
+            rec[n_rec, 15] = rf[1]
+            rec[n_rec, 16] = rf[2]
+            rec[n_rec, 17] = m0
+            rec[n_rec, 18] = m1
+            rec[n_rec, 19] = m2
+            rec[n_rec, 20] = m3
+            rec[n_rec, 21] = flags
             sg = out[4]
             for j in range(4):
-                row[22 + j] = sg[j] if (sigma_ok and armed) else nan
+                rec[n_rec, 22 + j] = sg[j] if (sigma_ok and armed) else nan
             n_rec += 1
         # -- the log (what lab.run's tlog recorder writes for the tick) ----------------------------
         if log_on:
-            lr = lg[k]
-            lr[0] = t_us
+            lg[k, 0] = t_us
             for j in range(12):
-                lr[1 + j] = w32[j]
+                lg[k, 1 + j] = w32[j]
             mo = out[0]
             chi = out[5]
             sg = out[4]
             sv = out[3]
             uu = out[1]
             rf = out[8]
-            lr[17] = 1.0 if armed else 0.0
+            lg[k, 17] = 1.0 if armed else 0.0
             for j in range(4):
-                lr[13 + j] = mo[j]
-                lr[18 + j] = chi[j] if (armed and diag_mask[2]) else nan
-                lr[22 + j] = sg[j] if (armed and diag_mask[1]) else nan
-                lr[26 + j] = sv[j] if (armed and diag_mask[0]) else nan
-                lr[30 + j] = uu[j]
-                lr[34 + j] = rf[j]
-                lr[38 + j] = mo[j]
-            lr[42] = tx
-            lr[43] = ty
-            lr[44] = tz
-            lr[45] = yaw_target
+                lg[k, 13 + j] = mo[j]
+                lg[k, 18 + j] = chi[j] if (armed and diag_mask[2]) else nan
+                lg[k, 22 + j] = sg[j] if (armed and diag_mask[1]) else nan
+                lg[k, 26 + j] = sv[j] if (armed and diag_mask[0]) else nan
+                lg[k, 30 + j] = uu[j]
+                lg[k, 34 + j] = rf[j]
+                lg[k, 38 + j] = mo[j]
+            lg[k, 42] = tx
+            lg[k, 43] = ty
+            lg[k, 44] = tz
+            lg[k, 45] = yaw_target
             lim = out[2]
-            lr[46] = (1.0 if lim[0] else 0.0) + (2.0 if lim[1] else 0.0) + (4.0 if lim[2] else 0.0) + (8.0 if lim[3] else 0.0)
-            lr[47] = flags
-            lr[48] = mode_num
+            lg[k, 46] = (1.0 if lim[0] else 0.0) + (2.0 if lim[1] else 0.0) + (4.0 if lim[2] else 0.0) + (8.0 if lim[3] else 0.0)
+            lg[k, 47] = flags
+            lg[k, 48] = mode_num
         # -- the physics: sub-steps with the motor commands held --------------------------------
         t_tick = t_us
         targets = rigid_body_targets((m0, m1, m2, m3), armed, rbp)
@@ -390,10 +417,13 @@ def fly_span(
                     ga = _exp(-dt_phys / g_tau)
                     gb = _sqrt(max(0.0, 1.0 - ga * ga))
                     last_h = dt_phys
+                mt_gauss_fill(gmt, ggs, zb, n_gust)
+                jz = 0
                 for j in range(6):
                     sd = gust_std[j]
                     if sd > 0.0:
-                        gust[j] = ga * gust[j] + gb * mt_gauss(gmt, ggs, 0.0, sd)
+                        gust[j] = ga * gust[j] + gb * (0.0 + zb[jz] * sd)
+                        jz += 1
                 fx = wind[0] + gust[0]
                 fy = wind[1] + gust[1]
                 fz = wind[2] + gust[2]
@@ -407,26 +437,31 @@ def fly_span(
                 gtx = 0.0
                 gty = 0.0
                 gtz = 0.0
+                mt_gauss_fill(fgmt, fggs, zb, n_fgz)
+                jz = 0
                 for gi in range(n_fg):
-                    gr = fg[gi]
-                    if dt_phys != gr[8]:
-                        gr[9] = _exp(-dt_phys / gr[7])
-                        gr[10] = _sqrt(max(0.0, 1.0 - gr[9] * gr[9]))
-                        gr[8] = dt_phys
-                    a_ = gr[9]
-                    b_ = gr[10]
-                    if gr[5] > 0.0:
-                        gr[0] = a_ * gr[0] + b_ * mt_gauss(fgmt, fggs, 0.0, gr[5])
-                        gr[1] = a_ * gr[1] + b_ * mt_gauss(fgmt, fggs, 0.0, gr[5])
-                    if gr[6] > 0.0:
-                        gr[2] = a_ * gr[2] + b_ * mt_gauss(fgmt, fggs, 0.0, gr[6])
-                        gr[3] = a_ * gr[3] + b_ * mt_gauss(fgmt, fggs, 0.0, gr[6])
-                        gr[4] = a_ * gr[4] + b_ * mt_gauss(fgmt, fggs, 0.0, gr[6])
-                    gfn += gr[0]
-                    gfe += gr[1]
-                    gtx += gr[2]
-                    gty += gr[3]
-                    gtz += gr[4]
+                    if dt_phys != fg[gi, 8]:
+                        fg[gi, 9] = _exp(-dt_phys / fg[gi, 7])
+                        fg[gi, 10] = _sqrt(max(0.0, 1.0 - fg[gi, 9] * fg[gi, 9]))
+                        fg[gi, 8] = dt_phys
+                    a_ = fg[gi, 9]
+                    b_ = fg[gi, 10]
+                    f_sd = fg[gi, 5]
+                    if f_sd > 0.0:
+                        fg[gi, 0] = a_ * fg[gi, 0] + b_ * (0.0 + zb[jz] * f_sd)
+                        fg[gi, 1] = a_ * fg[gi, 1] + b_ * (0.0 + zb[jz + 1] * f_sd)
+                        jz += 2
+                    t_sd = fg[gi, 6]
+                    if t_sd > 0.0:
+                        fg[gi, 2] = a_ * fg[gi, 2] + b_ * (0.0 + zb[jz] * t_sd)
+                        fg[gi, 3] = a_ * fg[gi, 3] + b_ * (0.0 + zb[jz + 1] * t_sd)
+                        fg[gi, 4] = a_ * fg[gi, 4] + b_ * (0.0 + zb[jz + 2] * t_sd)
+                        jz += 3
+                    gfn += fg[gi, 0]
+                    gfe += fg[gi, 1]
+                    gtx += fg[gi, 2]
+                    gty += fg[gi, 3]
+                    gtz += fg[gi, 4]
                 fx = fx + (fault_force[0] + gfn)
                 fy = fy + (fault_force[1] + -gfe)
                 fz = fz + (fault_force[2] + -0.0)
@@ -485,4 +520,4 @@ def fly_span(
 
 #: the kernel and what it calls of its own (compiled with the pipeline's, the estimate's, the
 #: plant's and the random streams' pure functions: :data:`lab.fast.flight.KERNEL_FUNCTIONS`).
-KERNEL_FUNCTIONS = (fly_span, _noisy3, _watch_holds, _f32, _f32_overflows)
+KERNEL_FUNCTIONS = (fly_span, _noisy3, _noise_draws, _watch_holds, _f32, _f32_overflows)
