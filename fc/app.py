@@ -338,6 +338,7 @@ class FlightControllerApp:
         self._gcs_tick_s = 0.0
         self._stop = False
         self._exit_code = EXIT_OK
+        self._cpu_at_first_tick_s = 0.0
 
     def _open_sim(
         self, url: str, sysid: int, clock_us: Callable[[], int], impairment: LinkImpairment | None, impair_seed: int
@@ -425,6 +426,10 @@ class FlightControllerApp:
                                                       "telemetry_peers_skipped": self.gcs_handler.telemetry_peers_skipped,
                                      "telemetry_deferred": self.gcs_handler.telemetry_deferred}  # fmt: skip
             summary["cpu_s"] = round(time.process_time(), 3)
+            #: CPU seconds before the first tick (imports, start-up): cpu_s minus it is the flight's.
+            summary["cpu_start_s"] = round(self._cpu_at_first_tick_s, 3)
+            t = os.times()  # the kernel's share (system calls, wake-ups) beside our own code's
+            summary["cpu_user_s"], summary["cpu_sys_s"] = round(t.user, 3), round(t.system, 3)
             summary["rx_rejected"] = self.rejected_summary()
             summary["tlog"] = str(self.tlog.path) if self.tlog is not None else None
             summary.update(self._summary_extra())
@@ -853,6 +858,7 @@ class FlightControllerApp:
         """One tick of the flight core, its answer to the simulator, its log record, telemetry."""
         core = self.core
         if core.ticks == 0:
+            self._cpu_at_first_tick_s = time.process_time()
             self.say(f"FC_READY t={t_us * 1e-6:.3f}s controller={self.cfg.controller} lockstep={self.lockstep}")
         out = core.tick(t_us, self.state, fresh=not stale, wall_s=self._mono() if self.gcs is not None else None)
         act = self._actuator_packet(t_us, out)

@@ -428,7 +428,8 @@ class SimBridgeApp:
         finally:
             wall = self._mono() - self._wall_start
             summary: dict = {"sim_time_s": self._t_us * 1e-6, "wall_s": wall, "speed": (self._t_us * 1e-6 / wall) if wall > 0 else None,
-                             "rtt_mean_s": self.rtt_s, "cpu_s": round(time.process_time(), 3)}  # fmt: skip
+                             "rtt_mean_s": self.rtt_s, "cpu_s": round(time.process_time(), 3),
+                             "cpu_sys_s": round(os.times().system, 3)}  # fmt: skip
             if len(self.vehicles) == 1:
                 summary.update(v0.summary())
                 del summary["system_id"], summary["crashed"]
