@@ -284,8 +284,9 @@ class SimBridgeApp:
     the state stamped with the current time, so a swarm is as deterministic as one vehicle and no
     vehicle's clock runs ahead of another's; in real time every plant integrates on the same
     physics clock. A vehicle's FC that dies or falls silent ends a lockstep run with a message
-    naming the vehicle; in real time that vehicle's plant holds its last commands (its own
-    failsafe is gone with its FC) and the others fly on.
+    naming the vehicle; in real time the others fly on, and that vehicle's plant is dealt with as
+    ``lost`` says (:data:`smcpilot.swarm.LOST_POLICIES`: its motors stop, by default, as they do
+    when the ESCs lose their signal; or they hold their last commands; or the plant is removed).
     """
 
     def __init__(
@@ -297,6 +298,7 @@ class SimBridgeApp:
         system_id: int = 1,
         vehicles: Sequence[tuple[Plant, str, int, tuple[float, float]]] = (),
         proximity: Proximity | None = None,
+        lost: str = "stop",
         out: TextIO = sys.stdout,
         monotonic: Callable[[], float] = time.monotonic,
         sleep: Callable[[float], None] = time.sleep,
@@ -325,6 +327,10 @@ class SimBridgeApp:
                 v.link.close()
             raise
         self.proximity = proximity if len(self.vehicles) > 1 else None
+        #: real time, a swarm: what happens to a vehicle whose FC is gone (smcpilot.swarm.LOST_POLICIES).
+        self.lost = lost
+        #: vehicles taken out of the world ("remove"): no physics, no separation checks.
+        self._removed: set[SimVehicle] = set()
         #: lockstep: running mean round trip state -> answer (the slowest vehicle's), wall s.
         self.rtt_s = 0.0
         #: real time, a swarm: wall seconds from the first vehicle's state to the last one's, each period.
@@ -354,7 +360,7 @@ class SimBridgeApp:
     def _integrate(self, n_steps: int) -> None:
         dt = 1.0 / self.timing.physics_hz
         dt_us = int(round(dt * 1e6))
-        vehicles = self.vehicles
+        vehicles = [v for v in self.vehicles if v not in self._removed] if self._removed else self.vehicles
         if len(vehicles) == 1:
             v = vehicles[0]
             step, cmds, armed = v.plant.step, v.commands, v.armed
@@ -374,7 +380,9 @@ class SimBridgeApp:
             return
         vehicles = self.vehicles
         t_s = self._t_us * 1e-6
-        for kind, i, j, dist in prox.check(t_s, [v.position_ned_m() for v in vehicles]):
+        far = (1e9, 1e9, 1e9)  # a removed vehicle: out of everyone's way
+        positions = [far if v in self._removed else v.position_ned_m() for v in vehicles]
+        for kind, i, j, dist in prox.check(t_s, positions):
             a, b = vehicles[i], vehicles[j]
             if kind == "contact":
                 self.say(f"sim: vehicles {a.system_id} and {b.system_id} touched at t = {t_s:.3f} s ({dist:.2f} m apart): both crash")
@@ -625,8 +633,16 @@ class SimBridgeApp:
         if len(self.vehicles) == 1:
             raise WatchdogError(f"flight controller {why}; stopping")
         alive.remove(v)
-        self.say(f"sim_bridge: warning: the flight controller of {v.name} {why}; its plant holds its last motor"
-                 f" commands, the other {len(alive)} vehicle{'s' if len(alive) != 1 else ''} fly on")  # fmt: skip
+        if self.lost == "stop":
+            v.commands, v.armed = (0.0, 0.0, 0.0, 0.0), False  # its ESCs lose their signal: the rotors stop
+            fate = "its motors stop"
+        elif self.lost == "remove":
+            self._removed.add(v)
+            fate = "its plant leaves the world"
+        else:
+            fate = "its plant holds its last motor commands"
+        self.say(f"sim_bridge: warning: the flight controller of {v.name} {why}; {fate},"
+                 f" the other {len(alive)} vehicle{'s' if len(alive) != 1 else ''} fly on")  # fmt: skip
         if not alive:
             raise WatchdogError("every flight controller is gone; stopping")
 

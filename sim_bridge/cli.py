@@ -89,6 +89,7 @@ def swarm_app(scenario: Scenario, fc_urls: Sequence[str], timing: BridgeTiming) 
         timing=timing,
         vehicles=[(plant_for(v.scenario), url, v.sysid, v.offset_ne_m) for v, url in zip(fleet, fc_urls)],
         proximity=Proximity(len(fleet), swarm.separation_m, contact),
+        lost=swarm.lost,
     )
 
 

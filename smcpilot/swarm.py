@@ -11,6 +11,7 @@ changes it::
     spacing_m = 4.0          # the spawn grid: rows and columns this far apart (north, east)
     separation_m = 2.0       # an event when two vehicles come closer than this (centres, m)
     contact_m = 0.5          # two vehicles closer than this touch: both crash (default 2 x arm length)
+    lost = "stop"            # real time, a vehicle whose FC died: "stop" its motors, "hold" them, "remove" it
 
     [[swarm.vehicle]]        # vehicle 1 (system id 1)
     seed = 7                 # default: the scenario's seed + 1000 x (index)
@@ -62,7 +63,11 @@ SEED_STEP = 1000
 #: keys of a [[swarm.vehicle]] table.
 VEHICLE_KEYS = frozenset({"sysid", "seed", "controller", "params", "home", "offset_m", "plan", "step", "fault", "vehicle"})
 #: keys of the [swarm] table.
-SWARM_KEYS = frozenset({"count", "sysid_base", "spacing_m", "separation_m", "contact_m", "vehicle"})
+SWARM_KEYS = frozenset({"count", "sysid_base", "spacing_m", "separation_m", "contact_m", "lost", "vehicle"})
+#: real time, what the simulator does with a vehicle whose FC is gone: "stop" its motors (it falls,
+#: as a vehicle does whose ESCs lose their signal), "hold" its last motor commands, or "remove" it
+#: from the world (no more physics, no separation checks).
+LOST_POLICIES = ("stop", "hold", "remove")
 
 
 class SwarmError(ConfigError):
@@ -102,6 +107,8 @@ class SwarmSpec:
     separation_m: float = DEFAULT_SEPARATION_M
     #: two vehicles closer than this touch: both crash (their motors stop). None: 2 x the arm length.
     contact_m: float | None = None
+    #: real time: a vehicle whose FC is gone (:data:`LOST_POLICIES`); lockstep ends the run instead.
+    lost: str = "stop"
     #: the [[swarm.vehicle]] tables as read (validated; turned into flights by the scenario).
     vehicles: tuple[Mapping[str, Any], ...] = ()
 
@@ -115,6 +122,8 @@ class SwarmSpec:
                 raise SwarmError(f"swarm.{name} must be a finite number >= 0 m, got {v!r}")
         if self.contact_m is not None and not (math.isfinite(self.contact_m) and self.contact_m >= 0):
             raise SwarmError(f"swarm.contact_m must be a finite number >= 0 m, got {self.contact_m!r}")
+        if self.lost not in LOST_POLICIES:
+            raise SwarmError(f"swarm.lost must be one of {', '.join(LOST_POLICIES)}, got {self.lost!r}")
         if len(self.vehicles) > self.count:
             raise SwarmError(f"{len(self.vehicles)} [[swarm.vehicle]] tables for a swarm of {self.count}")
         for i, table in enumerate(self.vehicles):
@@ -136,6 +145,8 @@ class SwarmSpec:
                 if isinstance(v, bool) or not isinstance(v, int):
                     raise SwarmError(f"swarm.{key} must be a whole number, got {v!r}")
                 kw[key] = v
+        if "lost" in table:
+            kw["lost"] = table["lost"]
         for key in ("spacing_m", "separation_m", "contact_m"):
             if key in table:
                 v = table[key]
@@ -153,6 +164,8 @@ class SwarmSpec:
                                "separation_m": self.separation_m}  # fmt: skip
         if self.contact_m is not None:
             out["contact_m"] = self.contact_m
+        if self.lost != "stop":
+            out["lost"] = self.lost
         if self.vehicles:
             out["vehicle"] = [dict(t) for t in self.vehicles]
         return out

@@ -117,6 +117,8 @@ def test_count_limits() -> None:
         check_count(8, base_port=65500)
     with pytest.raises(SwarmError, match="unknown key swarm.cuont"):
         SwarmSpec.from_mapping({"cuont": 3})
+    with pytest.raises(SwarmError, match="swarm.lost must be one of stop, hold, remove"):
+        SwarmSpec.from_mapping({"count": 2, "lost": "explode"})
     assert fc_ground_port(0) == 14561 and fc_ground_port(3) == 14591
 
 
@@ -352,8 +354,9 @@ def test_a_dead_vehicle_ends_a_lockstep_swarm_naming_it(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
-def test_a_dead_vehicle_in_real_time_leaves_the_others_flying(tmp_path: Path) -> None:
-    sc = swarm_scenario(tmp_path, count=2, duration=4.0)
+@pytest.mark.parametrize("lost", ["stop", "hold", "remove"])
+def test_a_dead_vehicle_in_real_time_leaves_the_others_flying(tmp_path: Path, lost: str) -> None:
+    sc = swarm_scenario(tmp_path, count=2, duration=4.0, swarm_keys=f"lost = {lost!r}".replace("'", '"'))
     opts = SitlOptions(scenario=sc, timed=True, lockstep=False, gcs=None, tlog=tmp_path / "rt.tlog", log_dir=tmp_path,
                        watchdog_s=1.0)  # fmt: skip
     lines: list[str] = []
@@ -362,7 +365,8 @@ def test_a_dead_vehicle_in_real_time_leaves_the_others_flying(tmp_path: Path) ->
         os.kill(sitl.fcs[1].proc.pid, signal.SIGKILL)
         with pytest.raises(SitlError, match="fc2 was killed"):
             sitl.wait(timeout_s=60.0)
-    assert any("vehicle 2" in ln and "fly on" in ln for ln in lines), lines[-10:]
+    fate = {"stop": "its motors stop", "hold": "holds its last motor commands", "remove": "leaves the world"}[lost]
+    assert any("vehicle 2" in ln and fate in ln and "fly on" in ln for ln in lines), lines[-10:]
     fc1 = sitl.fc_summaries[0]
     assert fc1 is not None and fc1["sim_time_s"] >= 3.5  # vehicle 1 flew to the end
     assert sitl.sim is not None and sitl.sim.proc.returncode == 0
@@ -581,3 +585,28 @@ def test_a_swarm_mission_flies_each_vehicle_its_mission_and_judges_the_separatio
     sep = doc["separation"][0]
     assert sep["measured_m"] == pytest.approx(5.0, abs=0.2) and sep["passed"] is (code == 0)
     assert ("separation >= 6 m: closest" in r.stdout) is (code == 1)
+
+
+@pytest.mark.slow
+def test_signing_holds_end_to_end_through_the_router(tmp_path: Path) -> None:
+    key_file = tmp_path / "swarm.key"
+    key_file.write_text("correct horse battery staple\n", encoding="utf-8")
+    sc = swarm_scenario(tmp_path, count=2, duration=600.0).with_changes(plan=())
+    opts = SitlOptions(scenario=sc, timed=False, lockstep=True, speed=3.0, gcs="udpin:127.0.0.1:0", tlog=tmp_path / "signed.tlog",
+                       log_dir=tmp_path, watchdog_s=10.0, signing_key=key_file)  # fmt: skip
+    with Sitl(opts) as sitl:
+        assert sitl.gcs_address is not None
+        host, port = sitl.gcs_address.rsplit(":", 1)
+        # an unsigned station's arm request reaches the vehicle (routed) and is dropped there
+        mav = mavlink.MAVLink(None, srcSystem=250, srcComponent=190)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as stranger:
+            stranger.sendto(mav.command_long_encode(2, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0).pack(mav),
+                            (host, int(port)))  # fmt: skip
+        with Swarm(f"udpout:{sitl.gcs_address}", [1, 2], connect_timeout_s=20, signing_key=key_file) as swarm:
+            swarm[2].sleep_sim(0.5)
+            assert not swarm[2].armed  # the stranger did not arm it
+            swarm[2].arm()  # a signed command through the router: accepted (signature intact)
+            assert swarm[2].armed and not swarm[1].armed
+        sitl.terminate()
+    fc2 = sitl.fc_summaries[1]
+    assert fc2 is not None and fc2["links"]["gcs"]["rx_unsigned"] >= 1 and fc2["links"]["gcs"]["rx_bad_signature"] == 0
