@@ -191,6 +191,12 @@ def _log_dir(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFa
     return log_dir
 
 
+def _remove(*paths: Path) -> None:
+    """Delete a passed test's files (those that exist)."""
+    for path in paths:
+        path.unlink(missing_ok=True)
+
+
 def _safe_name(nodeid: str) -> str:
     name = re.sub(r"[^A-Za-z0-9_.-]+", "_", nodeid.split("::", 1)[-1]).strip("_")
     return name[:80] or "test"
@@ -229,14 +235,8 @@ def sitl(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactor
         vehicle.close()
         # A set-up failure (SITL did not start, no heartbeat) keeps the log too: the set-up
         # report, made after this, carries the section.
-        keep = cfg.getoption("sitl_keep_logs") or run.failed or not yielded
-        if not keep:
-            scenario_file = run.tlog.with_name(run.tlog.stem + ".scenario.toml")
-            for path in (run.tlog, run.param_file, scenario_file):  # a marker's own param_file is the user's: kept
-                try:
-                    path.unlink()
-                except FileNotFoundError:
-                    pass
+        if not (cfg.getoption("sitl_keep_logs") or run.failed or not yielded):  # a marker's own param_file is the user's: kept
+            _remove(run.tlog, run.param_file, run.tlog.with_name(run.tlog.stem + ".scenario.toml"))
 
 
 @pytest.fixture
@@ -274,16 +274,9 @@ def sitl_swarm(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPath
                 yielded = True
                 yield swarm
     finally:
-        keep = cfg.getoption("sitl_keep_logs") or run.failed or not yielded
-        if not keep:
-            files = [run.tlog.with_name(run.tlog.stem + ".scenario.toml"), *sitl_proc.tlogs]
-            files += [t.with_name(t.stem + ".scenario.toml") for t in sitl_proc.tlogs]
-            files += [t.with_name(t.stem + ".parm") for t in sitl_proc.tlogs]
-            for path in files:
-                try:
-                    path.unlink()
-                except FileNotFoundError:
-                    pass
+        if not (cfg.getoption("sitl_keep_logs") or run.failed or not yielded):
+            _remove(run.tlog.with_name(run.tlog.stem + ".scenario.toml"),
+                    *(t.with_name(t.stem + suffix) for t in sitl_proc.tlogs for suffix in (".tlog", ".scenario.toml", ".parm")))  # fmt: skip
 
 
 @pytest.fixture

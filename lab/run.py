@@ -385,12 +385,7 @@ def main(args: argparse.Namespace) -> int:
         doc["plots"] = [str(p) for p in paths]
         print(f"plots: {len(paths)} PNG files in {out_dir}/")
     print(f"log: {result.tlog}")
-    if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(_finite(doc), indent=2, allow_nan=False) + "\n", encoding="utf-8")
-        written.append(args.json)
-        print(f"results: {args.json}")
-    record_run(out_dir, written)
+    _write_results(args.json, doc, out_dir, written)
     return 0 if result.status == "ok" else 1
 
 
@@ -423,13 +418,18 @@ def _main_swarm(args: argparse.Namespace, scenario: Scenario, out_dir: Path, ech
                 doc["vehicles"][result.sysids.index(sid)]["plots"] = [str(p) for p in paths]
                 n += len(paths)
         print(f"plots: {n} PNG files in {out_dir}/vN/")
-    if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(_finite(doc), indent=2, allow_nan=False) + "\n", encoding="utf-8")
-        written.append(args.json)
-        print(f"results: {args.json}")
-    record_run(out_dir, written)
+    _write_results(args.json, doc, out_dir, written)
     return 0 if result.status == "ok" else 1
+
+
+def _write_results(json_path: Path | None, doc: dict[str, Any], out_dir: Path, written: list[Path]) -> None:
+    """The results JSON (if asked), then the run's list of the files it wrote."""
+    if json_path is not None:
+        json_path.parent.mkdir(parents=True, exist_ok=True)
+        json_path.write_text(json.dumps(_finite(doc), indent=2, allow_nan=False) + "\n", encoding="utf-8")
+        written.append(json_path)
+        print(f"results: {json_path}")
+    record_run(out_dir, written)
 
 
 def _finite(v: Any) -> Any:

@@ -247,11 +247,17 @@ def run_mission(
         except (LogError, OSError) as exc:
             report.notes.append(f"plots not written: {exc}")
     if json_path is not None:
-        report.json_path = Path(json_path)
-        try:
-            report.json_path.parent.mkdir(parents=True, exist_ok=True)
-            report.json_path.write_text(json.dumps(report.as_dict(), indent=2, allow_nan=False) + "\n", encoding="utf-8")
-        except OSError as exc:
-            raise MissionRunError(f"cannot write {json_path}: {exc.strerror or exc}") from None
+        report.json_path = write_report_json(json_path, report.as_dict())
     print_report(report, report_file)
     return report
+
+
+def write_report_json(path: Path | str, doc: dict[str, Any]) -> Path:
+    """Write a report's JSON to ``path`` (its directory made); :class:`MissionRunError` if it cannot."""
+    p = Path(path)
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_text(json.dumps(doc, indent=2, allow_nan=False) + "\n", encoding="utf-8")
+    except OSError as exc:
+        raise MissionRunError(f"cannot write {path}: {exc.strerror or exc}") from None
+    return p

@@ -10,7 +10,6 @@ swarm's ``separation`` expectations on the simulator's closest approach (no cont
 
 from __future__ import annotations
 
-import json
 import threading
 import time
 from collections.abc import Callable
@@ -107,7 +106,7 @@ def run_swarm_mission(
     report_file: TextIO | None = None,
 ) -> SwarmMissionReport:
     """Fly a swarm mission in lockstep SITL and evaluate it (see the module docstring)."""
-    from ground.missions.runner import _fly
+    from ground.missions.runner import _fly, write_report_json
 
     say = progress if progress is not None else (lambda line: print(line, flush=True))
     lock = threading.Lock()
@@ -173,11 +172,6 @@ def run_swarm_mission(
     ]
     result = SwarmMissionReport(mission, reports, separation, prox, time.monotonic() - wall0)
     if json_path is not None:
-        result.json_path = Path(json_path)
-        try:
-            result.json_path.parent.mkdir(parents=True, exist_ok=True)
-            result.json_path.write_text(json.dumps(result.as_dict(), indent=2, allow_nan=False) + "\n", encoding="utf-8")
-        except OSError as exc:
-            raise MissionRunError(f"cannot write {json_path}: {exc.strerror or exc}") from None
+        result.json_path = write_report_json(json_path, result.as_dict())
     _print(result, report_file)
     return result
