@@ -273,6 +273,9 @@ def sitl_main(args: argparse.Namespace) -> int:
     if args.sim is not None:
         if not (args.sim == "px4" or args.sim.startswith("px4:")):
             raise ConfigError(f"--sim must be px4[:tcp:HOST[:PORT]] (PX4's simulator API), got {args.sim!r}")
+        if opts.scenario.count > 1:
+            raise ConfigError(f"--sim px4 flies one vehicle on the other simulator; a swarm ({opts.scenario.count} vehicles)"
+                              " flies on ours: leave out --sim or --count")  # fmt: skip
         px4 = [*(("--px4-frame", args.px4_frame) if args.px4_frame else ()), *(("--px4-motor", args.px4_motor) if args.px4_motor else ())]
         opts = replace(opts, sim_url=args.sim, lockstep=True, fc_args=(*opts.fc_args, *px4))
     elif args.px4_frame or args.px4_motor:

@@ -134,6 +134,7 @@ def smcpilot(*args: str | Path, cwd: Path) -> subprocess.CompletedProcess[str]:
         (("--count", "0"), "whole number >= 1"),
         (("--count", "2", "--sysid", "255"), "1..255"),
         (("--count", "2", "--sysid", "300"), "1..255"),
+        (("--count", "2", "--sim", "px4"), "leave out --sim or --count"),
     ],
 )
 def test_sitl_count_errors_are_one_line_exit_2(tmp_path: Path, args: tuple[str, ...], needle: str) -> None:
