@@ -403,3 +403,81 @@ def test_draws_are_in_range_deterministic_and_independent_of_other_variations(se
     assert east == [u.scenario.environment.wind_force_ned_n[1] for u in more]  # another variation leaves this one's draws
     assert [u.seed for u in one] == [u.seed for u in more] == [scenario_seed(seed, s) for s in range(seeds)]
     assert all(0.5 <= u.scenario.environment.noise_scale <= 2.0 for u in more)
+
+
+# -- batches: several units per task ------------------------------------------------------------------
+def _same_rows(a: dict, b: dict) -> bool:
+    """Two rows of one unit are the same but for the wall time, bit for bit (NaN equal to NaN)."""
+    keys = (set(a) | set(b)) - {"wall_s"}
+    return all(a.get(k) == b.get(k) or (isinstance(a.get(k), float) and isinstance(b.get(k), float) and a[k] != a[k] and b[k] != b[k])
+               for k in keys)  # fmt: skip
+
+
+def test_a_batch_flies_each_unit_as_it_flies_alone() -> None:
+    """fly_batch (what a worker runs for a batch) gives every unit the row it gets flown alone, bit
+    for bit: different seeds, controllers (a whole-stack law too), a motor fault, a sensor fault,
+    gusts, a plant the FC does not know, flown in one order as a batch and alone in the other."""
+    from dataclasses import replace
+
+    from lab.campaign.engine import fly_batch
+    from lab.campaign.flight import fly_row
+    from lab.compare import VARIANTS, study_cases, study_unit
+
+    cases = {c.name: c for c in study_cases(duration_s=3.0, t_event_s=1.5)}
+    picks = [("motor30-hover", 0, 0), ("gusts", 3, 1), ("gyro-bias", 5, 2), ("mass+30", 6, 0), ("pos-dropout", 1, 3)]
+    units = [replace(study_unit(cases[c], VARIANTS[v], seed, i), score_from_s=0.5) for i, (c, v, seed) in enumerate(picks)]
+    batch = fly_batch(fly_row, units)
+    alone = [fly_row(u) for u in reversed(units)][::-1]
+    assert [r["unit"] for r in batch] == [u.index for u in units]
+    for b, a in zip(batch, alone):
+        assert b["status"] == "ok" and b["sim_s"] == pytest.approx(3.0)
+        assert _same_rows(b, a), {k: (b.get(k), a.get(k)) for k in set(a) | set(b) if k != "wall_s" and b.get(k) != a.get(k)}
+    assert len({r["iae_pos_m_s"] for r in batch}) == len(batch)  # five different flights
+
+
+def test_units_are_cut_into_batches_in_order() -> None:
+    from dataclasses import replace
+
+    from lab.campaign.engine import batches
+
+    sc = Scenario(name="x", duration_s=20.0)  # 10,000 ticks at 500 Hz
+    units = [Unit(i, "g", "adaptive_pid_smc", 0, sc) for i in range(100)]
+    cut = batches(units, 2)
+    assert [u.index for b in cut for u in b] == list(range(100))  # every unit once, in order
+    assert [len(b) for b in cut] == [13] * 7 + [9]  # about four batches per worker
+    assert [len(b) for b in batches(units, 1, max_ticks=5 * sc.n_ticks)] == [5] * 20  # at most max_ticks a batch
+    assert [len(b) for b in batches(units[:3], 2)] == [1, 1, 1]  # too few units: one each
+    mixed = [replace(u, sitl=u.index % 4 == 0) for u in units[:12]]
+    cut = batches(mixed, 1)
+    assert [u.index for b in cut for u in b] == list(range(12))
+    assert all(len(b) == 1 for b in cut if b[0].sitl)  # a SITL unit always alone
+    assert [[u.index for u in b] for b in cut if not b[0].sitl] == [[1, 2, 3], [5, 6, 7], [9, 10, 11]]
+
+
+def _hang_or_die(bad: frozenset[int], how: str, unit):  # a task that hangs or kills its worker for the units named
+    if unit.index in bad:
+        if how == "hang":
+            time.sleep(3600)
+        os._exit(3)
+    return {"unit": unit.index, "status": "ok", "message": ""}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("how", "status", "words"), [("hang", "timed out", "a hang"), ("die", "error", "worker died")])
+def test_a_batch_that_hangs_or_kills_its_worker_is_flown_again_one_unit_per_task(how: str, status: str, words: str) -> None:
+    """A batch that does not come back is not a result: its units are flown again alone, so only
+    the unit that hangs (or kills its worker) fails, every other unit of its batch is ok."""
+    import functools
+
+    import cloudpickle
+
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    units = [Unit(i, "g", "adaptive_pid_smc", 0, Scenario(name="x", duration_s=1.0), timeout_s=1.0) for i in range(8)]
+    rows: dict[int, dict] = {}
+    with dask_logs():
+        with Engine(ClusterOptions(workers=1), task=functools.partial(_hang_or_die, frozenset({5}), how), grace_s=1.0) as engine:
+            assert [len(b) for b in engine.batches(units)] == [2, 2, 2, 2]
+            engine.run(units, lambda u, r: rows.__setitem__(u.index, r))
+    assert sorted(rows) == list(range(8))
+    assert rows[5]["status"] == status and words in rows[5]["message"], rows[5]
+    assert all(rows[i]["status"] == "ok" for i in range(8) if i != 5)

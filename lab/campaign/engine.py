@@ -17,11 +17,20 @@ Failure handling, so a campaign never sticks:
 - a worker that dies (killed, out of memory, a crash in native code) makes its task "error";
   Dask retries it on another worker once before giving up (``allowed-failures`` of a local
   cluster; an external scheduler keeps its own setting).
+
+Batches: in-process units go to the workers a few at a time, one task flying a batch of them one
+after another (:func:`fly_batch`; each flight the same as alone, so the rows are the same), so
+Dask's cost per task (a scheduler round trip, the worker idle in between: a few ms, a fifth of a
+compiled 20 s flight) is paid per batch. A batch is at most :data:`MAX_BATCH_TICKS` control ticks,
+and small enough that every worker gets about four (the last ones keep all workers busy); SITL
+units go one per task. A batch that fails as a whole (its worker died, it hung, its task raised)
+is not a result: its units are flown again one per task, where the rules above apply to each.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import os
 import time
 import uuid
@@ -35,6 +44,43 @@ from lab.campaign.units import Unit
 
 #: a unit's task: the unit in, its result row out.
 UnitTask = Callable[[Unit], dict[str, Any]]
+
+#: a batch is at most this many control ticks (some 0.3 s compiled; 20 flights of 20 s at 500 Hz).
+MAX_BATCH_TICKS = 200_000
+#: batches per worker the units are cut into (at least), so the last ones keep every worker busy.
+BATCHES_PER_WORKER = 4
+
+
+def fly_batch(task: UnitTask, units: Sequence[Unit]) -> list[dict[str, Any]]:
+    """(Runs on a worker.) The rows of ``units``, flown one after another by ``task``."""
+    return [task(u) for u in units]
+
+
+def batches(units: Sequence[Unit], workers: int, *, max_ticks: int = MAX_BATCH_TICKS) -> list[list[Unit]]:
+    """``units`` cut into consecutive batches (order kept): in-process units at most ``max_ticks``
+    control ticks a batch and about :data:`BATCHES_PER_WORKER` batches per worker; each SITL unit
+    (two processes of its own) alone."""
+    inproc = sum(1 for u in units if not u.sitl)
+    size = max(1, math.ceil(inproc / (BATCHES_PER_WORKER * max(1, workers))))
+    out: list[list[Unit]] = []
+    cur: list[Unit] = []
+    ticks = 0
+    for u in units:
+        if u.sitl:
+            if cur:
+                out.append(cur)
+                cur, ticks = [], 0
+            out.append([u])
+            continue
+        n = u.scenario.n_ticks
+        if cur and (len(cur) >= size or ticks + n > max_ticks):
+            out.append(cur)
+            cur, ticks = [], 0
+        cur.append(u)
+        ticks += n
+    if cur:
+        out.append(cur)
+    return out
 
 
 @dataclass(frozen=True)
@@ -86,12 +132,20 @@ def _executing_keys(dask_worker: Any) -> list[str]:
 MAX_LOST_RETRIES = 3
 
 
+def _timeout_s(what: Unit | list[Unit]) -> float:
+    """The wall-clock limit of a task: its unit's, or the sum of its batch's."""
+    return sum(u.timeout_s for u in what) if isinstance(what, list) else what.timeout_s
+
+
 class Engine:
     """A connection to a Dask cluster that flies units (a context manager: leaving it closes the
     client and a local cluster it started)."""
 
-    def __init__(self, options: ClusterOptions, *, task: UnitTask | None = None, grace_s: float = 30.0, tag: str = "unit") -> None:
+    def __init__(self, options: ClusterOptions, *, task: UnitTask | None = None, grace_s: float = 30.0, tag: str = "unit",
+                 batch: bool = True) -> None:  # fmt: skip
         self.options = options
+        #: fly in-process units in batches (:func:`batches`); False: one unit per task.
+        self.batch = batch
         if task is None:
             from lab.campaign.flight import fly_row
 
@@ -101,7 +155,8 @@ class Engine:
         self.tag = f"{tag}-{uuid.uuid4().hex[:8]}"
         self.client: Any = None
         self.cluster: Any = None
-        self._pending: dict[Any, Unit] = {}
+        #: what each task in flight flies: one unit, or a batch of them (a list).
+        self._pending: dict[Any, Unit | list[Unit]] = {}
         #: times each unit (by index) was flown again after a worker died with it: see :meth:`poll`.
         self._again: dict[int, int] = {}
         self._started: dict[str, float] = {}
@@ -181,10 +236,23 @@ class Engine:
         return f"Dask scheduler {self.client.scheduler.address}, {self.n_workers} workers"
 
     # -- units ---------------------------------------------------------------------------------------
+    def batches(self, units: Sequence[Unit]) -> list[list[Unit]]:
+        """How :meth:`submit` cuts ``units`` into tasks (one unit each without ``batch``)."""
+        if not self.batch:
+            return [[u] for u in units]
+        workers = (self.options.workers or os.cpu_count() or 1) if self.options.local else self.n_workers
+        return batches(units, workers)
+
     def submit(self, units: Sequence[Unit]) -> None:
-        """Queue ``units`` (unique task keys: the engine's tag and the unit index)."""
-        for u in units:
-            self._submit(u, f"{self.tag}-{u.index}")
+        """Queue ``units``, in batches (:meth:`batches`); unique task keys: the engine's tag and
+        the (first) unit index."""
+        for b in self.batches(units):
+            if len(b) == 1:
+                self._submit(b[0], f"{self.tag}-{b[0].index}")
+            else:
+                fut = self.client.submit(fly_batch, self.task, b, key=f"{self.tag}-batch-{b[0].index}-{len(b)}", pure=False)
+                self._pending[fut] = b
+                self._ac.add(fut)
 
     def _submit(self, unit: Unit, key: str) -> None:
         fut = self.client.submit(self.task, unit, key=key, pure=False)
@@ -193,7 +261,8 @@ class Engine:
 
     @property
     def pending(self) -> int:
-        return len(self._pending)
+        """Units not finished yet."""
+        return sum(len(v) if isinstance(v, list) else 1 for v in self._pending.values())
 
     def poll(self, timeout_s: float = 1.0) -> list[tuple[Unit, dict[str, Any]]]:
         """The units finished within ``timeout_s`` (possibly none), with their rows. Workers never
@@ -211,6 +280,9 @@ class Engine:
         for fut in done:
             unit = self._pending.pop(fut)
             self._started.pop(fut.key, None)
+            if isinstance(unit, list):
+                out += self._batch_rows(fut, unit)
+                continue
             died = self._worker_died(fut)
             tries = self._again.get(unit.index, 0)
             if died and tries < (1 if died == "killed" else MAX_LOST_RETRIES):
@@ -224,6 +296,20 @@ class Engine:
             out.append((unit, self._row_of(fut, unit)))
         out += self._overdue()
         return out
+
+    def _batch_rows(self, fut: Any, units: list[Unit]) -> list[tuple[Unit, dict[str, Any]]]:
+        """A finished batch's rows; a batch that failed as a whole has its units flown again one per task."""
+        rows: Any = None
+        if fut.status == "finished":
+            try:
+                rows = fut.result()
+            except Exception:
+                rows = None
+        if isinstance(rows, list) and len(rows) == len(units):
+            return [(u, dict(r)) for u, r in zip(units, rows)]
+        for u in units:
+            self._submit(u, f"{self.tag}-{u.index}-alone")
+        return []
 
     @staticmethod
     def _worker_died(fut: Any) -> str:
@@ -283,7 +369,7 @@ class Engine:
         for k in [k for k in self._started if k not in running]:  # back in the queue (a worker restarted): not started
             del self._started[k]
         over = [k for k, t0 in self._started.items() if k in by_key and k in running
-                and now - t0 > 2.0 * self._pending[by_key[k]].timeout_s + self.grace_s]  # fmt: skip
+                and now - t0 > 2.0 * _timeout_s(self._pending[by_key[k]]) + self.grace_s]  # fmt: skip
         out: list[tuple[Unit, dict[str, Any]]] = []
         restart: set[str] = set()
         if over:
@@ -297,6 +383,10 @@ class Engine:
                 self._started.pop(k, None)
                 fut.cancel()
                 restart.add(running[k])
+                if isinstance(unit, list):  # a batch that hangs: its units flown again one per task
+                    for u in unit:
+                        self._submit(u, f"{self.tag}-{u.index}-alone")
+                    continue
                 out.append((unit, _error_row(unit, "timed out", f"no result {2.0 * unit.timeout_s + self.grace_s:g} s after its worker took it"
                                              " (a hang): cancelled, the worker restarted")))  # fmt: skip
         if restart:

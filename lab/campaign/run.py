@@ -198,13 +198,14 @@ def run_campaign(
 def retrace(engine: Engine | None, units: Sequence[Unit]) -> list[Trace | None]:
     """The time series of ``units`` (flown again on the cluster, or here without one)."""
     if engine is None:
-        return [fly_unit(u, trace=True)[1] for u in units]
-    futs = engine.client.map(_traced, list(units), key=[f"{engine.tag}-trace-{u.index}" for u in units], pure=False)
-    return list(engine.client.gather(futs))
+        return _traced(units)
+    parts = engine.batches(units)
+    futs = engine.client.map(_traced, parts, key=[f"{engine.tag}-trace-{p[0].index}-{len(p)}" for p in parts], pure=False)
+    return [t for part in engine.client.gather(futs) for t in part]
 
 
-def _traced(unit: Unit) -> Trace | None:
-    return fly_unit(unit, trace=True)[1]
+def _traced(units: Sequence[Unit]) -> list[Trace | None]:
+    return [fly_unit(u, trace=True)[1] for u in units]
 
 
 def write_outputs(spec: CampaignSpec, units: Sequence[Unit], rows: Sequence[dict[str, Any]], out: Path, *, engine: Engine | None,
