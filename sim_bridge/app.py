@@ -135,7 +135,8 @@ class SimVehicle:
         #: actuator messages with a NaN or infinite motor value (that motor keeps its last command).
         self.nonfinite_actuator_msgs = 0
         self.last_state: tuple[bytes, ...] = ()
-        #: lockstep: when the state was last sent (wall s), when first sent, the re-send interval.
+        #: lockstep: when the state was last sent (wall s), when first sent, the re-send interval;
+        #: ``last_answer``: its last answer, or the last new state sent to it (the watchdog counts from it).
         self.sent_at = 0.0
         self.first_sent = 0.0
         self.resend_after = 0.0
@@ -474,20 +475,16 @@ class SimBridgeApp:
         pending: set[SimVehicle] = set()
 
         def send_all() -> None:
-            now = mono()
             resend_after = min(tm.resend_s, max(tm.resend_min_s, 4.0 * self.rtt_s)) if self.rtt_s else tm.resend_s
             for v in vehicles:
                 v.send_state()
             now = mono()
-            for v in vehicles:
-                v.sent_at = v.first_sent = now
+            for v in vehicles:  # the watchdog counts from here (a vehicle that answered early is not blamed for a slow one)
+                v.sent_at = v.first_sent = v.last_answer = now
                 v.resend_after = resend_after
             pending.update(vehicles)
 
         send_all()
-        start = mono()
-        for v in vehicles:
-            v.last_answer = start
         final = False  # the last state (at the duration) is out: its answers end the run
         while not self._stop:
             now = mono()
@@ -499,7 +496,8 @@ class SimBridgeApp:
                     if final:
                         pending.discard(v)  # a timed FC stops on the last state: its answer was lost, it is gone
                         continue
-                    raise WatchdogError(f"the flight controller of {v.name} has closed its port (the FC process has died); stopping")
+                    who = "the flight controller's port is closed" if len(vehicles) == 1 else f"the flight controller of {v.name} has closed its port"
+                    raise WatchdogError(f"{who} (the FC process has died); stopping")
             for v, msgs in batches:
                 v.deferred.extend(self._take_answer(v, msgs, pending, final))
             if not pending:
