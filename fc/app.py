@@ -4,7 +4,9 @@ Two links:
 
 - the **simulator link** (``--sim``, normally ``udpin:127.0.0.1:PORT``): state in as
   ``ATTITUDE`` + ``LOCAL_POSITION_NED`` (NED/FRD, one datagram per tick, stamped with simulated
-  time), motor commands out as ``HIL_ACTUATOR_CONTROLS`` (controls[0..3] in [0, 1]; mode has
+  time), with the sensed IMU (``HIGHRES_IMU``: its accelerometer reaches a law that measures
+  acceleration) and the plant's true state (``ODOMETRY``: logged, never flown on) in the same
+  datagram; motor commands out as ``HIL_ACTUATOR_CONTROLS`` (controls[0..3] in [0, 1]; mode has
   SAFETY_ARMED when armed; flags bit 0 = lockstep);
 - the **ground link** (``--gcs``): telemetry out (:mod:`fc.telemetry`), set-points and commands in
   (:mod:`fc.gcs`).
@@ -32,7 +34,10 @@ a re-sent or duplicated copy. The log is handed to the OS every ``TLOG_FLUSH_S``
 
 The sim link's checks (docs/links.md): states only from the simulator's address (the first that
 sent one); lockstep stamps exactly one period apart, real-time stamps newer than the last and not
-implausibly far ahead; every rejected state counted in :class:`FcStats` and dropped. A dead
+implausibly far ahead; every rejected state counted in :class:`FcStats` and dropped. The IMU and
+the truth are taken only with the state they came with (same address, same stamp); a stale one,
+one without the accelerometer or with an infinite value is counted and dropped with one
+rate-limited message naming what was wrong; NaN accelerometer fields are a dropout (counted). A dead
 simulator (its port closed, reported by the OS) ends the FC at once (exit 3); a clean simulator end
 (``HEARTBEAT`` with ``MAV_STATE_POWEROFF``) stops it cleanly. ``sim_impairment`` /
 ``gcs_impairment`` (:mod:`smcpilot.impair`) degrade both directions of a link.
@@ -66,6 +71,7 @@ from fc.mission import MissionProtocol
 from fc.params import ParamStore, param_messages
 from fc.streams import StreamScheduler
 from smcpilot.clock import SimClock, WallClock
+from smcpilot.complaints import Complaints
 from smcpilot.errors import LinkError, RateMismatchError, TlogError, WatchdogError
 from smcpilot.fastcodec import encode_debug_float_array, encode_hil_actuator_controls
 from smcpilot.faults import SIM_PARAM_INDEX
@@ -73,7 +79,15 @@ from smcpilot.geo import Home
 from smcpilot.impair import LinkImpairment
 from smcpilot.link import Address, MavlinkUdp
 from smcpilot.plan import PlanStep
-from smcpilot.protocol import ACTUATOR_FLAG_LOCKSTEP, FC_COMPONENT_ID, OVERRUN_NAME, SIM_COMPONENT_ID, SMC_ARRAY_ID, SMC_ARRAY_NAME
+from smcpilot.protocol import (
+    ACTUATOR_FLAG_LOCKSTEP,
+    FC_COMPONENT_ID,
+    IMU_ACCEL_BITS,
+    OVERRUN_NAME,
+    SIM_COMPONENT_ID,
+    SMC_ARRAY_ID,
+    SMC_ARRAY_NAME,
+)
 from smcpilot.signing import Signing
 from smcpilot.tlog import TlogWriter
 from smcpilot.vehicle import VehicleParams
@@ -91,6 +105,9 @@ _F32 = struct.Struct("<f")
 _STATUSTEXT = mavlink.MAVLink_statustext_message
 _ATTITUDE_ID = mavlink.MAVLINK_MSG_ID_ATTITUDE
 _LPN_ID = mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED
+#: HIGHRES_IMU has a field "id" (the IMU's) that hides the message id: tell it by its class.
+_IMU_MSG = mavlink.MAVLink_highres_imu_message
+_TRUTH_ID = mavlink.MAVLINK_MSG_ID_ODOMETRY
 _HEARTBEAT_ID = mavlink.MAVLINK_MSG_ID_HEARTBEAT
 _POWEROFF = mavlink.MAV_STATE_POWEROFF
 
@@ -169,6 +186,15 @@ class FcStats:
     #: wall seconds of ground-link work (intake and telemetry) in all.
     gcs_budget_spent_periods: int = 0
     gcs_work_s: float = 0.0
+    #: HIGHRES_IMU taken with a state (and logged); of those, with NaN accelerometer fields (a
+    #: dropout: not measured); states that came without one (the law that measures acceleration
+    #: then differences); HIGHRES_IMU / ODOMETRY from another address than the simulator's.
+    imu_msgs: int = 0
+    imu_accel_missing: int = 0
+    states_without_imu: int = 0
+    foreign_imu: int = 0
+    #: ODOMETRY (the plant's true state) taken with a state and logged.
+    truth_msgs: int = 0
 
     def summary(self) -> dict:
         late = sorted(self.lateness_s)
@@ -195,6 +221,11 @@ class FcStats:
             "sim_param_answers": self.sim_param_answers,
             "sim_param_unanswered": self.sim_param_unanswered,
             "sim_statustexts": self.sim_statustexts,
+            "imu_msgs": self.imu_msgs,
+            "imu_accel_missing": self.imu_accel_missing,
+            "states_without_imu": self.states_without_imu,
+            "foreign_imu": self.foreign_imu,
+            "truth_msgs": self.truth_msgs,
         }
 
     def budget_summary(self) -> dict[str, object]:
@@ -314,6 +345,13 @@ class FlightControllerApp:
                 " (not loopback) without signing: anyone who can reach it can command the vehicle (--signing-key)"
             )
         self._att: mavlink.MAVLink_attitude_message | None = None
+        #: the IMU and the truth of the datagram being read, with the address each came from.
+        self._imu: tuple[mavlink.MAVLink_message, Address] | None = None
+        self._truth: tuple[mavlink.MAVLink_message, Address] | None = None
+        #: the accelerometer's specific force with the latest state (body FRD, m/s^2; None: none).
+        self.accel_frd: tuple[float, float, float] | None = None
+        #: bad IMU and truth messages from the simulator, by kind, with rate-limited messages.
+        self.sim_complaints = Complaints(self.say, "fc", monotonic)
         self.state: VehicleState | None = None
         self.body_rates: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self._state_ms = -1
@@ -431,6 +469,7 @@ class FlightControllerApp:
             t = os.times()  # the kernel's share (system calls, wake-ups) beside our own code's
             summary["cpu_user_s"], summary["cpu_sys_s"] = round(t.user, 3), round(t.system, 3)
             summary["rx_rejected"] = self.rejected_summary()
+            summary["sim_bad"] = dict(self.sim_complaints.counts)
             summary["tlog"] = str(self.tlog.path) if self.tlog is not None else None
             summary.update(self._summary_extra())
             if self.tlog is not None and not self.tlog.closed:  # the run's own overrun count, for the log's readers
@@ -644,14 +683,23 @@ class FlightControllerApp:
         for msg, addr in messages:
             peer = self._sim_peer
             if peer is not None and addr != peer:
-                if msg.id == _LPN_ID:  # one per state (ATTITUDE + LOCAL_POSITION_NED)
+                if type(msg) is _IMU_MSG or msg.id == _TRUTH_ID:
+                    self.stats.foreign_imu += 1
+                elif msg.id == _LPN_ID:  # one per state (ATTITUDE + LOCAL_POSITION_NED)
                     self.stats.foreign_states += 1
+                continue
+            if type(msg) is _IMU_MSG:
+                self._imu = (msg, addr)
                 continue
             mid = msg.id
             if mid == _ATTITUDE_ID:
                 self._att = msg
+            elif mid == _TRUTH_ID:
+                self._truth = (msg, addr)
             elif mid == _LPN_ID:
                 att = self._att
+                imu, truth = self._imu, self._truth
+                self._imu = self._truth = None
                 if att is None or att.time_boot_ms != msg.time_boot_ms:
                     continue
                 self._att = None
@@ -666,8 +714,9 @@ class FlightControllerApp:
                     self.stats.states_missing_fields += 1
                     if missing == 2:
                         self.stats.rx_invalid_state += 1
+                self.accel_frd, extra = self._take_imu_truth(imu, truth, addr, t_ms)
                 if self.tlog is not None:  # stamped as the link stamped it: before the clock moves
-                    self.tlog.write_many(self.clock.now_us(), (att.get_msgbuf(), msg.get_msgbuf()))
+                    self.tlog.write_many(self.clock.now_us(), (att.get_msgbuf(), msg.get_msgbuf(), *extra))
                 self.state = state
                 if not missing or (_isfinite(rates[0]) and _isfinite(rates[1]) and _isfinite(rates[2])):
                     self.body_rates = rates
@@ -693,6 +742,52 @@ class FlightControllerApp:
             raise WatchdogError(f"simulator has been silent for {silent_s:.1f} s and its port is closed"
                                 " (the simulator process has died); stopping")  # fmt: skip
         return got
+
+    def _take_imu_truth(
+        self, imu: tuple[mavlink.MAVLink_message, Address] | None, truth: tuple[mavlink.MAVLink_message, Address] | None,
+        addr: Address, t_ms: int,
+    ) -> tuple[tuple[float, float, float] | None, tuple[bytes, ...]]:  # fmt: skip
+        """The IMU and the truth that came with the state stamped ``t_ms`` from ``addr``: (the
+        accelerometer's specific force for the law, or None; the messages to log with the state).
+        Only the state's own (same address, same stamp) are taken; a bad one is counted and
+        dropped with a rate-limited message. The truth is logged, never flown on."""
+        stats = self.stats
+        bad = self.sim_complaints.bad
+        logged: list[bytes] = []
+        accel = None
+        if imu is None:
+            stats.states_without_imu += 1
+        else:
+            m, src = imu
+            if src != addr:
+                stats.foreign_imu += 1
+                stats.states_without_imu += 1
+            elif m.time_usec // 1000 != t_ms:
+                stats.states_without_imu += 1
+                bad("imu_stamp", f"HIGHRES_IMU stamped {m.time_usec * 1e-6:.6f} s with the state of {t_ms * 1e-3:.3f} s (stale or garbled)")
+            elif m.fields_updated & IMU_ACCEL_BITS != IMU_ACCEL_BITS:
+                stats.states_without_imu += 1
+                bad("imu_no_accel", f"HIGHRES_IMU without the accelerometer (fields_updated 0x{m.fields_updated:x})")
+            else:
+                a = (m.xacc, m.yacc, m.zacc)
+                if _isfinite(a[0]) and _isfinite(a[1]) and _isfinite(a[2]):
+                    accel = a
+                else:  # NaN: the accelerometer dropped out; infinite: garbage, said; both "not measured"
+                    stats.imu_accel_missing += 1
+                    if any(v == v for v in a if not _isfinite(v)):
+                        bad("imu_nonfinite", f"HIGHRES_IMU with an infinite accelerometer value {a} (taken as not measured)")
+                logged.append(m.get_msgbuf())  # as it came, like a state with NaN fields
+                stats.imu_msgs += 1
+        if truth is not None:
+            m, src = truth
+            if src != addr:
+                stats.foreign_imu += 1
+            elif m.time_usec // 1000 != t_ms:
+                bad("truth_stamp", f"ODOMETRY stamped {m.time_usec * 1e-6:.6f} s with the state of {t_ms * 1e-3:.3f} s (stale or garbled)")
+            else:
+                logged.append(m.get_msgbuf())
+                stats.truth_msgs += 1
+        return accel, tuple(logged)
 
     def _answer_sim(self, packets: tuple[bytes, ...]) -> None:
         """To the simulator only (not to whoever else wrote to the sim port)."""
@@ -831,7 +926,11 @@ class FlightControllerApp:
                 for msg, src in link.parse(data, addr):
                     handle(msg, src)
             else:  # the simulator link, from another address than the simulator's
-                self.stats.foreign_states += sum(1 for msg, _ in link.parse(data, addr) if msg.id == _LPN_ID)
+                for msg, _ in link.parse(data, addr):
+                    if type(msg) is _IMU_MSG or msg.id == _TRUTH_ID:
+                        self.stats.foreign_imu += 1
+                    elif msg.id == _LPN_ID:
+                        self.stats.foreign_states += 1
             if until is not None and mono() >= until:
                 break
         return mono() - t0
@@ -860,7 +959,7 @@ class FlightControllerApp:
         if core.ticks == 0:
             self._cpu_at_first_tick_s = time.process_time()
             self.say(f"FC_READY t={t_us * 1e-6:.3f}s controller={self.cfg.controller} lockstep={self.lockstep}")
-        out = core.tick(t_us, self.state, fresh=not stale, wall_s=self._mono() if self.gcs is not None else None)
+        out = core.tick(t_us, self.state, fresh=not stale, wall_s=self._mono() if self.gcs is not None else None, accel_frd=self.accel_frd)
         act = self._actuator_packet(t_us, out)
         self._answer_sim((act,))
         self._last_actuator = act

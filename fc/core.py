@@ -185,12 +185,17 @@ class FlightCore:
         self.commander.on_gcs_heartbeat(wall_s)
 
     # -- the tick -------------------------------------------------------------------------------
-    def tick(self, t_us: int, state: VehicleState | None, *, fresh: bool = True, wall_s: float | None = None) -> TickOutput:
+    def tick(
+        self, t_us: int, state: VehicleState | None, *, fresh: bool = True, wall_s: float | None = None,
+        accel_frd: tuple[float, float, float] | None = None,
+    ) -> TickOutput:  # fmt: skip
         """One control tick at simulated time ``t_us``.
 
         ``state`` is the latest state (None: none yet); ``fresh`` False marks it stale (real time:
         older than ``failsafe_state_timeout_s``). ``wall_s`` is the wall clock for the GCS-loss
-        failsafe (None: not checked this tick).
+        failsafe (None: not checked this tick). ``accel_frd`` is the IMU's specific force with the
+        state (body FRD, m/s^2; None: none), for a law that measures acceleration
+        (:meth:`fc.flight.FlightControl.step`).
         """
         if self.ticks == 0:
             self.t0_us = t_us
@@ -198,7 +203,7 @@ class FlightCore:
         self.t_us = t_us
         self._in_tick = True
         try:
-            out = self._step(t_us, state, fresh)
+            out = self._step(t_us, state, fresh, accel_frd)
             if wall_s is not None:
                 self.commander.check_gcs(wall_s)
         finally:
@@ -242,7 +247,7 @@ class FlightCore:
         elif status == EST_OK:
             self.event(mavlink.MAV_SEVERITY_INFO, f"{_missing_name(self._est_missing)} back")
 
-    def _step(self, t_us: int, state: VehicleState | None, fresh: bool) -> PipelineOutput:
+    def _step(self, t_us: int, state: VehicleState | None, fresh: bool, accel_frd: tuple[float, float, float] | None = None) -> PipelineOutput:
         status = EST_OK
         if state is not None:
             status = self._estimate(state, fresh)[1]
@@ -278,7 +283,7 @@ class FlightCore:
         if self.law_failed:
             return self._law_failsafe(st)
         try:
-            out = flight.step(st, dt)
+            out = flight.step(st, dt, accel_frd)
         except LawFault as exc:
             # The law is anyone's code: counted, announced once, and the vehicle flown down open loop.
             self._law_failed(str(exc))

@@ -37,15 +37,17 @@ from fc.pipeline import (
     pipeline_params,
     pipeline_reset,
     pipeline_reset_full,
-    pipeline_step,
-    pipeline_step_full,
+    pipeline_step_full_sensed,
+    pipeline_step_sensed,
 )
 from smcpilot.errors import SmcpilotError
 from smcpilot.frames import wrap_pi
 from smcpilot.model import PaperModel
 from smcpilot.vehicle import VehicleParams
+from smcpilot.wire import accel_of_specific_force
 
 _NAN = float("nan")
+_NAN3 = (_NAN, _NAN, _NAN)
 _isfinite = math.isfinite
 #: builds a NamedTuple without the class call's argument handling (the wrapper is plain CPython).
 _tuple_new = tuple.__new__
@@ -118,7 +120,9 @@ class FlightControl:
         self.law_params = law_params
         self.law_functions = law.functions
         self._full = law.full_stack
-        self._step_fn = pipeline_step_full if self._full else pipeline_step
+        self._step_fn = pipeline_step_full_sensed if self._full else pipeline_step_sensed
+        #: the law measures acceleration (its meas ends with the IMU's, :attr:`Law.measures_accel`).
+        self.measures_accel = bool(law.measures_accel)
         self._reset_fn = pipeline_reset_full if self._full else pipeline_reset
         self._diag_mask = tuple(name in law.diagnostics for name in ("s", "sigma", "chi_hat", "u_dot"))
         #: the configuration, vehicle and law flattened for the pipeline.
@@ -189,8 +193,11 @@ class FlightControl:
             tx, ty, tz, self._psi_target, True, self.landing, self.position_hold, self.params.speed_max_xy_mps if vxy is None else vxy
         ))  # fmt: skip
 
-    def step(self, st: VehicleState, dt_s: float) -> PipelineOutput:
-        """One control tick of ``dt_s`` seconds. Disarmed: motors stopped.
+    def step(self, st: VehicleState, dt_s: float, accel_frd: tuple[float, float, float] | None = None) -> PipelineOutput:
+        """One control tick of ``dt_s`` seconds. Disarmed: motors stopped. ``accel_frd`` is the IMU's
+        specific force (body FRD, m/s^2, as ``HIGHRES_IMU`` carries it; None: no IMU this tick): a
+        law that measures acceleration gets it as the kinematic acceleration, rotated with ``st``'s
+        attitude (NaN without one); the others never see it.
 
         Raises :class:`LawFault` if the law raised or returned a non-finite or malformed command
         (the state is then unchanged; the caller flies :meth:`failsafe_step`).
@@ -199,9 +206,12 @@ class FlightControl:
             return PipelineOutput((0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0), (False,) * 4, None, (_NAN,) * 4)
         p = self.params
         cmd = self.pipeline_inputs()
+        sensed: tuple[float, ...] = ()
+        if self.measures_accel:
+            sensed = _NAN3 if accel_frd is None else accel_of_specific_force(*accel_frd, st.phi_rad, st.theta_rad, st.psi_rad, p.gravity_mps2)
         try:
             new_state, (motors, u, limited, s, sigma, chi, u_law, u_dot, ref, touchdown, d_hat) = self._step_fn(
-                self.pipeline_state, st, cmd, p, dt_s, self.law_functions
+                self.pipeline_state, st, cmd, p, dt_s, self.law_functions, sensed
             )
             m0, m1, m2, m3 = motors
             ok = _isfinite(m0 + m1 + m2 + m3) and len(u_law) == 4 and _isfinite(u_law[0] + u_law[1] + u_law[2] + u_law[3])

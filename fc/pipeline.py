@@ -339,8 +339,18 @@ def touchdown_step(landing: bool, z_m: float, vz_m: float, landed_s: float, land
 def pipeline_step(
     ps: PipelineState, st: VehicleState, cmd: PipelineInputs, p: PipelineParams, dt_s: float, law: LawFunctions
 ) -> tuple[PipelineState, PipelineOutputs]:
+    """One control tick of ``dt_s`` seconds with an attitude-stage ``law`` that takes no sensed
+    quantity beyond the state: :func:`pipeline_step_sensed` with none."""
+    return pipeline_step_sensed(ps, st, cmd, p, dt_s, law, ())
+
+
+def pipeline_step_sensed(
+    ps: PipelineState, st: VehicleState, cmd: PipelineInputs, p: PipelineParams, dt_s: float, law: LawFunctions, sensed: tuple
+) -> tuple[PipelineState, PipelineOutputs]:
     """One control tick of ``dt_s`` seconds with an attitude-stage ``law``: (new state, outputs).
-    Disarmed: motors stopped, state unchanged.
+    Disarmed: motors stopped, state unchanged. ``sensed`` follows the 8 state floats in the law's
+    ``meas`` (``()``, or the measured acceleration of a law that asks for it,
+    :attr:`fc.control.law.Law.measures_accel`); nothing else reads it.
 
     The outputs are a tuple ``(motors, u, limited, s, sigma, chi_hat, u_law, u_dot, ref, touchdown, d_hat)``:
     motor commands c1..c4 in [0, 1]; the inputs the motors realise (u_phi N, u_theta N, u_psi N m,
@@ -392,7 +402,7 @@ def pipeline_step(
     ref = (phi_r, phi_v, phi_a, phi_j, th_r, th_v, th_a, th_j, psi_r, psi_v, psi_a, psi_j, z_r, vz_r, az_r, jz_r)
     meas = (phi, phi_dot, theta, theta_dot, psi_r + wrap_pi(psi - psi_r), psi_dot, z_m, vz_m)
     d_hat, d_law = observer_in(dob, meas, z_m, land_h, ob)
-    u, new, diag = law.step(meas, ref, law_state, dt_s, k, d_law, ps.u_prev)
+    u, new, diag = law.step(meas + sensed, ref, law_state, dt_s, k, d_law, ps.u_prev)
     # 4. Compensation, mixer with priorities, anti-windup on what was realised, observer update.
     motors, realised, limited, new, dob, u, u_law = actuate(law, law_state, new, u, meas, d_hat, dob, landing, land_h, p, dt_s)
     # 5. Touchdown while landing -> the caller disarms.
@@ -407,8 +417,17 @@ def pipeline_step(
 def pipeline_step_full(
     ps: PipelineState, st: VehicleState, cmd: PipelineInputs, p: PipelineParams, dt_s: float, law: LawFunctions
 ) -> tuple[PipelineState, PipelineOutputs]:
+    """One control tick with a whole-stack ``law`` that takes no sensed quantity beyond the state:
+    :func:`pipeline_step_full_sensed` with none."""
+    return pipeline_step_full_sensed(ps, st, cmd, p, dt_s, law, ())
+
+
+def pipeline_step_full_sensed(
+    ps: PipelineState, st: VehicleState, cmd: PipelineInputs, p: PipelineParams, dt_s: float, law: LawFunctions, sensed: tuple
+) -> tuple[PipelineState, PipelineOutputs]:
     """One control tick with a whole-stack ``law`` (position set-point -> thrust and torques); the
-    same outputs as :func:`pipeline_step`, the references being the attitude the law commands.
+    same outputs as :func:`pipeline_step`, the references being the attitude the law commands;
+    ``sensed`` follows the 12 state floats in the law's ``meas`` (:func:`pipeline_step_sensed`).
 
     The position and yaw prefilters shape the set-point as for any law; the position loop and the
     attitude prefilters are the law's. In ALT_HOLD, and on the ground before take-off or while
@@ -445,7 +464,7 @@ def pipeline_step_full(
     full = (x_m, y_m, z_m, vx_m, vy_m, vz_m, phi, theta, psi_u, phi_dot, theta_dot, psi_dot)
     meas = (phi, phi_dot, theta, theta_dot, psi_u, psi_dot, z_m, vz_m)
     d_hat, d_law = observer_in(dob, meas, z_m, land_h, ob)
-    u, new, diag, att = law.step(full, ref, law_state, dt_s, k, d_law, ps.u_prev)
+    u, new, diag, att = law.step(full + sensed, ref, law_state, dt_s, k, d_law, ps.u_prev)
     motors, realised, limited, new, dob, u, u_law = actuate(law, law_state, new, u, meas, d_hat, dob, landing, land_h, p, dt_s)
     if hold:
         new = law.anti_windup(law_state, new, u_law, (True, True, True, True), k)
@@ -463,6 +482,8 @@ def pipeline_step_full(
 PURE_FUNCTIONS = (
     pipeline_step,
     pipeline_step_full,
+    pipeline_step_sensed,
+    pipeline_step_full_sensed,
     pipeline_reset,
     pipeline_reset_full,
     pipeline_off,

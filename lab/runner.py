@@ -11,6 +11,11 @@ same per-tick motor commands, bit for bit.
 :func:`simulate` is the loop (parts passed in, as rotorpy's ``simulate()``); :func:`fly` builds
 the core for a configuration and a plan.
 
+The IMU: a law that measures acceleration (:attr:`fc.control.law.Law.measures_accel`) gets the
+accelerometer's specific force the simulator sends it in ``HIGHRES_IMU`` (:func:`imu_accel`: the
+same conversion, the same float32 rounding); such a flight flies in CPython (the compiled kernel
+does not give the IMU yet), said once. Other laws never see it, and their flights are unchanged.
+
 Faults: the plant's (:mod:`sim_bridge.faults`) act as in the simulator process — the observation
 is the faulty sensors' (a dropped-out sensor's wire values are NaN and pass through
 :func:`state_of_wire` unconverted: NaN in, NaN out), and every fault start/stop is handed to
@@ -20,6 +25,7 @@ simulator process would send it as STATUSTEXT.
 
 from __future__ import annotations
 
+import math
 import struct
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -33,7 +39,7 @@ from fc.flight import VehicleState
 from lab.fast.flight import FastRecord, fast_note, fast_simulate, fast_unsupported
 from sim_bridge.faults import FaultEvent
 from sim_bridge.plants.base import Plant
-from sim_bridge.sensors import VehicleObservation
+from sim_bridge.sensors import VehicleObservation, specific_force_frd
 from smcpilot.geo import Home
 from smcpilot.plan import PlanStep
 from smcpilot.vehicle import VehicleParams
@@ -42,6 +48,8 @@ from smcpilot.wire import paper_of_wire, wire_of_paper
 _f32 = struct.Struct("<12f")
 _tuple_new = tuple.__new__
 _f32x4 = struct.Struct("<4f")
+_f32x3 = struct.Struct("<3f")
+_isfinite = math.isfinite
 
 
 def wire_values(obs: VehicleObservation) -> tuple[float, ...]:
@@ -59,6 +67,14 @@ def state_of_wire(v: Sequence[float]) -> VehicleState:
 def wire_state(obs: VehicleObservation) -> VehicleState:
     """The FC's view of an observation after the NED/FRD float32 wire round trip."""
     return state_of_wire(wire_values(obs))
+
+
+def imu_accel(obs: VehicleObservation, plant: Plant) -> tuple[float, float, float] | None:
+    """The accelerometer's specific force as the FC receives it in ``HIGHRES_IMU`` (body FRD, m/s^2,
+    float32; :func:`sim_bridge.sensors.specific_force_frd` of the observation with the true
+    attitude), or None when it is not measured (a dropout: NaN fields), as the FC takes it."""
+    f = _f32x3.unpack(_f32x3.pack(*specific_force_frd(obs.accel_mps2, plant.truth().quaternion, plant.vehicle.gravity_mps2)))  # type: ignore[attr-defined]
+    return f if _isfinite(f[0]) and _isfinite(f[1]) and _isfinite(f[2]) else None
 
 
 #: called after each tick with (tick index, t_us, wire values, state, tick output, motors as sent).
@@ -117,14 +133,17 @@ def simulate(
     rec_on_tick = record.recorder.on_tick if record is not None else None
     truth = getattr(plant, "truth", None) if record is not None and record.truth else None
 
+    flight = core.flight
+
     def one_tick(k: int, t_us: int) -> int:
-        wire = wire_values(observe())
+        obs = observe()
+        wire = wire_values(obs)
         if faults is not None and faults.events:
             for ev in faults.take_events():
                 if on_fault_event is not None:
                     on_fault_event(ev)
         st = state_of_wire(wire)
-        out = tick(t_us, st)
+        out = tick(t_us, st, accel_frd=imu_accel(obs, plant) if flight.measures_accel else None)
         motors = unpack(pack(*out.motors))  # float32, as HIL_ACTUATOR_CONTROLS carries them
         armed = out.armed
         if on_tick is not None:
@@ -143,7 +162,12 @@ def simulate(
         return t_us
 
     if fast is not False and on_tick is None:
-        why = fast_unsupported(core, plant, physics_hz, rate_hz, compile_new=bool(fast))
+        why: str | None
+        if flight.measures_accel:
+            why = f"the control law {flight.law.name} measures acceleration (the IMU), which the compiled flight does not give yet"
+            fast_note(why)
+        else:
+            why = fast_unsupported(core, plant, physics_hz, rate_hz, compile_new=bool(fast))
         if why is None:
             return fast_simulate(core, plant, n_ticks, rate_hz=rate_hz, physics_hz=physics_hz, py_tick=one_tick,  # type: ignore[arg-type]
                                  stop=stop, record=record, log=log)  # fmt: skip

@@ -1,7 +1,20 @@
 """The simulator-bridge process: integrates a plant and talks MAVLink to the flight controller.
 
-Each control tick it sends the vehicle state as one datagram holding ``ATTITUDE`` and
-``LOCAL_POSITION_NED`` (NED/FRD, ``time_boot_ms`` = simulated time) and applies the motor
+Each control tick it sends the vehicle state as one datagram holding ``ATTITUDE``, ``HIGHRES_IMU``,
+``ODOMETRY`` and ``LOCAL_POSITION_NED`` (in that order, all stamped with simulated time):
+
+- ``ATTITUDE`` + ``LOCAL_POSITION_NED`` (NED/FRD, ``time_boot_ms``): the sensed state the FC flies on;
+- ``HIGHRES_IMU`` (``time_usec``): the sensed IMU, body FRD: specific force ``xacc``..``zacc``
+  (m/s^2, about (0, 0, -9.81) level at rest) and the gyro ``xgyro``..``zgyro`` (rad/s, the
+  rates of ``ATTITUDE``), with the environment's sensor noise and the accelerometer and gyro
+  faults (a dropout is NaN in that sensor's fields); ``fields_updated``
+  :data:`smcpilot.protocol.IMU_FIELDS_UPDATED` (:func:`sim_bridge.sensors.imu_frd` converts);
+- ``ODOMETRY`` (``time_usec``): the plant's true state, for the log and for scoring only (the FC
+  never flies on it): position and velocity NED (m, m/s, the local frame of the state), the
+  attitude quaternion (FRD body in NED), body rates FRD (rad/s); covariances unknown (NaN),
+  ``estimator_type`` MOCAP.
+
+It applies the motor
 commands of ``HIL_ACTUATOR_CONTROLS``: controls[0..3] in [0, 1] are rotors 1..4 (1 right,
 2 front, 3 left, 4 rear), thrust-linear above idle (``w^2 = w_idle^2 + c (w_max^2 - w_idle^2)``,
 :mod:`smcpilot.actuators`); ``mode`` with MAV_MODE_FLAG_SAFETY_ARMED spins the rotors, without it
@@ -51,11 +64,13 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from sim_bridge.faults import SEVERITY_REJECTED, SimFaults
 from sim_bridge.plants.base import Plant
 from sim_bridge.proximity import Proximity
+from sim_bridge.sensors import specific_force_frd
 from smcpilot.errors import DivergenceError, WatchdogError
-from smcpilot.fastcodec import encode_attitude, encode_local_position_ned
+from smcpilot.fastcodec import encode_attitude, encode_highres_imu, encode_local_position_ned, encode_odometry
 from smcpilot.faults import SIM_PARAM_INDEX, SIM_PARAMS, FaultError
+from smcpilot.frames import quat_nwu_flu_to_ned_frd
 from smcpilot.link import MavlinkUdp
-from smcpilot.protocol import SIM_COMPONENT_ID
+from smcpilot.protocol import IMU_FIELDS_UPDATED, SIM_COMPONENT_ID, TRUTH_ESTIMATOR_TYPE, TRUTH_FRAME, TRUTH_QUALITY
 from smcpilot.wire import wire_of_paper
 
 #: Component id the bridge sends from (a sensor-ish component of the vehicle's system).
@@ -73,6 +88,8 @@ _PARAM_LIST = mavlink.MAVLINK_MSG_ID_PARAM_REQUEST_LIST
 _REAL32 = mavlink.MAV_PARAM_TYPE_REAL32
 _yield = getattr(os, "sched_yield", lambda: None)
 _isfinite = math.isfinite
+#: ODOMETRY's covariances: unknown (NaN in the first element, as MAVLink says).
+_COV_UNKNOWN = (math.nan,) + (0.0,) * 20
 
 
 @dataclass(frozen=True)
@@ -120,6 +137,8 @@ class SimVehicle:
         )  # fmt: skip
         self.link.report_peer_errors()
         self._clock_us = clock_us
+        self._gravity = float(plant.vehicle.gravity_mps2)  # type: ignore[attr-defined]
+        self._truth = plant.truth  # type: ignore[attr-defined]
         #: the FC's address: motor commands and parameters are taken from it only.
         self.fc_addr = self.link.peers[0]
         self.faults: SimFaults | None = getattr(plant, "faults", None)
@@ -154,14 +173,23 @@ class SimVehicle:
     # -- wire ------------------------------------------------------------------------------------
     def send_state(self) -> None:
         obs = self.plant.observe()
+        tru = self._truth()
         link = self.link
         sysid, comp = link.source
-        t_ms = (self._clock_us() // 1000) & 0xFFFFFFFF
+        t_us = self._clock_us()
+        t_ms = (t_us // 1000) & 0xFFFFFFFF
         (phi, theta, psi), (pf, qf, rf), (xw, yw, zw), (vxw, vyw, vzw) = obs.euler_rad, obs.body_rates_radps, obs.position_m, obs.velocity_mps
         roll, pitch, yaw, p, q, r, x, y, z, vx, vy, vz = wire_of_paper(phi, theta, psi, pf, qf, rf, xw, yw, zw, vxw, vyw, vzw)
-        # The per-tick pair, encoded straight to bytes (smcpilot.fastcodec; the same bytes as pymavlink).
+        fx, fy, fz = specific_force_frd(obs.accel_mps2, tru.quaternion, self._gravity)
+        (phi, theta, psi), (pf, qf, rf), (xw, yw, zw), (vxw, vyw, vzw) = tru.euler_rad, tru.body_rates_radps, tru.position_m, tru.velocity_mps
+        _, _, _, tp, tq, tr, tx, ty, tz, tvx, tvy, tvz = wire_of_paper(phi, theta, psi, pf, qf, rf, xw, yw, zw, vxw, vyw, vzw)
+        # The per-tick messages, encoded straight to bytes (smcpilot.fastcodec; the same bytes as
+        # pymavlink); the state's pair last, so the FC has the IMU when the state ticks it.
         packets = (
             encode_attitude(link.take_seq(), sysid, comp, t_ms, roll, pitch, yaw, p, q, r),
+            encode_highres_imu(link.take_seq(), sysid, comp, t_us, fx, fy, fz, p, q, r, IMU_FIELDS_UPDATED),
+            encode_odometry(link.take_seq(), sysid, comp, t_us, TRUTH_FRAME, TRUTH_FRAME, tx, ty, tz, quat_nwu_flu_to_ned_frd(tru.quaternion),
+                            tvx, tvy, tvz, tp, tq, tr, _COV_UNKNOWN, _COV_UNKNOWN, 0, TRUTH_ESTIMATOR_TYPE, TRUTH_QUALITY),  # fmt: skip
             encode_local_position_ned(link.take_seq(), sysid, comp, t_ms, x, y, z, vx, vy, vz),
         )
         link.send_packets(packets)

@@ -18,7 +18,9 @@ from dataclasses import dataclass, fields
 from typing import NamedTuple
 
 from smcpilot.errors import ConfigError
-from smcpilot.frames import quat_from_euler, wrap_pi
+from smcpilot.frames import flu_to_frd, quat_from_euler, quat_rotate_inverse, rates_flu_to_frd, wrap_pi
+
+Vec3 = tuple[float, float, float]
 
 
 class VehicleObservation(NamedTuple):
@@ -118,3 +120,18 @@ class SensorNoise:
             accel_mps2=noisy3(obs.accel_mps2, p.accel_std_mps2),
             quaternion=quat,
         )
+
+
+def specific_force_frd(accel_nwu: Vec3, quat_flu_nwu: tuple[float, float, float, float], g: float) -> Vec3:
+    """What an accelerometer reads, body FRD, m/s^2: the kinematic acceleration (world NWU) minus
+    gravity, rotated into the body: (0, 0, -g) level at rest. NaN in (a dropout) is NaN out."""
+    f_world = (accel_nwu[0], accel_nwu[1], accel_nwu[2] + g)
+    return flu_to_frd(quat_rotate_inverse(quat_flu_nwu, f_world))
+
+
+def imu_frd(obs: VehicleObservation, truth: VehicleObservation, g: float) -> tuple[Vec3, Vec3]:
+    """(gyro rad/s, specific force m/s^2), body FRD, as the sensors report them: the observation's
+    rates and acceleration, with the environment's sensor noise and the gyro and accelerometer
+    faults (stuck, bias, noise, delay; a dropout is NaN), converted to specific force with the true
+    attitude (the accelerometer sits on the real body, whatever an attitude fault says)."""
+    return rates_flu_to_frd(*obs.body_rates_radps), specific_force_frd(obs.accel_mps2, truth.quaternion, g)

@@ -28,10 +28,8 @@ from typing import Any, TextIO
 from sim_bridge.build import plant_for
 from sim_bridge.plants.paper_vehicle import PaperVehiclePlant
 from sim_bridge.plants.rigid_body import RigidBodyPlant
-from sim_bridge.sensors import VehicleObservation
 from smcpilot.complaints import Complaints
 from smcpilot.errors import ConfigError, DivergenceError, WatchdogError
-from smcpilot.frames import flu_to_frd, quat_rotate_inverse, rates_flu_to_frd
 from smcpilot.scenario import Scenario
 
 #: the protocols served and their conventional ports.
@@ -71,20 +69,6 @@ def parse_serve(text: str) -> tuple[str, int]:
     if not port_text.isdigit() or int(port_text) > 65535:
         raise ConfigError(f"--serve {kind}: the port must be a number in [0, 65535], got {port_text!r}")
     return kind, int(port_text)
-
-
-def specific_force_frd(accel_nwu: Vec3, quat_flu_nwu: tuple[float, float, float, float], g: float) -> Vec3:
-    """What an accelerometer reads, body FRD, m/s^2: the kinematic acceleration (world NWU) minus
-    gravity, rotated into the body: (0, 0, -g) level at rest."""
-    f_world = (accel_nwu[0], accel_nwu[1], accel_nwu[2] + g)
-    return flu_to_frd(quat_rotate_inverse(quat_flu_nwu, f_world))
-
-
-def imu_frd(obs: VehicleObservation, truth: VehicleObservation, g: float) -> tuple[Vec3, Vec3]:
-    """(gyro rad/s, specific force m/s^2), body FRD, as the sensors report them (noise and the gyro
-    and accelerometer faults are the observation's); the specific force is rotated with the true
-    attitude (the accelerometer sits on the real body, whatever an attitude fault says)."""
-    return rates_flu_to_frd(*obs.body_rates_radps), specific_force_frd(obs.accel_mps2, truth.quaternion, g)
 
 
 class ServerBase:

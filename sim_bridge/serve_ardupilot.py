@@ -52,7 +52,8 @@ import struct
 from collections.abc import Sequence
 from typing import Any, NamedTuple
 
-from sim_bridge.serve import ServeOptions, ServerBase, imu_frd
+from sim_bridge.sensors import imu_frd
+from sim_bridge.serve import ServeOptions, ServerBase
 from smcpilot.frames import nwu_to_ned, quat_nwu_flu_to_ned_frd
 from smcpilot.scenario import Scenario
 

@@ -40,7 +40,8 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from sim_bridge.serve import ServeOptions, ServerBase, imu_frd
+from sim_bridge.sensors import imu_frd
+from sim_bridge.serve import ServeOptions, ServerBase
 from smcpilot.errors import WatchdogError
 from smcpilot.frames import flu_to_frd, ned_to_nwu, nwu_to_ned, quat_nwu_flu_to_ned_frd, quat_rotate_inverse, rates_flu_to_frd
 from smcpilot.geo import Home, ned_to_global

@@ -1,8 +1,9 @@
-"""Hand-written MAVLink 2 encode/decode for the three messages of the 500 Hz control loop.
+"""Hand-written MAVLink 2 encode/decode for the messages of the 500 Hz control loop.
 
 ATTITUDE (30) and LOCAL_POSITION_NED (32) go from the flight controller to ground stations and the
-simulator every control tick; HIL_ACTUATOR_CONTROLS (93) goes to the simulator every tick. For
-these ids this module produces exactly the bytes pymavlink produces (same header, sequence number,
+simulator every control tick; HIL_ACTUATOR_CONTROLS (93) goes to the simulator every tick;
+HIGHRES_IMU (105, the sensed IMU) and ODOMETRY (331, the plant's true state, for the log only)
+come from the simulator with each state. For these ids this module produces exactly the bytes pymavlink produces (same header, sequence number,
 CRC_EXTRA, and MAVLink 2 truncation of trailing zero bytes of the payload down to one byte), and
 decodes them into the very pymavlink message classes with the same fields and header. The link
 picks this path automatically; callers never need to.
@@ -39,6 +40,8 @@ __all__ = [
     "encode_local_position_ned",
     "encode_hil_actuator_controls",
     "encode_debug_float_array",
+    "encode_highres_imu",
+    "encode_odometry",
     "pack_message",
     "decode_packet",
 ]
@@ -64,17 +67,21 @@ _ATTITUDE = mavlink.MAVLink_attitude_message
 _LOCAL_POSITION_NED = mavlink.MAVLink_local_position_ned_message
 _HIL_ACTUATOR_CONTROLS = mavlink.MAVLink_hil_actuator_controls_message
 _DEBUG_FLOAT_ARRAY = mavlink.MAVLink_debug_float_array_message
+_HIGHRES_IMU = mavlink.MAVLink_highres_imu_message
+_ODOMETRY = mavlink.MAVLink_odometry_message
 _MAVLinkHeader = mavlink.MAVLink_header
 
 ID_ATTITUDE = _ATTITUDE.id
 ID_LOCAL_POSITION_NED = _LOCAL_POSITION_NED.id
 ID_HIL_ACTUATOR_CONTROLS = _HIL_ACTUATOR_CONTROLS.id
 ID_DEBUG_FLOAT_ARRAY = _DEBUG_FLOAT_ARRAY.id
+ID_HIGHRES_IMU = _HIGHRES_IMU.id
+ID_ODOMETRY = _ODOMETRY.id
 
 #: Message ids :func:`decode_packet` handles.
-FAST_MSG_IDS = frozenset({ID_ATTITUDE, ID_LOCAL_POSITION_NED, ID_HIL_ACTUATOR_CONTROLS})
+FAST_MSG_IDS = frozenset({ID_ATTITUDE, ID_LOCAL_POSITION_NED, ID_HIL_ACTUATOR_CONTROLS, ID_HIGHRES_IMU, ID_ODOMETRY})
 #: pymavlink message classes :func:`pack_message` handles.
-FAST_MESSAGE_TYPES = frozenset({_ATTITUDE, _LOCAL_POSITION_NED, _HIL_ACTUATOR_CONTROLS, _DEBUG_FLOAT_ARRAY})
+FAST_MESSAGE_TYPES = frozenset({_ATTITUDE, _LOCAL_POSITION_NED, _HIL_ACTUATOR_CONTROLS, _DEBUG_FLOAT_ARRAY, _HIGHRES_IMU, _ODOMETRY})
 
 # Payload layouts and CRC_EXTRA bytes come from pymavlink's generated classes, so a dialect
 # update that changed them would change both paths alike (and the byte-for-byte tests would say).
@@ -93,6 +100,17 @@ assert _LOCAL_POSITION_NED.ordered_fieldnames == _LOCAL_POSITION_NED.fieldnames
 assert _HIL_ACTUATOR_CONTROLS.ordered_fieldnames == ["time_usec", "flags", "controls", "mode"]
 assert _DFA_PAYLOAD.format == "<QH10s58f"
 assert _DEBUG_FLOAT_ARRAY.ordered_fieldnames == ["time_usec", "array_id", "name", "data"]
+_IMU_PAYLOAD = _HIGHRES_IMU.unpacker
+_IMU_EXTRA = bytes([_HIGHRES_IMU.crc_extra])
+assert _IMU_PAYLOAD.format == "<QfffffffffffffHB"
+assert _HIGHRES_IMU.ordered_fieldnames == _HIGHRES_IMU.fieldnames
+_ODO_PAYLOAD = _ODOMETRY.unpacker
+_ODO_EXTRA = bytes([_ODOMETRY.crc_extra])
+assert _ODO_PAYLOAD.format == "<Qfff4fffffff21f21fBBBBb"
+assert _ODOMETRY.ordered_fieldnames == [
+    "time_usec", "x", "y", "z", "q", "vx", "vy", "vz", "rollspeed", "pitchspeed", "yawspeed",
+    "pose_covariance", "velocity_covariance", "frame_id", "child_frame_id", "reset_counter", "estimator_type", "quality",
+]  # fmt: skip
 
 
 def _frame(payload: bytes, seq: int, src_system: int, src_component: int, msg_id: int, crc_extra: bytes) -> bytes:
@@ -176,6 +194,82 @@ def encode_debug_float_array(
     return _frame(payload, seq, src_system, src_component, ID_DEBUG_FLOAT_ARRAY, _DFA_EXTRA)
 
 
+def encode_highres_imu(
+    seq: int,
+    src_system: int,
+    src_component: int,
+    time_usec: int,
+    xacc: float,
+    yacc: float,
+    zacc: float,
+    xgyro: float,
+    ygyro: float,
+    zgyro: float,
+    fields_updated: int,
+    xmag: float = 0.0,
+    ymag: float = 0.0,
+    zmag: float = 0.0,
+    abs_pressure: float = 0.0,
+    diff_pressure: float = 0.0,
+    pressure_alt: float = 0.0,
+    temperature: float = 0.0,
+    imu_id: int = 0,
+) -> bytes:
+    """HIGHRES_IMU packet: specific force (m/s^2) and rates (rad/s), body FRD; ``fields_updated``
+    the HIGHRES_IMU_UPDATED_* bits of the valid fields."""
+    payload = _IMU_PAYLOAD.pack(
+        time_usec, xacc, yacc, zacc, xgyro, ygyro, zgyro, xmag, ymag, zmag, abs_pressure, diff_pressure, pressure_alt, temperature,
+        fields_updated, imu_id,
+    )  # fmt: skip
+    return _frame(payload, seq, src_system, src_component, ID_HIGHRES_IMU, _IMU_EXTRA)
+
+
+def encode_odometry(
+    seq: int,
+    src_system: int,
+    src_component: int,
+    time_usec: int,
+    frame_id: int,
+    child_frame_id: int,
+    x: float,
+    y: float,
+    z: float,
+    q: Sequence[float],
+    vx: float,
+    vy: float,
+    vz: float,
+    rollspeed: float,
+    pitchspeed: float,
+    yawspeed: float,
+    pose_covariance: Sequence[float],
+    velocity_covariance: Sequence[float],
+    reset_counter: int = 0,
+    estimator_type: int = 0,
+    quality: int = 0,
+) -> bytes:
+    """ODOMETRY packet (``q`` 4 floats w, x, y, z; each covariance 21 floats), arguments in
+    pymavlink's ``odometry_encode`` order."""
+    payload = _ODO_PAYLOAD.pack(
+        time_usec, x, y, z, q[0], q[1], q[2], q[3], vx, vy, vz, rollspeed, pitchspeed, yawspeed,
+        *pose_covariance[:21], *velocity_covariance[:21], frame_id, child_frame_id, reset_counter, estimator_type, quality,
+    )  # fmt: skip
+    return _frame(payload, seq, src_system, src_component, ID_ODOMETRY, _ODO_EXTRA)
+
+
+def _pack_highres_imu(m: mavlink.MAVLink_message, seq: int, src_system: int, src_component: int) -> bytes:
+    return encode_highres_imu(
+        seq, src_system, src_component, m.time_usec, m.xacc, m.yacc, m.zacc, m.xgyro, m.ygyro, m.zgyro, m.fields_updated,
+        m.xmag, m.ymag, m.zmag, m.abs_pressure, m.diff_pressure, m.pressure_alt, m.temperature, m.id,
+    )  # fmt: skip
+
+
+def _pack_odometry(m: mavlink.MAVLink_message, seq: int, src_system: int, src_component: int) -> bytes:
+    return encode_odometry(
+        seq, src_system, src_component, m.time_usec, m.frame_id, m.child_frame_id, m.x, m.y, m.z, m.q, m.vx, m.vy, m.vz,
+        m.rollspeed, m.pitchspeed, m.yawspeed, m.pose_covariance, m.velocity_covariance, m.reset_counter, m.estimator_type, m.quality,
+    )  # fmt: skip
+
+
 def _pack_debug_float_array(m: mavlink.MAVLink_message, seq: int, src_system: int, src_component: int) -> bytes:
     return encode_debug_float_array(seq, src_system, src_component, m.time_usec, m.name, m.array_id, m.data)
 
@@ -199,6 +293,8 @@ _PACKERS: dict[type, Callable[[mavlink.MAVLink_message, int, int, int], bytes]] 
     _LOCAL_POSITION_NED: _pack_local_position_ned,
     _HIL_ACTUATOR_CONTROLS: _pack_hil_actuator_controls,
     _DEBUG_FLOAT_ARRAY: _pack_debug_float_array,
+    _HIGHRES_IMU: _pack_highres_imu,
+    _ODOMETRY: _pack_odometry,
 }
 
 #: ``type(msg) -> packer(msg, seq, src_system, src_component) -> bytes`` for the fast types.
@@ -268,10 +364,34 @@ def _decode_hil_actuator_controls(packet: bytes) -> mavlink.MAVLink_message | No
     return _finish(msg, packet, length, crc, ID_HIL_ACTUATOR_CONTROLS)
 
 
+def _decode_highres_imu(packet: bytes) -> mavlink.MAVLink_message | None:
+    checked = _checked_payload(packet, _IMU_EXTRA, _IMU_PAYLOAD.size)
+    if checked is None:
+        return None
+    payload, length, crc = checked
+    msg = _HIGHRES_IMU(*_IMU_PAYLOAD.unpack_from(payload))
+    return _finish(msg, packet, length, crc, ID_HIGHRES_IMU)
+
+
+def _decode_odometry(packet: bytes) -> mavlink.MAVLink_message | None:
+    checked = _checked_payload(packet, _ODO_EXTRA, _ODO_PAYLOAD.size)
+    if checked is None:
+        return None
+    payload, length, crc = checked
+    v = _ODO_PAYLOAD.unpack_from(payload)
+    msg = _ODOMETRY(
+        v[0], v[56], v[57], v[1], v[2], v[3], list(v[4:8]), v[8], v[9], v[10], v[11], v[12], v[13],
+        list(v[14:35]), list(v[35:56]), v[58], v[59], v[60],
+    )  # fmt: skip
+    return _finish(msg, packet, length, crc, ID_ODOMETRY)
+
+
 _DECODERS: dict[int, Callable[[bytes], mavlink.MAVLink_message | None]] = {
     ID_ATTITUDE: _decode_attitude,
     ID_LOCAL_POSITION_NED: _decode_local_position_ned,
     ID_HIL_ACTUATOR_CONTROLS: _decode_hil_actuator_controls,
+    ID_HIGHRES_IMU: _decode_highres_imu,
+    ID_ODOMETRY: _decode_odometry,
 }
 
 #: ``msg_id -> decoder(packet) -> message or None (bad CRC)`` for unsigned MAVLink 2 packets.

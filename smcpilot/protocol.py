@@ -82,6 +82,17 @@ FORCE_ARM_MAGIC = 21196.0
 FC_COMPONENT_ID = 1
 #: Component id the simulator bridge speaks with.
 SIM_COMPONENT_ID = 200
+#: ``HIGHRES_IMU.fields_updated`` of the simulator's IMU: the accelerometer (bits 0-2) and the
+#: gyro (bits 3-5); a sensor's dropout is NaN in its fields, not a cleared bit.
+IMU_ACCEL_BITS = 0x07
+IMU_GYRO_BITS = 0x38
+IMU_FIELDS_UPDATED = IMU_ACCEL_BITS | IMU_GYRO_BITS
+#: ``ODOMETRY`` of the plant's true state (logged for scoring; never flown on): frames
+#: (MAV_FRAME_LOCAL_NED for the pose and the velocity), estimator type (MAV_ESTIMATOR_TYPE_MOCAP:
+#: what a motion-capture system would give, the truth) and quality (100).
+TRUTH_FRAME = 1
+TRUTH_ESTIMATOR_TYPE = 6
+TRUTH_QUALITY = 100
 
 # -- controllers -----------------------------------------------------------------------------------
 #: The built-in control laws the flight controller flies (FC_CONTROLLER values 0..5; plug-ins follow,

@@ -11,6 +11,8 @@ in-process runner and the compiled flight convert back with :func:`paper_of_wire
 
 from __future__ import annotations
 
+import math
+
 from smcpilot.frames import (
     body_rates_to_euler_rates,
     euler_flu_to_frd,
@@ -21,7 +23,7 @@ from smcpilot.frames import (
     rates_frd_to_flu,
 )
 
-__all__ = ["WIRE_FIELDS", "wire_of_paper", "paper_of_wire", "WIRE_FUNCTIONS"]
+__all__ = ["WIRE_FIELDS", "wire_of_paper", "paper_of_wire", "accel_of_specific_force", "WIRE_FUNCTIONS"]
 
 #: the 12 wire values, in order.
 WIRE_FIELDS = ("roll", "pitch", "yaw", "p", "q", "r", "x", "y", "z", "vx", "vy", "vz")
@@ -53,6 +55,23 @@ def paper_of_wire(
     x, y, z = ned_to_nwu((xn, yn, zn))
     vx, vy, vz = ned_to_nwu((vxn, vyn, vzn))
     return (x, y, z, vx, vy, vz, phi, theta, psi, phi_d, theta_d, psi_d, p, q, r)
+
+
+def accel_of_specific_force(
+    fx: float, fy: float, fz: float, phi: float, theta: float, psi: float, g: float
+) -> tuple[float, float, float]:
+    """The kinematic acceleration (x'', y'', z'': m/s^2, paper frame NWU, gravity removed) of an
+    accelerometer's specific force on the wire (``HIGHRES_IMU.xacc``..``zacc``: body FRD, m/s^2,
+    (0, 0, -g) level at rest), rotated with the ZYX Euler angles of the FLU body (rad). The inverse
+    of the simulator's :func:`sim_bridge.sensors.specific_force_frd`; NaN in, NaN out."""
+    ux, uy, uz = fx, -fy, -fz  # FRD -> FLU
+    sp, cp = math.sin(phi), math.cos(phi)
+    st, ct = math.sin(theta), math.cos(theta)
+    ss, cs = math.sin(psi), math.cos(psi)
+    ax = cs * ct * ux + (cs * st * sp - ss * cp) * uy + (cs * st * cp + ss * sp) * uz
+    ay = ss * ct * ux + (ss * st * sp + cs * cp) * uy + (ss * st * cp - cs * sp) * uz
+    az = -st * ux + ct * sp * uy + ct * cp * uz - g
+    return (ax, ay, az)
 
 
 #: the pure functions (compiled with the flight kernel).

@@ -103,7 +103,7 @@ def test_out_of_range_values_fail_like_pymavlink(values: list[float], t: int) ->
 def test_pack_message_leaves_other_types_to_pymavlink() -> None:
     msg = mavlink.MAVLink(None).heartbeat_encode(2, 3, 0, 0, 0)
     assert fastcodec.pack_message(msg, 0, 1, 1) is None
-    assert fastcodec.FAST_MSG_IDS == {30, 32, 93}
+    assert fastcodec.FAST_MSG_IDS == {30, 32, 93, 105, 331}
 
 
 @pytest.mark.parametrize("flip_index", [1 + 9, 12, -2, -1])
@@ -147,3 +147,46 @@ def test_debug_float_array_matches_pymavlink(
     # pymavlink reads it back with the same values (the fast path does not decode this id).
     back = mavlink.MAVLink(None).decode(bytearray(expected))
     assert same_value(list(back.data), [struct.unpack("<f", struct.pack("<f", v))[0] for v in data])
+
+
+I8 = st.integers(-128, 127)
+U16 = st.integers(0, 0xFFFF)
+
+
+@settings(max_examples=300, deadline=None)
+@given(seq=U8, system=U8, component=U8, t=U64, values=st.lists(F32, min_size=13, max_size=13), fields=U16, imu_id=U8)
+@example(seq=0, system=0, component=0, t=0, values=[0.0] * 13, fields=0, imu_id=0)  # all zeros -> 1 byte
+@example(seq=9, system=1, component=200, t=10**6, values=[0.1, -0.2, -9.81, 0.01, 0.02, 0.03] + [0.0] * 7, fields=0x3F, imu_id=0)
+@example(seq=9, system=1, component=200, t=10**6, values=[math.nan] * 3 + [0.0] * 10, fields=0x3F, imu_id=0)  # a dropout
+def test_highres_imu_matches_pymavlink(seq: int, system: int, component: int, t: int, values: list[float], fields: int, imu_id: int) -> None:
+    """The simulator's sensed IMU, every tick: the same bytes as pymavlink, and decoded to the same message."""
+    acc_gyro, rest = values[:6], values[6:]
+    msg = mavlink.MAVLink(None).highres_imu_encode(t, *acc_gyro, *rest, fields, imu_id)
+    expected = reference(msg, seq, system, component)
+    assert fastcodec.encode_highres_imu(seq, system, component, t, *acc_gyro, fields, *rest, imu_id) == expected
+    assert fastcodec.pack_message(msg, seq, system, component) == expected
+    assert_round_trip(expected)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    seq=U8, system=U8, component=U8, t=U64, frames=st.lists(U8, min_size=2, max_size=2), values=st.lists(F32, min_size=13, max_size=13),
+    cov=st.lists(F32, min_size=42, max_size=42), reset=U8, est=U8, quality=I8,
+)  # fmt: skip
+@example(seq=0, system=0, component=0, t=0, frames=[0, 0], values=[0.0] * 13, cov=[0.0] * 42, reset=0, est=0, quality=0)
+@example(seq=3, system=2, component=200, t=2 * 10**6, frames=[1, 1], values=[1.0, -2.0, -3.0, 1.0, 0.0, 0.0, 0.0] + [0.5] * 6,
+         cov=[math.nan] + [0.0] * 20 + [math.nan] + [0.0] * 20, reset=0, est=6, quality=100)  # fmt: skip
+def test_odometry_matches_pymavlink(
+    seq: int, system: int, component: int, t: int, frames: list[int], values: list[float], cov: list[float], reset: int, est: int, quality: int
+) -> None:
+    """The plant's true state, every tick (logged for scoring): the same bytes as pymavlink, decoded alike."""
+    x, y, z = values[:3]
+    q = values[3:7]
+    vx, vy, vz, p, qr, r = values[7:]
+    msg = mavlink.MAVLink(None).odometry_encode(t, frames[0], frames[1], x, y, z, q, vx, vy, vz, p, qr, r, cov[:21], cov[21:], reset, est, quality)
+    expected = reference(msg, seq, system, component)
+    got = fastcodec.encode_odometry(seq, system, component, t, frames[0], frames[1], x, y, z, q, vx, vy, vz, p, qr, r, cov[:21], cov[21:],
+                                    reset, est, quality)  # fmt: skip
+    assert got == expected
+    assert fastcodec.pack_message(msg, seq, system, component) == expected
+    assert_round_trip(expected)

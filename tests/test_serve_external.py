@@ -29,7 +29,8 @@ from typing import Any
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from sim_bridge.serve import ServeOptions, ServerBase, specific_force_frd
+from sim_bridge.sensors import specific_force_frd
+from sim_bridge.serve import ServeOptions, ServerBase
 from sim_bridge.serve_ardupilot import ROTOR_CHANNELS, ArduPilotJsonServer
 from sim_bridge.serve_px4 import ACCEL_BITS, BARO_BITS, GYRO_BITS, MAG_BITS, Px4Server
 from smcpilot.actuators import hover_command

@@ -23,6 +23,12 @@ increment: with a perfect model ``u = G^-1 (nu - H f)``, and the realised accele
 ``A nu + (1 - A H) f`` (A the actuator's dynamics) -- the filter delays only the disturbance
 rejection, not the response to nu (the point of Smeur's section III).
 
+Measured acceleration: the law asks for the IMU (``measures_accel``), and the altitude channel's
+a_k is then the accelerometer's z'' (``meas[10]``: specific force rotated into the world with
+the attitude, gravity removed) when it is finite; where the IMU gives none (a dropout, a
+simulator without it) z' is differenced as above. The attitude channels always difference the
+rates: an accelerometer does not measure angular acceleration.
+
 Altitude: the same on z'' (from the vertical velocity z'), incrementing the vertical thrust
 ``w = cos(phi) cos(theta) u_z`` and dividing by the current cos(phi) cos(theta):
 ``u_z = (w_f + m (nu_z - a_zf)) / (cos phi cos theta)``, w_f = H(cos phi cos theta m_z).
@@ -57,6 +63,7 @@ from smcpilot.model import tilt_cos
 
 Vec4 = tuple[float, float, float, float]
 _ZERO4 = (0.0, 0.0, 0.0, 0.0)
+_NAN = math.nan
 #: smallest |cos(phi) cos(theta)| the altitude channel divides by (as the pipeline's hover trim).
 TILT_COS_MIN = 0.05
 #: bounds of the adaptive G ratio G / G_nominal.
@@ -205,13 +212,17 @@ def indi_channel(
     x: float, xd: float, xd_prev: float, act: float, u_prev: float, scale: float,
     fa: float, fad: float, fu: float, fud: float, ratio: float,
     x_ref: float, v_ref: float, a_ref: float, kp: float, kd: float, g_nom: float,
-    c: Filter2, lag_a: float, lag_b: float, mu_dt: float, eps: float, dt_s: float,
+    c: Filter2, lag_a: float, lag_b: float, mu_dt: float, eps: float, dt_s: float, acc_meas: float,
 ) -> tuple[float, float, float, float, float, float, float]:  # fmt: skip
     """One channel: (u, actuator state, a_f, a_f', u_f, u_f', G ratio) after the tick.
 
     ``scale`` multiplies the actuator before it is filtered and divides the result (1 for the
-    attitude channels; cos(phi) cos(theta) for the thrust, whose vertical part acts on z'')."""
-    acc = (xd - xd_prev) / dt_s
+    attitude channels; cos(phi) cos(theta) for the thrust, whose vertical part acts on z'').
+    ``acc_meas`` is the channel's measured acceleration (the accelerometer's, for z''); NaN: the
+    mean acceleration over the last tick from the rates, (x'_k - x'_{k-1}) / dt."""
+    acc = acc_meas
+    if acc != acc:
+        acc = (xd - xd_prev) / dt_s
     mean = u_prev + (act - u_prev) * lag_b
     act_new = u_prev + (act - u_prev) * lag_a
     fa1, fad1 = indi_filter(fa, fad, acc, c)
@@ -245,7 +256,12 @@ def indi_step(
     meas: Sequence[float], ref: Sequence[float], state: Sequence[float], dt_s: float, k: IndiConsts, d_hat: Sequence[float], u_prev: Sequence[float]
 ) -> tuple[Vec4, tuple[float, ...], tuple[Vec4, Vec4, Vec4, Vec4]]:
     """One tick: (u, new state, diag). ``u_prev`` is what the mixer realised over the last tick;
-    diag's u' is the command's rate of change (u - u_prev) / dt, the rest zeros."""
+    diag's u' is the command's rate of change (u - u_prev) / dt, the rest zeros. ``meas`` may end
+    with the measured acceleration (x'', y'', z'', :attr:`fc.control.law.Law.measures_accel`):
+    a finite z'' is the altitude channel's acceleration; NaN, or 8 floats, differences z'."""
+    acc_z = _NAN
+    if len(meas) > 10:
+        acc_z = meas[10]
     s = state
     p0, p1, p2, p3 = s[0], s[1], s[2], s[3]
     if s[28] == 0.0:  # the first tick: no previous rate to difference
@@ -259,20 +275,20 @@ def indi_step(
     g = k.g_nom
     u0, c0, fa0, fad0, fu0, fud0, r0 = indi_channel(
         meas[0], meas[1], p0, s[4], u_prev[0], 1.0, s[8], s[9], s[16], s[17], s[24],
-        ref[0], ref[1], ref[2], kp[0], kd[0], g[0], k.f_rp, la, lb, mu_dt, eps, dt_s,
+        ref[0], ref[1], ref[2], kp[0], kd[0], g[0], k.f_rp, la, lb, mu_dt, eps, dt_s, _NAN,
     )  # fmt: skip
     u1, c1, fa1, fad1, fu1, fud1, r1 = indi_channel(
         meas[2], meas[3], p1, s[5], u_prev[1], 1.0, s[10], s[11], s[18], s[19], s[25],
-        ref[4], ref[5], ref[6], kp[1], kd[1], g[1], k.f_rp, la, lb, mu_dt, eps, dt_s,
+        ref[4], ref[5], ref[6], kp[1], kd[1], g[1], k.f_rp, la, lb, mu_dt, eps, dt_s, _NAN,
     )  # fmt: skip
     u2, c2, fa2, fad2, fu2, fud2, r2 = indi_channel(
         meas[4], meas[5], p2, s[6], u_prev[2], 1.0, s[12], s[13], s[20], s[21], s[26],
-        ref[8], ref[9], ref[10], kp[2], kd[2], g[2], k.f_yaw, la, lb, mu_dt, eps, dt_s,
+        ref[8], ref[9], ref[10], kp[2], kd[2], g[2], k.f_yaw, la, lb, mu_dt, eps, dt_s, _NAN,
     )  # fmt: skip
     ctc = tilt_cos(meas[0], meas[2], k.tilt_min)
     u3, c3, fa3, fad3, fu3, fud3, r3 = indi_channel(
         meas[6], meas[7], p3, s[7], u_prev[3], ctc, s[14], s[15], s[22], s[23], s[27],
-        ref[12], ref[13], ref[14], kp[3], kd[3], g[3], k.f_z, la, lb, mu_dt, eps, dt_s,
+        ref[12], ref[13], ref[14], kp[3], kd[3], g[3], k.f_z, la, lb, mu_dt, eps, dt_s, acc_z,
     )  # fmt: skip
     new = (
         meas[1], meas[3], meas[5], meas[7],
@@ -302,4 +318,5 @@ INDI = Law(
     params_class=IndiParams, consts=indi_consts,
     initial_state=indi_initial_state, step=indi_step, anti_windup=indi_anti_windup,
     state_names=INDI_STATE_NAMES, diagnostics=("u_dot",), observer_default="none", reference="docs/indi.md",
+    measures_accel=True,
 )  # fmt: skip

@@ -36,6 +36,8 @@ configured to hand it to the law (``DOB_MODE`` 1 or 2), zeros otherwise; ``u_pre
 motors realised over the previous tick, the law's own share (after the mixer's limits, without the
 observer's compensation; zeros after arming) -- what an incremental law (INDI) increments.
 ``initial_state`` gets the measurement when the vehicle arms (or when the law takes over in flight).
+A law with :attr:`Law.measures_accel` gets, after the 8 (12) floats of ``meas``, the measured
+acceleration x'', y'', z'' (m/s^2, paper frame, gravity removed; NaN where the IMU gave none).
 A whole-stack law's integrators are held (``anti_windup`` with every channel limited) in ALT_HOLD
 and on the ground, where the pipeline gives it no horizontal correction to make. ``diag`` is four 4-tuples, ``(S, sigma,
 chi_hat, u')`` in channel order, zeros where the law has no such quantity (:attr:`Law.diagnostics`
@@ -208,6 +210,11 @@ class Law:
     origin: str = "built-in"
     #: documentation page or reference.
     reference: str = ""
+    #: the law measures acceleration: its ``step`` gets ``meas`` with three more floats, the
+    #: measured acceleration (x'', y'', z'': m/s^2, paper frame NWU, gravity removed) from the
+    #: IMU's accelerometer and the attitude flown on, NaN when the IMU gave none this tick (a
+    #: dropout, or a simulator that sends none). ``initial_state`` gets the state alone.
+    measures_accel: bool = False
 
     @property
     def functions(self) -> LawFunctions:

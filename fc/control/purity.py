@@ -3,7 +3,7 @@
 A function in the pure style is a module-level function with no closure whose body has no lists,
 dicts, sets, comprehensions, strings, f-strings, exceptions, lambdas, nested functions, imports or
 ``with``, and whose calls are of other pure functions by plain name, ``math`` functions,
-``abs``/``min``/``max``, NamedTuple classes, or (in the pipeline) the flying law's own functions
+``abs``/``min``/``max``, ``len`` (of a tuple), NamedTuple classes, or (in the pipeline) the flying law's own functions
 through a :class:`fc.control.law.LawFunctions` argument. Such functions run under CPython and,
 unchanged, under numba's ``njit`` (``tests/test_compilable.py`` compiles them and compares bits).
 
@@ -25,7 +25,7 @@ from collections.abc import Callable, Iterable
 
 from fc.control.law import Law, LawFunctions
 
-_ALLOWED_BUILTINS = {abs, min, max}
+_ALLOWED_BUILTINS = {abs, len, min, max}
 _MATH = {v for v in vars(math).values() if callable(v)}
 _FORBIDDEN_NODES = (
     ast.List, ast.ListComp, ast.Dict, ast.DictComp, ast.Set, ast.SetComp, ast.GeneratorExp, ast.JoinedStr,
