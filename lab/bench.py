@@ -243,6 +243,15 @@ def _add_fast(sub: argparse._SubParsersAction) -> None:
 _EXTRA_TARGETS.append(_add_fast)
 
 
+def _add_batch(sub: argparse._SubParsersAction) -> None:
+    from lab.fast import bench as fast_bench
+
+    fast_bench.add_batch_arguments(sub)
+
+
+_EXTRA_TARGETS.append(_add_batch)
+
+
 def _add_swarm(sub: argparse._SubParsersAction) -> None:
     from lab import swarm_bench
 
@@ -250,3 +259,12 @@ def _add_swarm(sub: argparse._SubParsersAction) -> None:
 
 
 _EXTRA_TARGETS.append(_add_swarm)
+
+
+def _add_realtime(sub: argparse._SubParsersAction) -> None:
+    from lab import realtime_bench
+
+    realtime_bench.add_arguments(sub)
+
+
+_EXTRA_TARGETS.append(_add_realtime)

@@ -57,7 +57,7 @@ def fly_unit(unit: Unit, *, trace: bool = False, tlog: Path | None = None) -> tu
         if unit.sitl:
             tr = _fly_sitl(unit, row, tlog)
         else:
-            tr = _fly_in_process(unit, row, tlog)
+            tr = _fly_in_process(unit, row, tlog, trace)
     except Exception as exc:  # a worker never loses a unit to an exception: the row says what it was
         row["status"] = "error"
         row["message"] = f"{type(exc).__name__}: {exc}".strip() or traceback.format_exc(limit=1)
@@ -79,7 +79,7 @@ def _status(row: dict[str, Any], status: str) -> None:
         row["status"] = status
 
 
-def _fly_in_process(unit: Unit, row: dict[str, Any], tlog: Path | None) -> Trace:
+def _fly_in_process(unit: Unit, row: dict[str, Any], tlog: Path | None, trace: bool = True) -> Trace | None:
     from fc.core import FlightCore
     from fc.params import config_for, options_for
     from ground.logs.metrics import flight_metrics
@@ -150,6 +150,8 @@ def _fly_in_process(unit: Unit, row: dict[str, Any], tlog: Path | None) -> Trace
         row.update(metrics)
     row["message"] = message
     _status(row, status)
+    if not trace:
+        return None
     err = np.linalg.norm(a["position_m"] - a["target_m"], axis=1)
     eul = a["euler_rad"]
     tilt = np.degrees(np.arccos(np.clip(np.cos(eul[:, 0]) * np.cos(eul[:, 1]), -1.0, 1.0)))

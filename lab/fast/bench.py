@@ -127,3 +127,115 @@ def _bench_compare(seeds: int) -> None:
             ok = "ok" if p.returncode == 0 else f"exit {p.returncode}: {p.stderr.strip().splitlines()[-1:]}"
         print(f"  {label:<9} {walls[label]:7.1f} s  ({ok})")
     print(f"  ratio     {walls['CPython'] / walls['compiled']:7.1f}x")
+
+
+# -- smcpilot bench batch -------------------------------------------------------------------------------
+def add_batch_arguments(sub: argparse._SubParsersAction) -> None:
+    c = sub.add_parser("batch", help="campaign flights in batches, per core: vehicle-ticks/s against CPython (same run; ratio)")
+    c.add_argument("--seeds", type=int, default=1, help="seeds of the robustness study's cases x controllers flown compiled (default 1: 70 flights)")
+    c.add_argument("--duration", type=float, default=20.0, metavar="S", help="simulated seconds a flight (default 20, the study's)")
+    c.add_argument("--cpython", type=int, default=7, metavar="N",
+                   help="flights of them flown in CPython for the baseline, spread over the controllers and cases (default 7)")  # fmt: skip
+    c.add_argument("--repeat", type=int, default=2, help="compiled batches; the best is reported (default 2)")
+    c.add_argument("--engine", action="store_true",
+                   help="also the same flights on a local cluster of 2 workers, in batches and one flight per task")  # fmt: skip
+    c.set_defaults(bench=bench_batch)
+
+
+def _study_units(seeds: int, duration_s: float) -> list:  # type: ignore[type-arg]
+    from lab.compare import VARIANTS, study_cases, study_unit
+
+    cases = study_cases(duration_s=duration_s, t_event_s=duration_s / 2.0)
+    combos = [(c, v, s) for c in cases for v in VARIANTS for s in range(seeds)]
+    return [study_unit(c, v, s, i) for i, (c, v, s) in enumerate(combos)]
+
+
+def _fly_batch_s(units: list, jit: bool) -> tuple[float, list[dict]]:  # type: ignore[type-arg]
+    from lab.campaign.engine import fly_batch
+    from lab.campaign.flight import fly_row
+
+    old = os.environ.get("SMCPILOT_JIT")
+    os.environ["SMCPILOT_JIT"] = "1" if jit else "0"
+    try:
+        t0 = time.perf_counter()
+        rows = fly_batch(fly_row, units)
+        return time.perf_counter() - t0, rows
+    finally:
+        if old is None:
+            del os.environ["SMCPILOT_JIT"]
+        else:
+            os.environ["SMCPILOT_JIT"] = old
+
+
+def bench_batch(args: argparse.Namespace) -> int:
+    from lab.fast.flight import KERNEL_TIME
+    from smcpilot.jit import jit_unavailable_reason
+
+    if args.seeds < 1 or args.cpython < 1 or args.repeat < 1 or not args.duration > 0:
+        raise ConfigError("--seeds, --cpython and --repeat must be at least 1, --duration > 0")
+    why = jit_unavailable_reason()
+    if why is not None:
+        print(f"the compiled path is off ({why}): nothing to compare")
+        return 1
+    units = _study_units(args.seeds, args.duration)
+    ticks = sum(u.scenario.n_ticks for u in units)
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    print(f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, load average {load:.2f} at the start")
+    print(f"{len(units)} flights of the robustness study ({args.duration:g} s each: sensor noise, faults, gusts, model errors; 7 controllers),"
+          " flown one after another in this process as a worker flies a batch: building, flying, scoring\n")  # fmt: skip
+    # units in the order case x controller x seed: the first case's flight of each controller loads the kernels
+    n_var = 7
+    n_cases = len(units) // (n_var * args.seeds)
+    first, _ = _fly_batch_s([units[v * args.seeds] for v in range(n_var)], True)
+    # CPython: a subset spread over the controllers and the cases (flight i: case i, controller i)
+    picks = sorted({((i % n_cases) * n_var + i % n_var) * args.seeds for i in range(args.cpython)})
+    sub = [units[i] for i in picks]
+    py_s, _ = _fly_batch_s(sub, False)
+    py_rate = sum(u.scenario.n_ticks for u in sub) / py_s
+    best = None
+    for _ in range(args.repeat):
+        KERNEL_TIME[:] = [0, 0, 0.0]
+        wall, rows = _fly_batch_s(units, True)
+        if best is None or wall < best[0]:
+            best = (wall, list(KERNEL_TIME), rows)
+    assert best is not None
+    wall, (calls, flown, kernel_s), rows = best
+    rate = ticks / wall
+    bad = sum(r["status"] not in ("ok", "crashed") for r in rows)
+    print(f"{'':<34} {'vehicle-ticks/s':>16} {'us/tick':>8} {'ratio':>7}")
+    print(f"{'CPython (' + str(len(sub)) + ' of the flights)':<34} {py_rate:>16,.0f} {1e6 / py_rate:>8.1f} {'1.0x':>7}")
+    print(f"{'compiled, batch of ' + str(len(units)):<34} {rate:>16,.0f} {1e6 / rate:>8.2f} {rate / py_rate:>6.1f}x")
+    kr = flown / kernel_s if kernel_s > 0 else float("nan")
+    print(f"{'  of which the kernel alone':<34} {kr:>16,.0f} {1e6 / kr:>8.2f} {kr / py_rate:>6.1f}x")
+    print(f"\nwhere a compiled flight's time goes: the kernel {kernel_s / wall:.0%} ({calls / len(units):.1f} calls a flight,"
+          f" {flown / ticks:.1%} of the ticks), the rest {1 - kernel_s / wall:.0%}: building the flight core and plant, the eventful"
+          f" ticks in Python ({ticks - flown:,} of {ticks:,}) and the hand-overs, scoring ({wall / len(units) * 1e3:.1f} ms a flight in all;"
+          f" loading the kernels first took {first:.1f} s)" + (f"; {bad} flights not ok" if bad else ""))  # fmt: skip
+    if args.engine:
+        _bench_engine(units)
+    return 0
+
+
+def _bench_engine(units: list) -> None:  # type: ignore[type-arg]
+    from lab.campaign.engine import ClusterOptions, Engine
+
+    print(f"\nthe same {len(units)} flights on a local cluster of 2 workers (started and warm before the clock):")
+    walls = {}
+    for batch in (False, True):
+        with Engine(ClusterOptions(workers=2), tag="bench-batch", batch=batch) as engine:
+            engine.client.run(_warm_worker)
+            t0 = time.perf_counter()
+            engine.run(units, lambda u, r: None)
+            walls[batch] = time.perf_counter() - t0
+        label = f"in batches ({len(engine.batches(units))} tasks)" if batch else f"one flight per task ({len(units)} tasks)"
+        print(f"  {label:<32} {walls[batch]:6.2f} s  {len(units) / walls[batch]:6.1f} flights/s")
+    print(f"  batches / one per task: {walls[False] / walls[True]:.2f}x")
+
+
+def _warm_worker(dask_worker: object = None) -> bool:
+    """(Runs on every worker.) Load every controller's kernel: one short flight each."""
+    from lab.campaign.flight import fly_row
+
+    for u in _study_units(1, 0.5)[:7]:
+        fly_row(u)
+    return True

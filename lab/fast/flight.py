@@ -51,6 +51,10 @@ from smcpilot.jit import JIT_ENV, compile_pure, jit_enabled, say_once
 
 __all__ = ["FastRecord", "fast_simulate", "fast_unsupported", "compiled_kernel"]
 
+#: the compiled kernel's own share of this process's flying: [calls, ticks flown, wall seconds]
+#: (``smcpilot bench batch`` splits a flight's time with it).
+KERNEL_TIME = [0, 0, 0.0]
+
 _ONES4 = (1.0, 1.0, 1.0, 1.0)
 _NAN4 = (math.nan,) * 4
 #: the kernel flies at most this many ticks a call (a ``stop()`` check and progress in between):
@@ -417,6 +421,7 @@ class _Bridge:
         plan = core.plan
         plan_next = plan.steps[plan._i].t_s if not plan.finished else math.inf
         rec = self.record
+        t_call = time.perf_counter()
         ps, es, out, est = self._call(
             self.kernel.law, flight.params, flight.pipeline_state, cmd, armed, flight.position_hold, core.config.period_s,
             core._est_params, core._est, core.t0_us, self.fc_f, tuple(core.commander.current.watch()) if armed else (0, 0.0, 0.0, 0.0, 0.0),
@@ -428,6 +433,10 @@ class _Bridge:
             fg, len(gusts), fgmt, fggs, self.sp, self.sn, fnmt, fngs, core.estimate_status, self.zb,
         )  # fmt: skip
         flown, code, n_rec, t_after = int(io[0]), int(io[1]), int(io[2]), int(io[3])
+        kt = KERNEL_TIME
+        kt[0] += 1
+        kt[1] += flown
+        kt[2] += time.perf_counter() - t_call
         # back into the live objects
         if self.gusts_on:
             mt_import(self._gust_rng, gmt, ggs)
