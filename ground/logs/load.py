@@ -7,6 +7,9 @@ What the flight controller logs (see :mod:`fc.app` and :mod:`fc.telemetry`):
   and body rates, FRD body in NED) and ``LOCAL_POSITION_NED``, ``time_boot_ms`` = simulated time;
 - to the simulator, every tick: ``HIL_ACTUATOR_CONTROLS`` (controls[0..3] = motor commands in
   [0, 1]; mode bit 128 = armed; flags bit 0 = lockstep);
+- from the simulator with each state: ``HIGHRES_IMU`` (the sensed IMU, counted) and ``ODOMETRY``
+  (``estimator_type`` MOCAP: the plant's true state, never flown on): position and velocity NED,
+  attitude quaternion FRD in NED, ``time_usec`` = simulated time; read into the ``truth_*`` arrays;
 - log-only, every tick: ``DEBUG_FLOAT_ARRAY`` "SMC" (array_id 1) whose entries
   :data:`smcpilot.protocol.SMC_FIELDS` names, in the paper's frames (NWU world, FLU body);
 - to ground stations, if one was attached: ``HEARTBEAT``, ``SYS_STATUS``, ``NAMED_VALUE_INT``
@@ -43,7 +46,7 @@ import numpy as np
 from ground.vehicle.telemetry import StatusTextAssembler
 from smcpilot.errors import SmcpilotError, TlogError, TlogFormatError
 from smcpilot.frames import euler_flu_to_frd, nwu_to_ned
-from smcpilot.protocol import CHI_NAMES, FC_COMPONENT_ID, SIG_NAMES, SIM_COMPONENT_ID, SMC_ARRAY_ID, SMC_FIELDS
+from smcpilot.protocol import CHI_NAMES, FC_COMPONENT_ID, SIG_NAMES, SIM_COMPONENT_ID, SMC_ARRAY_ID, SMC_FIELDS, TRUTH_ESTIMATOR_TYPE
 
 _COMM_FIELDS = ("errors_comm", "drop_rate_comm", "errors_count1", "errors_count2", "errors_count3", "errors_count4")
 from smcpilot.tlog import read_tlog
@@ -56,6 +59,7 @@ CHANNELS: tuple[str, ...] = ("phi", "theta", "psi", "z")
 SIM_COMPONENT = SIM_COMPONENT_ID
 _ARMED_BIT = 128  # MAV_MODE_FLAG_SAFETY_ARMED in HIL_ACTUATOR_CONTROLS.mode
 _LOCKSTEP_FLAG = 1  # HIL_ACTUATOR_CONTROLS.flags bit 0
+_TRUTH_ESTIMATOR = TRUTH_ESTIMATOR_TYPE  # ODOMETRY.estimator_type of the simulator's truth
 _SMC_USED = len(SMC_FIELDS)  # 29 of the 58 floats carry data
 _SMC_INDEX = {name: i for i, name in enumerate(SMC_FIELDS)}
 
@@ -142,6 +146,19 @@ class FlightLog:
     v_east_mps: np.ndarray = field(default_factory=_empty)
     v_down_mps: np.ndarray = field(default_factory=_empty)
 
+    # ODOMETRY from the simulator: the plant's true state (north, east, altitude up; NED
+    # velocities; roll, pitch, yaw of FRD in NED from the quaternion, degrees).
+    truth_t_s: np.ndarray = field(default_factory=_empty)
+    truth_north_m: np.ndarray = field(default_factory=_empty)
+    truth_east_m: np.ndarray = field(default_factory=_empty)
+    truth_alt_m: np.ndarray = field(default_factory=_empty)
+    truth_v_north_mps: np.ndarray = field(default_factory=_empty)
+    truth_v_east_mps: np.ndarray = field(default_factory=_empty)
+    truth_v_down_mps: np.ndarray = field(default_factory=_empty)
+    truth_roll_deg: np.ndarray = field(default_factory=_empty)
+    truth_pitch_deg: np.ndarray = field(default_factory=_empty)
+    truth_yaw_deg: np.ndarray = field(default_factory=_empty)
+
     # HIL_ACTUATOR_CONTROLS.
     act_t_s: np.ndarray = field(default_factory=_empty)
     #: motor commands in [0, 1], shape (n, 4).
@@ -200,6 +217,11 @@ class FlightLog:
         return self.smc_t_s.size > 0
 
     @property
+    def has_truth(self) -> bool:
+        """True when the log holds the simulator's true state (``ODOMETRY``)."""
+        return self.truth_t_s.size > 0
+
+    @property
     def duration_s(self) -> float:
         """Simulated duration: span of the state times if there is state, else of the records."""
         for t in (self.att_t_s, self.pos_t_s):
@@ -236,6 +258,15 @@ def _describe_source(key: tuple[int, int]) -> str:
     return f"{who} (system {system}, component {component})"
 
 
+def _euler_frd_ned_of_quat(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Roll, pitch, yaw (rad, ZYX) of quaternions (n, 4: w, x, y, z), FRD body in NED."""
+    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    roll = np.arctan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+    pitch = np.arcsin(np.clip(2.0 * (w * y - z * x), -1.0, 1.0))
+    yaw = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return roll, pitch, yaw
+
+
 def _state_times(rows: np.ndarray, t0_us: int, use_boot_time: bool) -> np.ndarray:
     """Times [s] of state rows (column 0 = record stamp µs, column 1 = time_boot_ms)."""
     if use_boot_time:
@@ -263,6 +294,7 @@ def load_log(path: str | os.PathLike[str]) -> FlightLog:
     counts: dict[str, int] = {}
     att: dict[tuple[int, int], list[tuple]] = {}
     pos: dict[tuple[int, int], list[tuple]] = {}
+    truth: list[tuple] = []
     act: list[tuple] = []
     lockstep_flags: list[bool] = []
     smc_t: list[int] = []
@@ -295,6 +327,10 @@ def load_log(path: str | os.PathLike[str]) -> FlightLog:
                 pos.setdefault(key, []).append((time_us, msg.time_boot_ms, msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz))
                 if key[1] == SIM_COMPONENT_ID:
                     sim_state_us = msg.time_boot_ms * 1000
+            elif mtype == "ODOMETRY":
+                if msg.get_srcComponent() == SIM_COMPONENT_ID and msg.estimator_type == _TRUTH_ESTIMATOR:
+                    q = msg.q
+                    truth.append((time_us, msg.time_usec * 1e-3, msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz, q[0], q[1], q[2], q[3]))
             elif mtype == "PARAM_VALUE":
                 pid = msg.param_id
                 name = (pid.decode("ascii", "replace") if isinstance(pid, bytes) else str(pid)).split("\x00", 1)[0]
@@ -365,6 +401,13 @@ def load_log(path: str | os.PathLike[str]) -> FlightLog:
         log.pos_t_s = _state_times(r, t0, use_boot)
         log.north_m, log.east_m, log.alt_m = r[:, 2], r[:, 3], -r[:, 4]
         log.v_north_mps, log.v_east_mps, log.v_down_mps = r[:, 5], r[:, 6], r[:, 7]
+    if truth:
+        r = np.asarray(truth, dtype=float)
+        log.truth_t_s = _state_times(r, t0, use_boot)
+        log.truth_north_m, log.truth_east_m, log.truth_alt_m = r[:, 2], r[:, 3], -r[:, 4]
+        log.truth_v_north_mps, log.truth_v_east_mps, log.truth_v_down_mps = r[:, 5], r[:, 6], r[:, 7]
+        roll, pitch, yaw = (np.degrees(a) for a in _euler_frd_ned_of_quat(r[:, 8:12]))
+        log.truth_roll_deg, log.truth_pitch_deg, log.truth_yaw_deg = roll, pitch, _wrap_deg(yaw)
     if att_key is not None or pos_key is not None:
         log.state_source = _describe_source(att_key if att_key is not None else pos_key)  # type: ignore[arg-type]
         if att_key is not None and att_key[1] != SIM_COMPONENT:

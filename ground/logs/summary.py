@@ -138,9 +138,16 @@ def _sigma_window(log: FlightLog, window_s: float) -> np.ndarray:
     return (t >= t_end - window_s) & (t <= t_end)
 
 
-def log_metrics(log: FlightLog, *, sigma_window_s: float = DEFAULT_SIGMA_WINDOW_S, recover_radius_m: float = RECOVER_RADIUS_M) -> dict[str, Any] | None:
+def log_metrics(
+    log: FlightLog, *, sigma_window_s: float = DEFAULT_SIGMA_WINDOW_S, recover_radius_m: float = RECOVER_RADIUS_M, truth: bool = False
+) -> dict[str, Any] | None:
     """The :func:`ground.logs.metrics.flight_metrics` of a flight log, or None when the log lacks
     what they need (the per-tick "SMC" records, which carry the set-point, and the state).
+
+    ``truth``: score the plant's true state (the simulator's ``ODOMETRY``, what the vehicle did,
+    as ``smcpilot compare`` scores its flights) instead of the sensed state the FC flew on
+    (``ATTITUDE`` + ``LOCAL_POSITION_NED``: sensor noise and faults included); None when the log
+    has no truth.
 
     The samples are the controller ticks (``smc_t_s``): position (north, east, altitude up),
     velocity (north, east, up) and attitude (roll, pitch, yaw of FRD in NED) held from the latest
@@ -155,9 +162,17 @@ def log_metrics(log: FlightLog, *, sigma_window_s: float = DEFAULT_SIGMA_WINDOW_
         return None
     t = log.smc_t_s
     armed, landing, _, _ = _flight_masks(log, 0.0)
-    pos = _hold(log.pos_t_s, np.column_stack([log.north_m, log.east_m, log.alt_m]), t)
-    vel = _hold(log.pos_t_s, np.column_stack([log.v_north_mps, log.v_east_mps, -log.v_down_mps]), t)
-    euler = _hold(log.att_t_s, np.radians(np.column_stack([log.roll_deg, log.pitch_deg, log.yaw_deg])), t)
+    if truth:
+        if not log.has_truth:
+            return None
+        tt = log.truth_t_s
+        pos = _hold(tt, np.column_stack([log.truth_north_m, log.truth_east_m, log.truth_alt_m]), t)
+        vel = _hold(tt, np.column_stack([log.truth_v_north_mps, log.truth_v_east_mps, -log.truth_v_down_mps]), t)
+        euler = _hold(tt, np.radians(np.column_stack([log.truth_roll_deg, log.truth_pitch_deg, log.truth_yaw_deg])), t)
+    else:
+        pos = _hold(log.pos_t_s, np.column_stack([log.north_m, log.east_m, log.alt_m]), t)
+        vel = _hold(log.pos_t_s, np.column_stack([log.v_north_mps, log.v_east_mps, -log.v_down_mps]), t)
+        euler = _hold(log.att_t_s, np.radians(np.column_stack([log.roll_deg, log.pitch_deg, log.yaw_deg])), t)
     ref = np.radians(np.column_stack([log.ref_roll_deg, log.ref_pitch_deg, log.ref_yaw_deg]))
     target = np.column_stack([log.target_north_m, log.target_east_m, log.target_alt_m])
     if log.act_t_s.size:
@@ -214,8 +229,11 @@ def summarize(
     of sigma low-passed with tau = 0.1 s, how far sigma stays from the sliding surface, and the
     RMS of what the low-pass removes, the chattering; see :mod:`ground.logs.metrics`),
     ``overruns`` (last OVERRUN count), ``comm_errors`` (the FC's last SYS_STATUS rejected-packet
-    counters, None without one), ``message_counts``, ``events`` and ``metrics``
-    (:func:`log_metrics`: IAE/ISE/ITAE, effort, crash, recovery; None without "SMC" records).
+    counters, None without one), ``message_counts``, ``events``, ``metrics``
+    (:func:`log_metrics`: IAE/ISE/ITAE, effort, crash, recovery; None without "SMC" records) on
+    the sensed state the FC flew on, and ``truth_metrics``, the same on the plant's true state
+    when the log has it (``ODOMETRY`` from the simulator; None otherwise), with
+    ``metrics_sources`` naming the state each was computed on.
     """
     out: dict[str, Any] = {
         "log": log.name,
@@ -301,6 +319,11 @@ def summarize(
         out["sigma_dither_rms"] = None
     out["sigma_window_s"] = sigma_window_s
     out["metrics"] = log_metrics(log, sigma_window_s=sigma_window_s)
+    out["truth_metrics"] = log_metrics(log, sigma_window_s=sigma_window_s, truth=True)
+    out["metrics_sources"] = {
+        "metrics": f"sensed state: ATTITUDE + LOCAL_POSITION_NED from the {log.state_source}" if log.state_source else None,
+        "truth_metrics": "true state: ODOMETRY from the simulator" if log.has_truth else None,
+    }
     out["events"] = [{"t_s": round(e.t_s, 6), "severity": e.severity, "text": e.text} for e in log.events]
     return out
 
@@ -399,8 +422,12 @@ def print_summary(summary: dict[str, Any], file: TextIO | None = None) -> None:
     if m is None:
         line("Metrics", "n/a (they need the FC's per-tick SMC records and the state)")
     else:
-        for label, text in format_metrics(m):
+        truth_m = s.get("truth_metrics")
+        for label, text in format_metrics(m, " (on the sensed state the FC flew on)" if truth_m is not None else ""):
             line(label, text)
+        if truth_m is not None:
+            for label, text in format_metrics(truth_m, " (on the true state: the simulator's ODOMETRY)"):
+                line("Truth metrics" if label == "Metrics" else label, text)
     counts = s.get("message_counts", {})
     line("Messages", ", ".join(f"{k} {v}" for k, v in sorted(counts.items(), key=lambda kv: -kv[1])) or "none")
     events = s.get("events", [])
