@@ -57,6 +57,10 @@ _PIN_MSG_IDS = frozenset({
 #: it commanded, or signed), and to this many of the other peers per batch, in turn: a table full
 #: of strangers (a heartbeat flood) costs a bounded number of sends.
 TELEMETRY_OTHER_PEERS = 4
+#: PARAM_REQUEST_LIST: values sent per control tick for each list under way (the table of ~180
+#: goes out in 8 ticks, 16 ms at 500 Hz), and the lists under way at once (one per station).
+PARAM_LIST_CHUNK = 24
+PARAM_LISTS_AT_ONCE = 4
 _GLOBAL_FRAMES = (M.MAV_FRAME_GLOBAL, M.MAV_FRAME_GLOBAL_INT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
 
 
@@ -146,6 +150,8 @@ class GcsHandler:
         self._drop_window: tuple[float, int, int] = (-math.inf, 0, 0)
         self._drop_rate = 0
         self._refusal_counted = False
+        #: parameter lists under way: station -> the next index to send (oldest request first).
+        self._param_lists: dict[Address, int] = {}
         self._handlers: dict[int, Callable[[mavlink.MAVLink_message, Address], None]] = {
             M.MAVLINK_MSG_ID_HEARTBEAT: self._heartbeat,
             M.MAVLINK_MSG_ID_COMMAND_LONG: self._command_long,
@@ -459,10 +465,34 @@ class GcsHandler:
             self._broadcast(self._param_msg(index))
 
     def _param_list(self, m: mavlink.MAVLink_message, addr: Address) -> None:
+        """The whole table, sent :data:`PARAM_LIST_CHUNK` values a tick (from :meth:`on_tick`), as
+        ArduPilot streams it: a request costs the loop a few values a tick, never the whole table at
+        once. A repeated request from the same station starts its list again; past
+        :data:`PARAM_LISTS_AT_ONCE` stations the oldest list is dropped (counted; a station asks
+        for what it misses by index)."""
         if not self._for_us(m.target_system, m.target_component):
             return
-        if self.link is not None:
-            self.link.send_many_to([self._param_msg(i) for i in range(param_table().count)], addr)
+        jobs = self._param_lists
+        jobs.pop(addr, None)
+        jobs[addr] = 0
+        if len(jobs) > PARAM_LISTS_AT_ONCE:
+            del jobs[next(iter(jobs))]
+            self.rejected["param_list_dropped"] += 1
+
+    def _send_param_lists(self) -> None:
+        """One chunk of every parameter list under way (:meth:`_param_list`)."""
+        jobs = self._param_lists
+        if not jobs or self.link is None:
+            return
+        count = param_table().count
+        for addr in list(jobs):
+            start = jobs[addr]
+            end = min(count, start + PARAM_LIST_CHUNK)
+            self.link.send_many_to([self._param_msg(i) for i in range(start, end)], addr)
+            if end >= count:
+                del jobs[addr]
+            else:
+                jobs[addr] = end
 
     def _param_read(self, m: mavlink.MAVLink_message, addr: Address) -> None:
         if not self._for_us(m.target_system, m.target_component):
@@ -699,6 +729,7 @@ class GcsHandler:
         now = self.wall_s()
         self.mission.tick(now)
         self.send_durable_acks()
+        self._send_param_lists()
         if self.params.write_errors:  # the writer thread could not save the parameter file
             exc = self.params.write_errors.pop()
             self.params.write_errors.clear()
