@@ -457,7 +457,9 @@ class FlightControllerApp:
             summary["ticks"] = self.core.ticks
             summary["failsafe_events"] = self.core.failsafe_events
             summary["sim_time_s"] = self.clock.now_s()
-            summary["links"] = {"sim": self.sim.counters.as_dict(), "gcs": self.gcs.counters.as_dict() if self.gcs else None}
+            sim_drops = getattr(self.sim, "kernel_drops", lambda: None)()  # (a TCP simulator link has none)
+            summary["links"] = {"sim": {**self.sim.counters.as_dict(), "kernel_drops": sim_drops},
+                                "gcs": {**self.gcs.counters.as_dict(), "kernel_drops": self.gcs.kernel_drops()} if self.gcs else None}
             summary["impairment"] = {"sim": self.sim.impair_counters, "gcs": self.gcs.impair_counters if self.gcs else None}
             summary["gcs_rejected"] = dict(self.gcs_handler.rejected)
             summary["gcs_budget"] = {**self.intake.counters.as_dict(), "left": len(self.intake), **self.stats.budget_summary(),

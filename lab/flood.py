@@ -539,7 +539,9 @@ def bench_flood(args: argparse.Namespace) -> int:
             print(_line("flood", flooded))
             fs = flooded.fc_summary
             print(f"  flood sent {flooded.sent[('all', 'hostile_sent')]} hostile + {flooded.sent[('gcs', 'heartbeat_flood')]} heartbeats;"
-                  f" FC rejected {fs.get('rx_rejected', {}).get('total')}; {_budget_line(fs.get('gcs_budget'))}")  # fmt: skip
+                  f" FC rejected {fs.get('rx_rejected', {}).get('total')}; the kernel dropped"
+                  f" {((fs.get('links') or {}).get('gcs') or {}).get('kernel_drops', 'n/a')} (socket buffer full);"
+                  f" {_budget_line(fs.get('gcs_budget'))}")  # fmt: skip
             worst_ans = max(flooded.answers_s, default=math.inf)
             print(f"  ratios flood/clean: overruns {_ratio(flooded.overruns, clean.overruns)} (goal ≤ 2×),"
                   f" p99 lateness {_ratio(flooded.p99_s, clean.p99_s)}, FC CPU {_ratio(flooded.cpu_s, clean.cpu_s)}; track deviation max {dev * 100:.2f} cm"

@@ -44,6 +44,7 @@ from __future__ import annotations
 import errno
 import ipaddress
 import math
+import os
 import re
 import select
 import socket
@@ -168,6 +169,22 @@ def parse_endpoint(url: str) -> Endpoint:
     elif not _HOST_RE.match(host) or len(host) > 253:
         raise EndpointError(f"endpoint {url!r}: {host!r} is not a valid IPv4 address or host name")
     return Endpoint(mode=mode, host=host, port=port)
+
+
+def udp_kernel_drops(sock: socket.socket) -> int | None:
+    """The kernel's count of datagrams dropped for ``sock`` (Linux: the ``drops`` column of
+    ``/proc/net/udp`` on the socket's inode); None where it cannot be read."""
+    try:
+        inode = str(os.fstat(sock.fileno()).st_ino)
+        with open("/proc/net/udp", encoding="ascii") as f:
+            next(f)
+            for line in f:
+                cols = line.split()
+                if len(cols) >= 13 and cols[9] == inode:
+                    return int(cols[12])
+    except (OSError, ValueError, StopIteration):
+        return None
+    return None
 
 
 @dataclass(slots=True)
@@ -426,6 +443,12 @@ class MavlinkUdp:
     def closed(self) -> bool:
         """True once :meth:`close` has run."""
         return self._closed
+
+    def kernel_drops(self) -> int | None:
+        """Datagrams the kernel dropped for this socket because its receive buffer was full (a
+        flood faster than we take datagrams off it): Linux's per-socket count in ``/proc/net/udp``;
+        None where there is none (another OS, a closed socket)."""
+        return udp_kernel_drops(self._sock)
 
     def fileno(self) -> int:
         """The socket's file descriptor, for the caller's own ``select``."""

@@ -586,3 +586,18 @@ def test_send_packets_with_take_seq_numbers_like_send_and_logs(tmp_path) -> None
     assert [(t, m.get_type()) for t, m in read_tlog(path)] == [
         (42, "HEARTBEAT"), (42, "ATTITUDE"), (42, "LOCAL_POSITION_NED"), (42, "HEARTBEAT")
     ]
+
+
+def test_kernel_drops_count_what_a_full_receive_buffer_lost() -> None:
+    import socket as _socket
+
+    from smcpilot.link import MavlinkUdp
+
+    with MavlinkUdp("udpin:127.0.0.1:0", source_system=1, source_component=1) as link:
+        assert link.kernel_drops() == 0
+        link._sock.setsockopt(_socket.SOL_SOCKET, _socket.SO_RCVBUF, 4096)
+        with _socket.socket(_socket.AF_INET, _socket.SOCK_DGRAM) as flood:
+            for _ in range(400):  # nobody reads: the buffer fills, the kernel drops the rest
+                flood.sendto(b"\xfe" * 1000, link.local_address)
+        drops = link.kernel_drops()
+        assert drops is not None and drops > 300, drops
