@@ -564,6 +564,7 @@ class FlightControllerApp:
                 poll_gcs()
             if gcs is not None:
                 self.gcs_handler.send_durable_acks()  # between ticks too (before the first state)
+                self.gcs_handler.send_param_lists(all_now=True)  # the simulator is silent: no deadline waits
             if not readable:
                 now = mono()
                 if self._last_actuator is not None and now - max(last_rx, last_probe) > LOCKSTEP_PROBE_S:
@@ -591,6 +592,7 @@ class FlightControllerApp:
             self._poll_ground()
             if self.gcs is not None:
                 self.gcs_handler.send_durable_acks()
+                self.gcs_handler.send_param_lists(all_now=True)
             if mono() - start > self.startup_timeout_s:
                 raise WatchdogError(f"simulator sent nothing within {self.startup_timeout_s:g} s; stopping")
         deadline = mono() + period

@@ -479,15 +479,17 @@ class GcsHandler:
             del jobs[next(iter(jobs))]
             self.rejected["param_list_dropped"] += 1
 
-    def _send_param_lists(self) -> None:
-        """One chunk of every parameter list under way (:meth:`_param_list`)."""
+    def send_param_lists(self, *, all_now: bool = False) -> None:
+        """One chunk of every parameter list under way (:meth:`_param_list`), or with ``all_now``
+        the rest of each (between ticks, when no deadline waits: lockstep with the simulator
+        silent, real time before the first state)."""
         jobs = self._param_lists
         if not jobs or self.link is None:
             return
         count = param_table().count
         for addr in list(jobs):
             start = jobs[addr]
-            end = min(count, start + PARAM_LIST_CHUNK)
+            end = count if all_now else min(count, start + PARAM_LIST_CHUNK)
             self.link.send_many_to([self._param_msg(i) for i in range(start, end)], addr)
             if end >= count:
                 del jobs[addr]
@@ -729,7 +731,7 @@ class GcsHandler:
         now = self.wall_s()
         self.mission.tick(now)
         self.send_durable_acks()
-        self._send_param_lists()
+        self.send_param_lists()
         if self.params.write_errors:  # the writer thread could not save the parameter file
             exc = self.params.write_errors.pop()
             self.params.write_errors.clear()

@@ -392,42 +392,6 @@ INT_PARAMS = {"ARMING_CHECK", "FS_GCS_ENABLE", "FC_CONTROLLER", "SYSID_THISMAV",
 }  # fmt: skip
 
 
-def test_a_parameter_list_goes_out_a_chunk_a_tick_and_at_most_four_lists_at_once(fc):
-    from fc.gcs import PARAM_LIST_CHUNK, PARAM_LISTS_AT_ONCE
-
-    run = fc()
-    g = run.gcs
-    g.pump(0.2)
-    got = g.param_list()
-    n = len(got)
-    assert n > 2 * PARAM_LIST_CHUNK
-    # five more stations ask at once: the oldest list is dropped and counted, the others complete
-    host, port = run.fc_address
-    others = [Gcs(f"udpout:{host}:{port}", heartbeats=False) for _ in range(PARAM_LISTS_AT_ONCE + 1)]
-    try:
-        for o in others:
-            o.conn.mav.param_request_list_send(FC_SYSID, 0)  # to the FC's own ground port, one after the other
-    finally:
-        for o in others:
-            o.close()
-    g.run_sim(0.5)
-    run.sitl.terminate()
-    summary = run.sitl.fc_summary
-    assert summary is not None and summary["gcs_rejected"].get("param_list_dropped") == 1, summary["gcs_rejected"]
-    # the FC's log stamps what it sent with the tick: the values went out in chunks, a tick apart,
-    # never the whole table at once (the first list alone, then at most four lists' chunks a tick)
-    from collections import Counter
-
-    from smcpilot.tlog import read_tlog
-
-    sent = Counter(t for t, m in read_tlog(run.sitl.tlog) if m.get_type() == "PARAM_VALUE" and m.get_srcSystem() == FC_SYSID
-                   and t > 0)  # fmt: skip
-    ticks = sorted(sent)
-    assert max(sent[t] for t in ticks[: -(-n // PARAM_LIST_CHUNK)]) <= PARAM_LIST_CHUNK, [sent[t] for t in ticks]
-    assert max(sent.values()) <= PARAM_LISTS_AT_ONCE * PARAM_LIST_CHUNK
-    assert sum(sent.values()) >= n * (1 + PARAM_LISTS_AT_ONCE)  # ours and the four lists kept, each whole
-
-
 def test_param_request_list_is_complete(fc):
     g = fc().gcs
     mark = g.mark()

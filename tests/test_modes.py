@@ -441,3 +441,39 @@ def test_auto_hands_a_return_in_progress_to_rtl_mode_only() -> None:
         auto.exit(to)
         assert auto.phase is not AutoPhase.RTL
         assert (rtl.phase is RtlPhase.CLIMB) == kept, to
+
+
+def test_a_parameter_list_goes_out_a_chunk_a_tick_and_at_most_four_lists_at_once() -> None:
+    from fc.gcs import PARAM_LIST_CHUNK, PARAM_LISTS_AT_ONCE
+    from fc.params import param_table
+
+    h, link, _, _ = _handler(_core())
+    n = param_table().count
+
+    def request(addr: tuple[str, int]) -> None:
+        msg = M.MAVLink_param_request_list_message(1, 1)
+        msg._header = M.MAVLink_header(msg.id, srcSystem=255, srcComponent=190)
+        h.handle(msg, addr)
+
+    a = ("127.0.0.1", 14550)
+    request(a)
+    assert link.to == []  # nothing at once: the list goes out with the ticks
+    sent_per_tick = []
+    for k in range(20):
+        before = len(link.to)
+        h.on_tick(k * 2000)
+        sent_per_tick.append(len(link.to) - before)
+    assert max(sent_per_tick) == PARAM_LIST_CHUNK and sum(sent_per_tick) == n
+    assert sorted(m.param_index for m, addr in link.to) == list(range(n)) and {addr for _, addr in link.to} == {a}
+    # a repeated request starts its list again; a fifth station's request drops the oldest list
+    link.to.clear()
+    stations = [("127.0.0.1", 20000 + i) for i in range(PARAM_LISTS_AT_ONCE + 1)]
+    for s in stations:
+        request(s)
+    assert h.rejected["param_list_dropped"] == 1
+    h.on_tick(0)
+    assert {addr for _, addr in link.to} == set(stations[1:]) and len(link.to) == PARAM_LISTS_AT_ONCE * PARAM_LIST_CHUNK
+    # between ticks, with no deadline waiting, the rest goes at once
+    h.send_param_lists(all_now=True)
+    for s in stations[1:]:
+        assert sorted(m.param_index for m, addr in link.to if addr == s) == list(range(n))
