@@ -72,7 +72,7 @@ def _fly(k: int, duration_s: float, lockstep: bool, log_dir: Path) -> dict:
     ticks = sum(int(s.get("ticks", 0)) for s in fcs)
     overruns = sum(int(s.get("overruns", 0)) for s in fcs)
     sim_times = [float(s.get("sim_time_s") or 0.0) for s in fcs]
-    p99 = [s.get("lateness_p99_s") for s in fcs if s.get("lateness_p99_s") is not None]
+    p99 = [float(s["lateness_p99_s"]) for s in fcs if s.get("lateness_p99_s") is not None]
     return {
         "k": k,
         "start_s": started,

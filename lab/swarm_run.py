@@ -24,7 +24,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from fc.core import FlightCore
 from fc.params import config_for, options_for
 from lab.run import FlightResult, _diverged_text, _TlogRecorder
-from lab.runner import state_of_wire, wire_values
+from lab.runner import imu_accel, state_of_wire, wire_values
 from sim_bridge.build import plant_for
 from sim_bridge.faults import FaultEvent
 from sim_bridge.proximity import Proximity
@@ -129,10 +129,11 @@ def fly_swarm_in_process(scenario: Scenario, tlog: Path, *, echo: Callable[[str]
             motors: list[tuple[float, ...]] = []
             armed: list[bool] = []
             for i in k_vehicles:
-                wire = wire_values(plants[i].observe())
+                obs = plants[i].observe()
+                wire = wire_values(obs)
                 take_fault_events(i)
                 st = state_of_wire(wire)
-                out = cores[i].tick(t_us, st)
+                out = cores[i].tick(t_us, st, accel_frd=imu_accel(obs, plants[i]) if cores[i].flight.measures_accel else None)
                 m = unpack(pack(*out.motors))  # float32, as HIL_ACTUATOR_CONTROLS carries them
                 recorders[i].on_tick(ticks, t_us, wire, st, out, m)
                 motors.append(m)

@@ -611,3 +611,14 @@ def test_signing_holds_end_to_end_through_the_router(tmp_path: Path) -> None:
         sitl.terminate()
     fc2 = sitl.fc_summaries[1]
     assert fc2 is not None and fc2["links"]["gcs"]["rx_unsigned"] >= 1 and fc2["links"]["gcs"]["rx_bad_signature"] == 0
+
+
+@pytest.mark.slow
+def test_an_in_process_swarm_of_a_law_that_measures_acceleration_matches_sitl(tmp_path: Path) -> None:
+    from lab.swarm_run import fly_swarm
+
+    sc = swarm_scenario(tmp_path, count=2, duration=3.0, extra="[environment]\nnoise = true\n").with_changes(controller="indi")
+    ip = fly_swarm(sc, tmp_path / "ip")
+    st = fly_swarm(sc, tmp_path / "st", sitl=True)
+    for a, b in zip(ip.vehicles, st.vehicles):
+        assert _motors(a.tlog) == _motors(b.tlog) and len(_motors(a.tlog)) == 1501
