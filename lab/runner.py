@@ -13,8 +13,8 @@ the core for a configuration and a plan.
 
 The IMU: a law that measures acceleration (:attr:`fc.control.law.Law.measures_accel`) gets the
 accelerometer's specific force the simulator sends it in ``HIGHRES_IMU`` (:func:`imu_accel`: the
-same conversion, the same float32 rounding); such a flight flies in CPython (the compiled kernel
-does not give the IMU yet), said once. Other laws never see it, and their flights are unchanged.
+same conversion, the same float32 rounding; the compiled kernel gives the same). Other laws never
+see it, and their flights are unchanged.
 
 Faults: the plant's (:mod:`sim_bridge.faults`) act as in the simulator process — the observation
 is the faulty sensors' (a dropped-out sensor's wire values are NaN and pass through
@@ -162,12 +162,7 @@ def simulate(
         return t_us
 
     if fast is not False and on_tick is None:
-        why: str | None
-        if flight.measures_accel:
-            why = f"the control law {flight.law.name} measures acceleration (the IMU), which the compiled flight does not give yet"
-            fast_note(why)
-        else:
-            why = fast_unsupported(core, plant, physics_hz, rate_hz, compile_new=bool(fast))
+        why = fast_unsupported(core, plant, physics_hz, rate_hz, compile_new=bool(fast))
         if why is None:
             return fast_simulate(core, plant, n_ticks, rate_hz=rate_hz, physics_hz=physics_hz, py_tick=one_tick,  # type: ignore[arg-type]
                                  stop=stop, record=record, log=log)  # fmt: skip

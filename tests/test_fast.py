@@ -170,6 +170,25 @@ def test_random_flights_of_the_default_law_fly_the_same_compiled() -> None:
         _assert_same(_fly(sc, False), _fly(sc, True), f"seed {seed}")
 
 
+def test_a_law_that_measures_acceleration_gets_the_imu_compiled() -> None:
+    """INDI's altitude channel flies on the accelerometer (the IMU: specific force, float32, back to
+    the paper frame): compiled, with sensor noise, an accelerometer bias and a dropout of it (NaN:
+    INDI differences z' then), the same flight bit for bit, and the kernel flew it."""
+    from lab.fast.flight import KERNEL_TIME
+
+    sc = Scenario.from_mapping({
+        "name": "indi-imu", "duration_s": 6.0, "seed": 5, "environment": {"noise": True, "gust_std_n": 0.1},
+        "fc": {"controller": "indi"}, "step": [{"t_s": 0.0, "action": "takeoff", "alt_m": 2.0}],
+        "fault": [{"kind": "sensor", "sensor": "accel", "mode": "bias", "value": [0.0, 0.0, 0.3], "start_s": 2.0, "stop_s": 3.5},
+                  {"kind": "sensor", "sensor": "accel", "mode": "dropout", "start_s": 4.0, "stop_s": 4.3}],
+    })  # fmt: skip
+    before = KERNEL_TIME[1]
+    fast = _fly(sc, True)
+    assert KERNEL_TIME[1] - before > 0.8 * sc.n_ticks  # the kernel flew most of it, not CPython
+    slow = _fly(sc, False)
+    _assert_same(slow, fast, "indi with the IMU")
+
+
 def test_a_divergence_is_the_same_compiled() -> None:
     """An absurd torque blows the physics up: the same tick, the same error and time either way."""
     doc = {

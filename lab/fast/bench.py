@@ -143,19 +143,6 @@ def add_batch_arguments(sub: argparse._SubParsersAction) -> None:
     c.set_defaults(bench=bench_batch)
 
 
-def _compiled_variants() -> tuple[list, list]:  # type: ignore[type-arg]
-    """The robustness study's controllers whose in-process flights fly compiled, and the others
-    (a law that measures acceleration flies in CPython: the kernel does not give the IMU)."""
-    from fc.control import registry
-    from lab.compare import VARIANTS
-
-    ok: list = []  # type: ignore[type-arg]
-    other: list = []  # type: ignore[type-arg]
-    for v in VARIANTS:
-        (other if registry.resolve(v.controller).measures_accel else ok).append(v)
-    return ok, other
-
-
 def _study_units(seeds: int, duration_s: float, variants: list) -> list:  # type: ignore[type-arg]
     from lab.compare import study_cases, study_unit
 
@@ -191,15 +178,15 @@ def bench_batch(args: argparse.Namespace) -> int:
     if why is not None:
         print(f"the compiled path is off ({why}): nothing to compare")
         return 1
-    variants, left_out = _compiled_variants()
+    from lab.compare import VARIANTS
+
+    variants = list(VARIANTS)
     units = _study_units(args.seeds, args.duration, variants)
     ticks = sum(u.scenario.n_ticks for u in units)
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(f"machine: {platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}, load average {load:.2f} at the start")
     print(f"{len(units)} flights of the robustness study ({args.duration:g} s each: sensor noise, faults, gusts, model errors;"
-          f" {len(variants)} controllers), flown one after another in this process as a worker flies a batch: building, flying, scoring"
-          + "".join(f"\n(not {v.label}: {v.controller} measures acceleration, and the kernel does not give the IMU yet: it flies in CPython)"
-                    for v in left_out) + "\n")  # fmt: skip
+          f" {len(variants)} controllers), flown one after another in this process as a worker flies a batch: building, flying, scoring\n")  # fmt: skip
     # units in the order case x controller x seed: the first case's flight of each controller loads the kernels
     n_var = len(variants)
     n_cases = len(units) // (n_var * args.seeds)
@@ -254,8 +241,8 @@ def _bench_engine(units: list) -> None:  # type: ignore[type-arg]
 def _warm_worker(dask_worker: object = None) -> bool:
     """(Runs on every worker.) Load every controller's kernel: one short flight each."""
     from lab.campaign.flight import fly_row
+    from lab.compare import VARIANTS
 
-    variants, _ = _compiled_variants()
-    for u in _study_units(1, 0.5, variants)[: len(variants)]:
+    for u in _study_units(1, 0.5, list(VARIANTS))[: len(VARIANTS)]:
         fly_row(u)
     return True

@@ -81,10 +81,11 @@ class _Kernel(NamedTuple):
 _KERNELS: dict[tuple, _Kernel] = {}
 
 
-def compiled_kernel(law_functions: LawFunctions, full_stack: bool) -> _Kernel:
+def compiled_kernel(law_functions: LawFunctions, full_stack: bool, measures_accel: bool = False) -> _Kernel:
     """The compiled kernel for a law's functions (compiled once per process and law; numba's
-    cache keeps the compiled pieces on disk)."""
-    key = (tuple(law_functions), full_stack)
+    cache keeps the compiled pieces on disk): a whole-stack law's pipeline, and the IMU's
+    acceleration in the law's ``meas`` for a law that measures it."""
+    key = (tuple(law_functions), full_stack, measures_accel)
     k = _KERNELS.get(key)
     if k is None:
         roots = (
@@ -92,7 +93,14 @@ def compiled_kernel(law_functions: LawFunctions, full_stack: bool) -> _Kernel:
             *rigid_body.PURE_FUNCTIONS, *MT_FUNCTIONS, *law_functions,
         )  # fmt: skip
         fns, _problems = pure_closure(roots)
-        twins = compile_pure(fns, rebind={kernel_mod.fly_span: {"pipeline_step": pipeline_mod.pipeline_step_full}} if full_stack else None)
+        rebind: dict[Any, dict[str, Any]] = {}
+        if measures_accel:
+            rebind[kernel_mod.fly_span] = {"_pipeline": kernel_mod._pipeline_sensed}
+            if full_stack:
+                rebind[kernel_mod._pipeline_sensed] = {"pipeline_step_sensed": pipeline_mod.pipeline_step_full_sensed}
+        elif full_stack:
+            rebind[kernel_mod._pipeline] = {"pipeline_step": pipeline_mod.pipeline_step_full}
+        twins = compile_pure(fns, rebind=rebind or None)
         k = _Kernel(twins[kernel_mod.fly_span], LawFunctions(*(twins[f] for f in law_functions)))
         _KERNELS[key] = k
     return k
@@ -130,12 +138,13 @@ def _entry_point(kernel: _Kernel, args: tuple, flight: Any) -> Callable[..., Any
         state_t = typeof(ps.law)
         v4 = types.UniTuple(f64, 4)
         full = flight.law.full_stack
+        sensed = 3 if flight.measures_accel else 0  # the IMU's acceleration follows the state in meas
         if full:
             init_args = (typeof(VehicleState(*(0.0,) * 12)), k_t)
-            step_args = (types.UniTuple(f64, 12), types.UniTuple(f64, 16), state_t, f64, k_t, v4, typeof(ps.u_prev))
+            step_args = (types.UniTuple(f64, 12 + sensed), types.UniTuple(f64, 16), state_t, f64, k_t, v4, typeof(ps.u_prev))
         else:
             init_args = (types.UniTuple(f64, 8), k_t)
-            step_args = (types.UniTuple(f64, 8), types.UniTuple(f64, 16), state_t, f64, k_t, v4, typeof(ps.u_prev))
+            step_args = (types.UniTuple(f64, 8 + sensed), types.UniTuple(f64, 16), state_t, f64, k_t, v4, typeof(ps.u_prev))
         law = kernel.law
         sigs = []
         for fn, fargs in ((law.initial_state, init_args), (law.step, step_args)):
@@ -267,7 +276,7 @@ def fast_unsupported(core: FlightCore, plant: object, physics_hz: float, rate_hz
         fast_note(why)
         return why
     if not compile_new and law.origin != "built-in" and os.environ.get(JIT_ENV, "").strip() != "1":
-        index = _cache_index(compiled_kernel(core.flight.law_functions, law.full_stack).fly)
+        index = _cache_index(compiled_kernel(core.flight.law_functions, law.full_stack, core.flight.measures_accel).fly)
         if index is None or not os.path.exists(index):
             why = (f"the law {law.name} has no compiled kernel yet (compiling takes 10-30 s once; "
                    f"campaigns do it, or set {JIT_ENV}=1)")  # fmt: skip
@@ -321,7 +330,9 @@ class _Bridge:
         self._empty_mt = (np.zeros(625, dtype=np.int64), np.zeros(2))
         f = self.faults
         self._delay_starts = tuple(sorted(x.start_s for x in f.faults if getattr(x, "mode", None) == "delay")) if f is not None else ()
-        self.kernel = compiled_kernel(core.flight.law_functions, core.flight.law.full_stack)
+        self.kernel = compiled_kernel(core.flight.law_functions, core.flight.law.full_stack, core.flight.measures_accel)
+        self.imu_on = bool(core.flight.measures_accel)
+        self.g_plant = float(plant.vehicle.gravity_mps2)
         self._entry: Callable[..., Any] | None = None
 
     # -- can the next tick be flown by the kernel, and for how many ticks ---------------------------
@@ -430,7 +441,7 @@ class _Bridge:
             t_us, self.step_us, self.substeps, self.dt_phys, n, self.rec, rec.every if rec is not None else 0,
             rec.truth if rec is not None else False, k, "sigma" in flight.law.diagnostics, io, self.io_f, self.obs,
             self.log is not None, self.lg, flight._diag_mask, int(c.current.number),
-            fg, len(gusts), fgmt, fggs, self.sp, self.sn, fnmt, fngs, core.estimate_status, self.zb,
+            fg, len(gusts), fgmt, fggs, self.sp, self.sn, fnmt, fngs, core.estimate_status, self.zb, self.imu_on, self.g_plant,
         )  # fmt: skip
         flown, code, n_rec, t_after = int(io[0]), int(io[1]), int(io[2]), int(io[3])
         kt = KERNEL_TIME

@@ -29,12 +29,13 @@ import numpy as np
 
 from fc.estimate import EST_DEAD_RECKONING, estimate_step
 from fc.modes.base import WATCH_DIST2, WATCH_DIST3, WATCH_NONE, WATCH_TIME, WATCH_Z_NEAR
-from fc.pipeline import VehicleState, pipeline_step
+from fc.pipeline import VehicleState, pipeline_step, pipeline_step_sensed
 from lab.fast.mt import mt_gauss, mt_gauss_fill
 from sim_bridge.plants.rigid_body import rigid_body_substep, rigid_body_targets
+from sim_bridge.sensors import specific_force_frd
 from smcpilot.frames import euler_from_quat, wrap_pi
 from smcpilot.protocol import FLAG_ARMED, FLAG_LANDING, FLAG_POSITION_HOLD
-from smcpilot.wire import paper_of_wire, wire_of_paper
+from smcpilot.wire import accel_of_specific_force, paper_of_wire, wire_of_paper
 
 #: return codes of :func:`fly_span` (``io[1]``).
 SPAN_DONE = 0  # flew the ticks asked for
@@ -89,6 +90,18 @@ def _noisy3(a: float, b: float, c: float, std: float, z0: float, z1: float, z2: 
     return a + (0.0 + z0 * std), b + (0.0 + z1 * std), c + (0.0 + z2 * std)
 
 
+def _pipeline(ps, st, cmd, pp, dt_s, law, sensed):  # type: ignore[no-untyped-def]
+    """The pipeline's tick for a law that takes nothing sensed beyond the state (``sensed`` unused).
+    Compiled for a whole-stack law with :func:`fc.pipeline.pipeline_step_full` in its place, and
+    for a law that measures acceleration :func:`_pipeline_sensed` takes its place."""
+    return pipeline_step(ps, st, cmd, pp, dt_s, law)
+
+
+def _pipeline_sensed(ps, st, cmd, pp, dt_s, law, sensed):  # type: ignore[no-untyped-def]
+    """The pipeline's tick for a law that measures acceleration (``sensed``: the IMU's, paper frame)."""
+    return pipeline_step_sensed(ps, st, cmd, pp, dt_s, law, sensed)
+
+
 def _watch_holds(kind: int, a: float, b: float, c: float, r: float, x: float, y: float, z: float, t_s: float) -> bool:
     """The mode's watched condition holds now, or is too close to call (Python decides)."""
     if kind == WATCH_NONE:
@@ -115,7 +128,7 @@ def fly_span(
     gust, gust_std, gusts_on, noise_std, noise_on, gmt, ggs, nmt, ngs,
     t_us, step_us, substeps, dt_phys, n_ticks, rec, rec_every, rec_truth, rec_k0, sigma_ok, io, io_f, obs,
     log_on, lg, diag_mask, mode_num,
-    fg, n_fg, fgmt, fggs, sp, sn, fnmt, fngs, est_prev, zb,
+    fg, n_fg, fgmt, fggs, sp, sn, fnmt, fngs, est_prev, zb, imu_on, g_plant,
 ):  # fmt: skip
     """Fly up to ``n_ticks`` plain ticks from simulated time ``t_us`` (µs); returns
     ``(pipeline state, estimator state, last outputs, last estimate)``; ``io`` gets
@@ -143,7 +156,11 @@ def fly_span(
     [sensor, op] = (mode, x, y, z) in the paper's frames, ``sn`` ops per sensor, sensors in
     :data:`smcpilot.faults.SENSORS` order) and their noise stream; the estimate's status before
     the span (a tick whose status differs is not plain); a scratch array of at least
-    ``15 + 6 + 5 n_fg`` floats for the Gaussian draws.
+    ``15 + 6 + 5 n_fg`` floats for the Gaussian draws; whether the law measures acceleration (it
+    then gets the IMU: the observed acceleration as the accelerometer's specific force with the
+    true attitude, float32 as ``HIGHRES_IMU`` carries it, back to the paper frame with the state's
+    attitude: :func:`lab.runner.imu_accel` and :meth:`fc.flight.FlightControl.step`) and the
+    plant's gravity.
 
     Random draws are taken a batch at a time (:func:`lab.fast.mt.mt_gauss_fill`: the tick's sensor
     noise, a physics step's gusts) and arrays are indexed, never sliced into row views: compiled,
@@ -294,6 +311,18 @@ def fly_span(
                 or _f32_overflows(w[8]) or _f32_overflows(w[9]) or _f32_overflows(w[10]) or _f32_overflows(w[11])):  # fmt: skip
             code = 3
             break
+        sensed = (nan, nan, nan)
+        f0 = nan
+        f1 = nan
+        f2 = nan
+        if imu_on:
+            fa = specific_force_frd((oax, oay, oaz), (qw, qx, qy, qz), g_plant)
+            if _f32_overflows(fa[0]) or _f32_overflows(fa[1]) or _f32_overflows(fa[2]):
+                code = 3
+                break
+            f0 = _f32(fa[0])
+            f1 = _f32(fa[1])
+            f2 = _f32(fa[2])
         w32 = (_f32(w[0]), _f32(w[1]), _f32(w[2]), _f32(w[3]), _f32(w[4]), _f32(w[5]), _f32(w[6]), _f32(w[7]),
                _f32(w[8]), _f32(w[9]), _f32(w[10]), _f32(w[11]))  # fmt: skip
         pw = paper_of_wire(w32[0], w32[1], w32[2], w32[3], w32[4], w32[5], w32[6], w32[7], w32[8], w32[9], w32[10], w32[11])
@@ -322,7 +351,9 @@ def fly_span(
             if _watch_holds(wkind, wa, wb, wc, wr, ex, ey, ez, t_s):
                 code = 1
                 break
-            ps_new, out_new = pipeline_step(ps, est_new, cmd, pp, dt_ctrl, law)
+            if imu_on and _isfinite(f0) and _isfinite(f1) and _isfinite(f2):
+                sensed = accel_of_specific_force(f0, f1, f2, est_new[6], est_new[7], est_new[8], pp.gravity_mps2)
+            ps_new, out_new = _pipeline(ps, est_new, cmd, pp, dt_ctrl, law, sensed)
             mo = out_new[0]
             ul = out_new[6]
             if out_new[9] or not (_isfinite(mo[0] + mo[1] + mo[2] + mo[3]) and _isfinite(ul[0] + ul[1] + ul[2] + ul[3])):
@@ -520,4 +551,4 @@ def fly_span(
 
 #: the kernel and what it calls of its own (compiled with the pipeline's, the estimate's, the
 #: plant's and the random streams' pure functions: :data:`lab.fast.flight.KERNEL_FUNCTIONS`).
-KERNEL_FUNCTIONS = (fly_span, _noisy3, _noise_draws, _watch_holds, _f32, _f32_overflows)
+KERNEL_FUNCTIONS = (fly_span, _pipeline, _pipeline_sensed, _noisy3, _noise_draws, _watch_holds, _f32, _f32_overflows)
