@@ -33,6 +33,8 @@ from smcpilot.geo import Home
 from smcpilot.scenario import FleetVehicle, Scenario
 
 _f32x4 = struct.Struct("<4f")
+#: ``stop()`` of :func:`fly_swarm_in_process` is asked this often (control ticks).
+STOP_EVERY_TICKS = 500
 
 
 @dataclass
@@ -73,8 +75,11 @@ def _flight(v: FleetVehicle) -> Scenario:
     return v.scenario.with_changes(params=tuple(dict(v.scenario.params, SYSID_THISMAV=float(v.sysid)).items()))
 
 
-def fly_swarm_in_process(scenario: Scenario, tlog: Path, *, echo: Callable[[str], None] | None = None) -> SwarmResult:
-    """Fly every vehicle of ``scenario`` on its own flight core in this process (see the module docstring)."""
+def fly_swarm_in_process(scenario: Scenario, tlog: Path, *, echo: Callable[[str], None] | None = None,
+                         stop: Callable[[], bool] | None = None) -> SwarmResult:  # fmt: skip
+    """Fly every vehicle of ``scenario`` on its own flight core in this process (see the module
+    docstring). ``stop()``, asked every :data:`STOP_EVERY_TICKS` ticks, ends the flight early
+    (status "timed out")."""
     fleet = scenario.fleet()
     swarm = scenario.swarm
     assert swarm is not None
@@ -125,7 +130,10 @@ def fly_swarm_in_process(scenario: Scenario, tlog: Path, *, echo: Callable[[str]
     ticks = 0
     t0 = time.perf_counter()
     try:
-        for _ in range(scenario.n_ticks):
+        for k in range(scenario.n_ticks):
+            if stop is not None and k % STOP_EVERY_TICKS == 0 and k and stop():
+                status, message = "timed out", f"stopped at t = {t_us * 1e-6:.2f} of {scenario.duration_s:g} simulated s"
+                break
             motors: list[tuple[float, ...]] = []
             armed: list[bool] = []
             for i in k_vehicles:

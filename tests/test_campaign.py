@@ -481,3 +481,56 @@ def test_a_batch_that_hangs_or_kills_its_worker_is_flown_again_one_unit_per_task
     assert sorted(rows) == list(range(8))
     assert rows[5]["status"] == status and words in rows[5]["message"], rows[5]
     assert all(rows[i]["status"] == "ok" for i in range(8) if i != 5)
+
+
+SWARM_CAMPAIGN = """
+name = "pair"
+seed = 5
+seeds = 2
+duration_s = 2.0
+controllers = ["adaptive_pid_smc"]
+
+[scenario]
+[scenario.environment]
+noise = true
+[[scenario.step]]
+t_s = 0.0
+action = "takeoff"
+alt_m = 1.0
+[scenario.swarm]
+count = 2
+spacing_m = 3.0
+
+[[vary]]
+field = "environment.wind_force_ned_n[0]"
+dist = "normal"
+mean = 0.0
+std = 0.3
+"""
+
+
+@pytest.mark.slow
+def test_a_swarm_unit_is_one_row_with_every_vehicle_and_the_separation(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    camp = _write(tmp_path, SWARM_CAMPAIGN)
+    assert main(["campaign", "run", str(camp), "--out", str(tmp_path / "one"), "--workers", "1", "--quiet", "--no-plots"]) == 0
+    assert main(["campaign", "run", str(camp), "--out", str(tmp_path / "two"), "--workers", "2", "--quiet", "--no-plots"]) == 0
+    one, two = _rows(tmp_path / "one"), _rows(tmp_path / "two")
+    assert len(one) == 2 and _strip(one) == _strip(two)
+    for r in one:
+        assert r["status"] == "ok" and r["vehicles"] == "2" and r["crashed_vehicles"] == "0" and r["contacts"] == "0"
+        assert float(r["min_separation_m"]) == pytest.approx(3.0, abs=0.3)
+        assert r["worst_vehicle"] in ("1", "2")
+        worst = r["worst_vehicle"]
+        assert r["iae_pos_m_s"] == r[f"v{worst}_iae_pos_m_s"]  # the unit's columns are its worst vehicle's
+        assert max(float(r["v1_iae_pos_m_s"]), float(r["v2_iae_pos_m_s"])) == float(r["iae_pos_m_s"])
+    assert one[0]["v1_iae_pos_m_s"] != one[1]["v1_iae_pos_m_s"]  # the seeds differ
+    # replay: the swarm unit again, exactly, with each vehicle's log
+    capsys.readouterr()
+    assert main(["campaign", "replay", str(tmp_path / "one"), "1", "--no-plots"]) == 0
+    out = capsys.readouterr().out
+    assert "gives the unit's results.csv row exactly" in out and "unit-1-v1.tlog, " in out and "unit-1-v2.tlog" in out
+    # a plant.* variation cannot apply to a swarm: the rows say so
+    bad = _write(tmp_path, SWARM_CAMPAIGN + '[[vary]]\nfield = "plant.mass_kg"\ndist = "uniform"\nlow = 1.0\nhigh = 1.1\nrelative = true\n', "bad.toml")
+    main(["campaign", "run", str(bad), "--out", str(tmp_path / "bad"), "--workers", "1", "--quiet", "--no-plots"])
+    rows = _rows(tmp_path / "bad")
+    assert rows and all(r["status"] == "error" and "no plant.* variation" in r["message"] for r in rows)

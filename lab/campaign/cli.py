@@ -91,14 +91,20 @@ def replay_main(args: argparse.Namespace) -> int:
     row, tlog, recorded = replay_unit(args.dir, args.unit)
     print(f"replay: unit {args.unit} ({row['controller']}, {row['group']}, seed index {row['seed_index']}): {row['status']}"
           + (f" — {row['message']}" if row.get("message") else ""))  # fmt: skip
-    if tlog.exists() and tlog.stat().st_size > 0:
-        log = load_log(tlog)
-        print()
-        print_summary(summarize(log), sys.stdout)
-        if not args.no_plots:
-            paths = plot_log(log, tlog.parent)
-            print(f"plots: {len(paths)} PNG files in {tlog.parent}/")
-    print(f"log: {tlog}")
+    # one log, or a swarm unit's one per vehicle (NAME-vN.tlog, figures in vN/)
+    logs = [tlog] if tlog.exists() else sorted(tlog.parent.glob(f"{tlog.stem}-v*.tlog"))
+    for path in logs:
+        if path.stat().st_size > 0:
+            log = load_log(path)
+            print()
+            if len(logs) > 1:
+                print(f"{path.stem}:")
+            print_summary(summarize(log), sys.stdout)
+            if not args.no_plots:
+                where = path.parent if len(logs) == 1 else path.parent / path.stem.rsplit("-", 1)[-1]
+                paths = plot_log(log, where)
+                print(f"plots: {len(paths)} PNG files in {where}/")
+    print(f"log: {', '.join(map(str, logs)) or tlog}")
     if recorded is None:
         print("results.csv has no row for this unit yet (not flown): nothing to compare with")
     elif same_result(row, recorded):

@@ -54,7 +54,12 @@ def fly_unit(unit: Unit, *, trace: bool = False, tlog: Path | None = None) -> tu
     row = _base_row(unit)
     t0 = time.perf_counter()
     try:
-        if unit.sitl:
+        if unit.scenario.swarm is not None:  # K vehicles, one row (lab.campaign.swarm_unit)
+            from lab.campaign.swarm_unit import fly_swarm_unit
+
+            _status(row, fly_swarm_unit(unit, row, tlog))
+            tr = None
+        elif unit.sitl:
             tr = _fly_sitl(unit, row, tlog)
         else:
             tr = _fly_in_process(unit, row, tlog, trace)

@@ -41,8 +41,18 @@ def metric_columns() -> list[str]:
     return list(out)
 
 
-def columns(varied: Sequence[str]) -> list[str]:
-    return [*ID_COLUMNS, *varied, *(m for m in metric_columns() if m not in varied)]
+#: a swarm unit's own columns (lab.campaign.swarm_unit), before each vehicle's metrics.
+SWARM_COLUMNS = ("vehicles", "crashed_vehicles", "min_separation_m", "contacts", "worst_vehicle")
+
+
+def columns(varied: Sequence[str], sysids: Sequence[int] = ()) -> list[str]:
+    """The results' columns: the unit's, the varied fields, the metrics; for a swarm (its vehicles'
+    ``sysids``) the swarm's and each vehicle's metrics (``v2_iae_pos_m_s``)."""
+    metrics = metric_columns()
+    out = [*ID_COLUMNS, *varied, *(m for m in metrics if m not in varied)]
+    if sysids:
+        out += [*SWARM_COLUMNS, *(f"v{sid}_{m}" for sid in sysids for m in metrics)]
+    return out
 
 
 def _cell(v: Any) -> Any:

@@ -148,7 +148,8 @@ def run_campaign(
     units = expand(spec, sitl=sitl)
     record = _record(spec, units, sitl)
     results_path = out / "results.csv"
-    cols = columns([c for c, _ in units[0].values] if units else [])
+    sysids = [v.sysid for v in units[0].scenario.fleet()] if units and units[0].scenario.swarm is not None else []
+    cols = columns([c for c, _ in units[0].values] if units else [], sysids)
     done_units: set[int] = set()
     existing = read_rows(results_path)
     if not existing and results_path.exists():
