@@ -447,6 +447,9 @@ def test_units_are_cut_into_batches_in_order() -> None:
     assert [len(b) for b in cut] == [13] * 7 + [9]  # about four batches per worker
     assert [len(b) for b in batches(units, 1, max_ticks=5 * sc.n_ticks)] == [5] * 20  # at most max_ticks a batch
     assert [len(b) for b in batches(units[:3], 2)] == [1, 1, 1]  # too few units: one each
+    swarm = Scenario.from_mapping({"name": "s", "duration_s": 20.0, "swarm": {"count": 4}})
+    assert swarm.count == 4
+    assert [len(b) for b in batches([replace(u, scenario=swarm) for u in units[:20]], 1)] == [4] * 5  # 200,000 ticks: 4 swarms of 4
     mixed = [replace(u, sitl=u.index % 4 == 0) for u in units[:12]]
     cut = batches(mixed, 1)
     assert [u.index for b in cut for u in b] == list(range(12))

@@ -58,7 +58,7 @@ def fly_batch(task: UnitTask, units: Sequence[Unit]) -> list[dict[str, Any]]:
 
 def batches(units: Sequence[Unit], workers: int, *, max_ticks: int = MAX_BATCH_TICKS) -> list[list[Unit]]:
     """``units`` cut into consecutive batches (order kept): in-process units at most ``max_ticks``
-    control ticks a batch and about :data:`BATCHES_PER_WORKER` batches per worker; each SITL unit
+    control ticks a batch (a swarm's: every vehicle's) and about :data:`BATCHES_PER_WORKER` batches per worker; each SITL unit
     (two processes of its own) alone."""
     inproc = sum(1 for u in units if not u.sitl)
     size = max(1, math.ceil(inproc / (BATCHES_PER_WORKER * max(1, workers))))
@@ -72,7 +72,7 @@ def batches(units: Sequence[Unit], workers: int, *, max_ticks: int = MAX_BATCH_T
                 cur, ticks = [], 0
             out.append([u])
             continue
-        n = u.scenario.n_ticks
+        n = u.scenario.n_ticks * u.scenario.count  # a swarm unit flies every vehicle's ticks
         if cur and (len(cur) >= size or ticks + n > max_ticks):
             out.append(cur)
             cur, ticks = [], 0
