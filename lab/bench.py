@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import functools
+import importlib
 import math
 import os
 import platform
@@ -234,37 +235,18 @@ def main(args: argparse.Namespace) -> int:
     return int(args.bench(args))
 
 
-def _add_fast(sub: argparse._SubParsersAction) -> None:
-    from lab.fast import bench as fast_bench
+def _lazy(module: str, add: str = "add_arguments") -> Callable[[argparse._SubParsersAction], None]:
+    """A bench target whose module is imported only when the command line is built."""
 
-    fast_bench.add_arguments(sub)
+    def register(sub: argparse._SubParsersAction) -> None:
+        getattr(importlib.import_module(module), add)(sub)
 
-
-_EXTRA_TARGETS.append(_add_fast)
-
-
-def _add_batch(sub: argparse._SubParsersAction) -> None:
-    from lab.fast import bench as fast_bench
-
-    fast_bench.add_batch_arguments(sub)
+    return register
 
 
-_EXTRA_TARGETS.append(_add_batch)
-
-
-def _add_swarm(sub: argparse._SubParsersAction) -> None:
-    from lab import swarm_bench
-
-    swarm_bench.add_arguments(sub)
-
-
-_EXTRA_TARGETS.append(_add_swarm)
-
-
-def _add_realtime(sub: argparse._SubParsersAction) -> None:
-    from lab import realtime_bench
-
-    realtime_bench.add_arguments(sub)
-
-
-_EXTRA_TARGETS.append(_add_realtime)
+_EXTRA_TARGETS.extend([
+    _lazy("lab.fast.bench"),  # bench fast
+    _lazy("lab.fast.bench", "add_batch_arguments"),  # bench batch
+    _lazy("lab.swarm_bench"),  # bench swarm
+    _lazy("lab.realtime_bench"),  # bench realtime
+])  # fmt: skip

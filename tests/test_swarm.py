@@ -48,6 +48,23 @@ def swarm_scenario(tmp_path: Path, count: int = 3, duration: float = 2.0, extra:
     return Scenario.from_toml(path)
 
 
+#: vehicle 2 (spawned 3 m east of vehicle 1 with spacing_m = 3) flies 3 m west in its own frame: onto vehicle 1.
+CONTACT_VEHICLES = """
+[[swarm.vehicle]]
+[[swarm.vehicle]]
+[[swarm.vehicle.step]]
+t_s = 0.0
+action = "takeoff"
+alt_m = 2.0
+[[swarm.vehicle.step]]
+t_s = 3.0
+action = "goto"
+north_m = 0.0
+east_m = -3.0
+alt_m = 2.0
+"""
+
+
 def fly(scenario: Scenario, tmp_path: Path, name: str, **kw) -> Sitl:
     opts = SitlOptions(scenario=scenario, timed=True, lockstep=True, gcs=kw.pop("gcs", None), tlog=tmp_path / f"{name}.tlog",
                        log_dir=tmp_path, watchdog_s=10.0, **kw)  # fmt: skip
@@ -311,20 +328,7 @@ def test_a_lockstep_swarm_is_deterministic(tmp_path: Path) -> None:
 @pytest.mark.slow
 def test_two_vehicles_that_touch_both_crash(tmp_path: Path) -> None:
     # vehicle 2 spawns 3 m east of vehicle 1 and flies 3 m west in its own frame: onto vehicle 1
-    sc = swarm_scenario(tmp_path, count=2, duration=8.0, extra="""
-[[swarm.vehicle]]
-[[swarm.vehicle]]
-[[swarm.vehicle.step]]
-t_s = 0.0
-action = "takeoff"
-alt_m = 2.0
-[[swarm.vehicle.step]]
-t_s = 3.0
-action = "goto"
-north_m = 0.0
-east_m = -3.0
-alt_m = 2.0
-""", swarm_keys="spacing_m = 3.0")
+    sc = swarm_scenario(tmp_path, count=2, duration=8.0, extra=CONTACT_VEHICLES, swarm_keys="spacing_m = 3.0")
     sitl = fly(sc, tmp_path, "contact")
     sim = sitl.sim_summary
     assert sim is not None
@@ -453,20 +457,6 @@ def test_mavsdk_sees_three_systems_on_one_connection_and_flies_one(tmp_path: Pat
 
 
 # -- in-process ----------------------------------------------------------------------------------------
-CONTACT_VEHICLES = """
-[[swarm.vehicle]]
-[[swarm.vehicle]]
-[[swarm.vehicle.step]]
-t_s = 0.0
-action = "takeoff"
-alt_m = 2.0
-[[swarm.vehicle.step]]
-t_s = 3.0
-action = "goto"
-north_m = 0.0
-east_m = -3.0
-alt_m = 2.0
-"""
 
 
 def _motors(tlog: Path) -> list[tuple[float, ...]]:
