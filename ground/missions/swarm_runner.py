@@ -71,6 +71,8 @@ class SwarmMissionReport:
             "file": str(self.mission.path) if self.mission.path is not None else None,
             "count": self.mission.count,
             "passed": self.passed,
+            #: every vehicle disarmed before max_duration_s.
+            "finished": all(r.finished for r in self.reports.values()),
             "wall_time_s": self.wall_time_s,
             "separation": [s.as_dict() for s in self.separation],
             "proximity": self.proximity,
