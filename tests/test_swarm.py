@@ -612,3 +612,72 @@ def test_an_in_process_swarm_of_a_law_that_measures_acceleration_matches_sitl(tm
     st = fly_swarm(sc, tmp_path / "st", sitl=True)
     for a, b in zip(ip.vehicles, st.vehicles):
         assert _motors(a.tlog) == _motors(b.tlog) and len(_motors(a.tlog)) == 1501
+
+
+def _mavproxy() -> list[str] | None:
+    """How to run MAVProxy: $SMCPILOT_MAVPROXY (a mavproxy.py, e.g. in a virtual environment of its
+    own: it pulls in vtk and opencv), else mavproxy.py on the PATH; None when there is none."""
+    import shutil
+
+    exe = os.environ.get("SMCPILOT_MAVPROXY") or shutil.which("mavproxy.py")
+    if not exe:
+        return None
+    python = Path(exe).with_name("python")
+    return [str(python), exe] if python.exists() else [exe]
+
+
+@pytest.mark.slow
+@pytest.mark.interop
+def test_mavproxy_flies_one_vehicle_of_three_with_vehicle_n(tmp_path: Path) -> None:
+    cmd = _mavproxy()
+    if cmd is None:
+        pytest.skip("MAVProxy not found (set SMCPILOT_MAVPROXY to a mavproxy.py, or put it on the PATH)")
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    sc = swarm_scenario(tmp_path, count=3, duration=600.0).with_changes(plan=())
+    opts = SitlOptions(scenario=sc, timed=False, lockstep=True, speed=1.0, gcs=f"udp:127.0.0.1:{port}", tlog=tmp_path / "mp.tlog",
+                       log_dir=tmp_path, watchdog_s=10.0)  # fmt: skip
+    with Sitl(opts) as sitl:
+        mp = subprocess.Popen([*cmd, f"--master=udpin:127.0.0.1:{port}", "--nowait", f"--state-basedir={tmp_path / 'mavproxy'}"],
+                              stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1)  # fmt: skip
+        out: list[str] = []
+        reader = threading.Thread(target=lambda: out.extend(line.rstrip() for line in mp.stdout), daemon=True)  # type: ignore[union-attr]
+        reader.start()
+
+        def wait_for(text: str, timeout_s: float = 30.0) -> None:
+            deadline = time.monotonic() + timeout_s
+            while not any(text in ln for ln in out):
+                assert mp.poll() is None and time.monotonic() < deadline, f"MAVProxy never printed {text!r}:\n" + "\n".join(out[-30:])
+                time.sleep(0.1)
+
+        def say(line: str) -> None:
+            assert mp.stdin is not None
+            mp.stdin.write(line + "\n")
+            mp.stdin.flush()
+
+        try:
+            for sid in (1, 2, 3):
+                wait_for(f"Detected vehicle {sid}:1")
+            say("vehicle 2")
+            wait_for("Set vehicle 2")
+            say("mode guided")
+            say("arm throttle")
+            wait_for("COMPONENT_ARM_DISARM: ACCEPTED")
+            say("takeoff 2")
+            wait_for("NAV_TAKEOFF: ACCEPTED")
+            # watch the climb in simulated time from a second station on the router's own port
+            from ground.vehicle import Vehicle
+
+            assert sitl.gcs_address is not None
+            with Vehicle(f"udpout:{sitl.gcs_address}", system_id=2, connect_timeout_s=20) as v2:
+                v2.wait_altitude(2.0, tol_m=0.3, timeout_sim_s=20)
+        finally:
+            mp.kill()
+            mp.wait(timeout=10)
+        sitl.terminate()
+    from ground.logs import load_log
+
+    logs = {sid: load_log(t) for sid, t in zip(sitl.sysids, sitl.tlogs)}
+    assert float(logs[2].alt_m.max()) > 1.5  # vehicle 2 climbed
+    assert float(logs[1].alt_m.max()) < 0.1 and float(logs[3].alt_m.max()) < 0.1  # the others never left the ground
