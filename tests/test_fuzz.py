@@ -383,15 +383,21 @@ PARAM_LIST = M.MAVLink(None, srcSystem=250, srcComponent=190).param_request_list
     M.MAVLink(None, srcSystem=250, srcComponent=190))
 
 
+#: PARAM_REQUEST_LIST packets per flood datagram: a list request is cheap since the FC streams
+#: the table a chunk a tick, so each datagram carries many, to cost more than the budget affords.
+REQUEST_FLOOD_PACKETS = 16
+
+
 def request_flood(seconds: float, rate_hz: float = REQUEST_FLOOD_HZ) -> Fuzz:
-    """PARAM_REQUEST_LIST at ``rate_hz`` to the FC's ground port plus the heartbeat flood."""
+    """Datagrams of :data:`REQUEST_FLOOD_PACKETS` PARAM_REQUEST_LISTs at ``rate_hz`` to the FC's
+    ground port, plus the heartbeat flood."""
 
     def run(sitl: Sitl, stop: threading.Event, sim_s: Callable[[], float]) -> None:
         assert sitl.gcs_address is not None
         host, port = sitl.gcs_address.rsplit(":", 1)
         n = int(rate_hz * seconds)
         spec = FloodSpec(hostile=n, seconds=seconds, systems=FLOOD_SYSTEMS, heartbeat_hz=FLOOD_RATE_HZ)
-        send_flood({"gcs": (host, int(port))}, [("gcs", PARAM_LIST)] * n, spec, stop)
+        send_flood({"gcs": (host, int(port))}, [("gcs", PARAM_LIST * REQUEST_FLOOD_PACKETS)] * n, spec, stop)
 
     return run
 
