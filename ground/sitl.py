@@ -307,6 +307,8 @@ class Sitl:
             fc_args += ["--gcs-port", str(gcs_port)]
         if sysid is not None:
             fc_args += ["--sysid", str(sysid)]
+        if o.scenario.swarm is not None:  # more processes than cores: nobody busy-polls (a spinning FC takes its simulator's core)
+            fc_args += ["--spin-s", "0"]
         if o.lockstep:
             fc_args.append("--lockstep")
         if param_file is not None:  # else the FC starts from defaults with a file of its own (NAME.parm)
@@ -325,6 +327,8 @@ class Sitl:
         for port in ports:
             sim_args += ["--fc", f"udp:127.0.0.1:{port}"]
         sim_args += ["--scenario", str(self.scenario_file), "--watchdog-s", f"{o.watchdog_s:g}"]
+        if o.scenario.swarm is not None:
+            sim_args += ["--spin-s", "0"]
         if o.lockstep:
             sim_args.append("--lockstep")
         if o.speed is not None:
@@ -356,8 +360,6 @@ class Sitl:
             param_file = None if o.param_file is None else o.param_file.with_name(f"{o.param_file.stem}-v{v.sysid}{o.param_file.suffix}")
             gcs_port = (fc_ground_port(v.index) if default_ground else 0) if o.gcs else None
             args = self._fc_args(vfile, vlog, fc_gcs, gcs_port, param_file, tlog.parent / f"signing-timestamp-v{v.sysid}", v.sysid)
-            # More processes than cores: nobody busy-polls (a spinning FC takes the core its simulator needs).
-            args[1:1] = ["--spin-s", "0"]
             self.fcs.append(self._spawn(f"fc{v.sysid}", args))
             self.sysids.append(v.sysid)
             self.tlogs.append(vlog)
@@ -371,9 +373,7 @@ class Sitl:
         self.sim_port = ports[0]
         if self.router is None:
             self.gcs_address = self.gcs_addresses[0]
-        sim_args = self._sim_args(ports)
-        sim_args[1:1] = ["--spin-s", "0"]
-        self.sim = self._spawn("sim", sim_args)
+        self.sim = self._spawn("sim", self._sim_args(ports))
         for child in self.fcs:
             self._await_line(child, "FC_READY", ready_timeout_s + 0.5 * len(fleet))
         return self

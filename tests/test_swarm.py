@@ -65,6 +65,13 @@ alt_m = 2.0
 """
 
 
+def _free_port() -> int:
+    """A UDP port free on loopback now (for a ground station's address)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
 def fly(scenario: Scenario, tmp_path: Path, name: str, **kw) -> Sitl:
     opts = SitlOptions(scenario=scenario, timed=True, lockstep=True, gcs=kw.pop("gcs", None), tlog=tmp_path / f"{name}.tlog",
                        log_dir=tmp_path, watchdog_s=10.0, **kw)  # fmt: skip
@@ -380,9 +387,7 @@ def test_a_dead_vehicle_in_real_time_leaves_the_others_flying(tmp_path: Path, lo
 @pytest.mark.slow
 def test_a_station_on_one_ground_address_flies_one_vehicle_of_the_swarm(tmp_path: Path) -> None:
     sc = swarm_scenario(tmp_path, count=2, duration=600.0).with_changes(plan=())
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
-        probe.bind(("127.0.0.1", 0))
-        ground_port = probe.getsockname()[1]
+    ground_port = _free_port()
     opts = SitlOptions(scenario=sc, timed=False, lockstep=True, speed=3.0, gcs=f"udp:127.0.0.1:{ground_port}",
                        tlog=tmp_path / "gs.tlog", log_dir=tmp_path, watchdog_s=10.0)  # fmt: skip
     with Sitl(opts) as sitl:
@@ -418,9 +423,7 @@ def test_mavsdk_sees_three_systems_on_one_connection_and_flies_one(tmp_path: Pat
     from mavsdk.plugins.action import Action
     from mavsdk.plugins.telemetry import Telemetry
 
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
-        probe.bind(("127.0.0.1", 0))
-        port = probe.getsockname()[1]
+    port = _free_port()
     sc = swarm_scenario(tmp_path, count=3, duration=600.0).with_changes(plan=())
     opts = SitlOptions(scenario=sc, timed=False, lockstep=True, speed=2.0, gcs=f"udp:127.0.0.1:{port}", tlog=tmp_path / "mavsdk.tlog",
                        log_dir=tmp_path, watchdog_s=10.0)  # fmt: skip
@@ -632,9 +635,7 @@ def test_mavproxy_flies_one_vehicle_of_three_with_vehicle_n(tmp_path: Path) -> N
     cmd = _mavproxy()
     if cmd is None:
         pytest.skip("MAVProxy not found (set SMCPILOT_MAVPROXY to a mavproxy.py, or put it on the PATH)")
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
-        probe.bind(("127.0.0.1", 0))
-        port = probe.getsockname()[1]
+    port = _free_port()
     sc = swarm_scenario(tmp_path, count=3, duration=600.0).with_changes(plan=())
     opts = SitlOptions(scenario=sc, timed=False, lockstep=True, speed=1.0, gcs=f"udp:127.0.0.1:{port}", tlog=tmp_path / "mp.tlog",
                        log_dir=tmp_path, watchdog_s=10.0)  # fmt: skip
