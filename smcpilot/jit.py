@@ -36,6 +36,8 @@ __all__ = [
     "compile_pure",
     "sources_hash",
     "say_once",
+    "addressed",
+    "cache_index",
 ]
 
 #: environment variable: "0" (or "off", "false", "no") runs every compiled path in CPython.
@@ -136,3 +138,38 @@ def compile_pure(
         for name, target in names.items():
             g[name] = twins[target]
     return twins
+
+
+_ADDRESSED: Any = None
+
+
+def addressed(dispatcher: Any, sig: Any) -> Any:
+    """A compiled function (``dispatcher``'s overload for ``sig``) as a first-class function object
+    numba unboxes from its address (the wrapper address protocol) instead of looking the address
+    up on every call: what a compiled entry point takes for a law's functions."""
+    global _ADDRESSED
+    if _ADDRESSED is None:
+
+        class Addressed(numba_module().types.WrapperAddressProtocol):  # type: ignore[misc,name-defined]
+            def __init__(self, fn: Any, sig: Any, addr: int) -> None:
+                self.fn, self.sig, self.addr = fn, sig, addr  # fn: keeps the compiled code alive
+
+            def __wrapper_address__(self) -> int:
+                return self.addr
+
+            def signature(self) -> Any:
+                return self.sig
+
+        _ADDRESSED = Addressed
+    cres = dispatcher.overloads[sig.args]
+    addr = cres.library.get_pointer_to_function(cres.fndesc.llvm_cfunc_wrapper_name)
+    return _ADDRESSED(dispatcher, sig, addr)
+
+
+def cache_index(dispatcher: Any) -> str | None:
+    """Where numba keeps the on-disk cache index of ``dispatcher`` (None: unknown); it exists once
+    the dispatcher has been compiled and cached for some signature."""
+    try:
+        return str(dispatcher._cache._cache_file._index_path)
+    except AttributeError:
+        return None

@@ -48,6 +48,8 @@ from smcpilot.errors import DivergenceError
 from smcpilot.faults import MAX_DELAY_S, SENSORS
 from smcpilot.frames import quat_from_euler
 from smcpilot.jit import JIT_ENV, compile_pure, jit_enabled, say_once
+from smcpilot.jit import addressed as _addressed
+from smcpilot.jit import cache_index as _cache_index
 
 __all__ = ["FastRecord", "fast_simulate", "fast_unsupported", "compiled_kernel"]
 
@@ -216,41 +218,7 @@ def _first_line(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {(lines[0] if lines else '')[:160]}"
 
 
-_ADDRESSED: Any = None
-
-
-def _addressed(dispatcher: Any, sig: Any) -> Any:
-    """A compiled function as a first-class function object numba unboxes from its address (the
-    wrapper address protocol) instead of looking the address up on every call."""
-    global _ADDRESSED
-    if _ADDRESSED is None:
-        from smcpilot.jit import numba_module
-
-        class Addressed(numba_module().types.WrapperAddressProtocol):  # type: ignore[misc,name-defined]
-            def __init__(self, fn: Any, sig: Any, addr: int) -> None:
-                self.fn, self.sig, self.addr = fn, sig, addr  # fn: keeps the compiled code alive
-
-            def __wrapper_address__(self) -> int:
-                return self.addr
-
-            def signature(self) -> Any:
-                return self.sig
-
-        _ADDRESSED = Addressed
-    cres = dispatcher.overloads[sig.args]
-    addr = cres.library.get_pointer_to_function(cres.fndesc.llvm_cfunc_wrapper_name)
-    return _ADDRESSED(dispatcher, sig, addr)
-
-
 _LAW_PROBLEMS: dict[tuple[str, int], list[str]] = {}
-
-
-def _cache_index(dispatcher: Any) -> str | None:
-    """Where numba keeps the cache index of ``dispatcher`` (None: unknown)."""
-    try:
-        return str(dispatcher._cache._cache_file._index_path)
-    except AttributeError:
-        return None
 
 
 def fast_unsupported(core: FlightCore, plant: object, physics_hz: float, rate_hz: float, *, compile_new: bool = True) -> str | None:
