@@ -46,6 +46,7 @@ simulator (its port closed, reported by the OS) ends the FC at once (exit 3); a 
 from __future__ import annotations
 
 import ipaddress
+import gc
 import json
 import math
 import os
@@ -280,6 +281,7 @@ class FlightControllerApp:
         gcs_port: int = 0,
         signing: Signing | None = None,
         gcs_trusted: bool = False,
+        jit: str = "auto",
     ) -> None:
         #: MAVLink 2 signing of the ground link (key None: off until a SETUP_SIGNING sets one).
         self.signing = signing if signing is not None else Signing(None)
@@ -293,6 +295,10 @@ class FlightControllerApp:
         self.startup_timeout_s = startup_timeout_s
         #: lockstep: busy-poll this long after each tick before blocking (0: always block).
         self.spin_s = spin_s
+        #: the compiled pipeline: ``auto``, ``wait`` or ``off`` (:data:`fc.compiled_pipeline.JIT_POLICIES`).
+        self.jit = jit
+        #: why the pipeline flies in CPython (None: compiled).
+        self.jit_why: str | None = "not started"
         self.out = out
         self._mono = monotonic
         self.stats = FcStats()
@@ -434,9 +440,32 @@ class FlightControllerApp:
             self.tlog.close()
         self.params.close()  # the last parameter change on disk before we exit
 
+    def _attach_compiled(self) -> None:
+        """The pipeline compiled (:mod:`fc.compiled_pipeline`) as ``--jit`` says; one line says
+        when it flies in CPython and why."""
+        if self.jit == "off":
+            self.jit_why = "--jit off"
+            return
+        from fc.compiled_pipeline import attach_compiled, compile_in_background
+
+        why = self.jit_why = attach_compiled(self.core.flight, compile_new=self.jit == "wait")
+        if why is None or "not in the pure style" in why:  # (that one fc.cli says already)
+            return
+        note = f"fc: the pipeline flies in CPython: {why}"
+        if self.jit == "auto" and why.endswith("not cached yet"):
+            pid = compile_in_background(self.cfg.controller)
+            if pid is not None:
+                note += f"; compiling it in the background (pid {pid}) for the next runs"
+        self.say(note)
+
     def run(self) -> int:
         sim_addr = "{}:{}".format(*self.sim.local_address)
         gcs_addr = "{}:{}".format(*self.gcs.local_address) if self.gcs else "-"
+        self._attach_compiled()
+        # Start-up made every object the loop will ever need (numba alone brings ~10^5): the
+        # collector need not scan them again and again during the flight.
+        gc.collect()
+        gc.freeze()
         self.say(f"FC_LISTENING sim={sim_addr} gcs={gcs_addr} pid={os.getpid()}")
         if self.tlog is not None:  # the configuration this flight flies, for the log's readers
             lm = self._logmav
@@ -471,6 +500,8 @@ class FlightControllerApp:
             t = os.times()  # the kernel's share (system calls, wake-ups) beside our own code's
             summary["cpu_user_s"], summary["cpu_sys_s"] = round(t.user, 3), round(t.system, 3)
             summary["rx_rejected"] = self.rejected_summary()
+            flight = self.core.flight
+            summary["pipeline"] = {"compiled": flight.compiled, "compiled_ticks": flight.compiled_ticks, "why_not": self.jit_why}
             summary["sim_bad"] = dict(self.sim_complaints.counts)
             summary["tlog"] = str(self.tlog.path) if self.tlog is not None else None
             summary.update(self._summary_extra())

@@ -66,6 +66,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"ground telemetry rate incl. CHI_*/SIG_* (default {d.telemetry_rate_hz:g}, or TELEM_RATE_HZ)")
     p.add_argument("--watchdog-s", type=float, default=None, metavar="S",
                    help=f"exit if the simulator is silent this long, wall seconds (default {d.watchdog_s:g}, or FS_WATCHDOG)")
+    p.add_argument("--jit", choices=("auto", "wait", "off"), default="auto",
+                   help="the pipeline compiled with numba: auto (when cached; else CPython, compiling it in the background"
+                        " for the next runs), wait (compile it first if need be: 10-30 s once), off (CPython);"
+                        " SMCPILOT_JIT=0 also turns it off (default auto)")  # fmt: skip
     p.add_argument("--spin-s", type=float, default=0.002, metavar="S",
                    help="lockstep: busy-poll this long for the next state before blocking (default 0.002; 0: always"
                    " block, best when more processes than cores share the machine, as in a swarm)")  # fmt: skip
@@ -207,6 +211,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             duration_s=args.duration,
             startup_timeout_s=args.startup_timeout_s,
             spin_s=args.spin_s,
+            jit=args.jit,
             sim_system_id=args.sysid if args.sysid is not None else 1,
             gcs_port=gcs_port,
             signing=signing,

@@ -21,7 +21,7 @@ keeps its state between ticks and the commander's set-points, and is what the re
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 from fc.config import FcConfig
 from fc.control import registry
@@ -42,6 +42,7 @@ from fc.pipeline import (
 )
 from smcpilot.errors import SmcpilotError
 from smcpilot.frames import wrap_pi
+from smcpilot.jit import say_once
 from smcpilot.model import PaperModel
 from smcpilot.vehicle import VehicleParams
 from smcpilot.wire import accel_of_specific_force
@@ -91,6 +92,8 @@ class FlightControl:
         self.vehicle = vehicle
         self.model = PaperModel.from_vehicle(vehicle)
         self.mixer = Mixer(vehicle)
+        #: the compiled tick with the state it holds (:mod:`fc.compiled_pipeline`; None: CPython).
+        self._held: Any = None
         self._set_law(config)
         self.armed = False
         self.landing = False
@@ -102,7 +105,7 @@ class FlightControl:
         self.target = (0.0, 0.0, 0.0)
         self._psi_target = 0.0
         #: prefilter states, integrators, the law's state, the landed timer.
-        self.pipeline_state: PipelineState = pipeline_reset(VehicleState(*(0.0,) * 12), self.params, self.law_functions)
+        self._ps: PipelineState = pipeline_reset(VehicleState(*(0.0,) * 12), self.params, self.law_functions)
         #: the law failed in flight this many times (raised, non-finite or malformed output).
         self.law_faults = 0
         #: the last law failure's message (None: none yet).
@@ -127,6 +130,61 @@ class FlightControl:
         self._diag_mask = tuple(name in law.diagnostics for name in ("s", "sigma", "chi_hat", "u_dot"))
         #: the configuration, vehicle and law flattened for the pipeline.
         self.params: PipelineParams = params
+        held = self._held
+        if held is not None:
+            self._params_to_held(held)
+
+    # -- the compiled tick ---------------------------------------------------------------------
+    @property
+    def pipeline_state(self) -> PipelineState:
+        """Prefilter states, integrators, the law's state, the landed timer (held in compiled
+        memory while the compiled tick is attached)."""
+        held = self._held
+        return self._ps if held is None else held.state()  # type: ignore[no-any-return]
+
+    @pipeline_state.setter
+    def pipeline_state(self, ps: PipelineState) -> None:
+        held = self._held
+        if held is None:
+            self._ps = ps
+        else:
+            held.set_state(ps)
+
+    @property
+    def compiled(self) -> bool:
+        """The pipeline ticks compiled (:mod:`fc.compiled_pipeline`)."""
+        return self._held is not None
+
+    @property
+    def compiled_ticks(self) -> int:
+        """Ticks the compiled pipeline flew (0 without it)."""
+        held = self._held
+        return 0 if held is None else int(held.ticks)
+
+    def attach_held(self, held: Any) -> None:
+        """Tick through ``held`` (a :class:`fc.compiled_pipeline.HeldPipeline` made for this law,
+        holding the current state and parameters) from now on."""
+        self._held = held
+
+    def detach_held(self, why: str) -> None:
+        """Tick in CPython from now on (the state comes back from compiled memory); says why once."""
+        held = self._held
+        if held is None:
+            return
+        self._ps = held.state()
+        self._held = None
+        say_once(f"the FC's pipeline flies in CPython from now on: {why}")
+
+    def _params_to_held(self, held: Any) -> None:
+        from fc.compiled_pipeline import law_key
+
+        if held.law_key != law_key(self):
+            self.detach_held(f"the law is now {self.law.name}")
+            return
+        try:
+            held.set_params(self.params)
+        except Exception as exc:  # the new parameters do not fit the compiled types
+            self.detach_held(f"the parameters changed shape ({type(exc).__name__})")
 
     def reconfigure(self, config: FcConfig) -> None:
         """Apply new settings between control steps; a law of the same name keeps its state, another
@@ -209,6 +267,11 @@ class FlightControl:
         sensed: tuple[float, ...] = ()
         if self.measures_accel:
             sensed = _NAN3 if accel_frd is None else accel_of_specific_force(*accel_frd, st.phi_rad, st.theta_rad, st.psi_rad, p.gravity_mps2)
+        held = self._held
+        if held is not None:
+            out = held.tick(st, cmd, dt_s, sensed)
+            if out is not None:  # else the law's output was not finite: CPython flies it and says why
+                return self._held_output(out)
         try:
             new_state, (motors, u, limited, s, sigma, chi, u_law, u_dot, ref, touchdown, d_hat) = self._step_fn(
                 self.pipeline_state, st, cmd, p, dt_s, self.law_functions, sensed
@@ -225,6 +288,20 @@ class FlightControl:
         if touchdown:
             self.disarm()
         return PipelineOutput(motors, u, limited, diag, ref, d_hat)
+
+    def _held_output(self, o: list[float]) -> PipelineOutput:
+        """The compiled tick's outputs (``fc.compiled_pipeline.IO_OUT`` on) as :meth:`step` returns them."""
+        sm, gm, cm, dm = self._diag_mask
+        diag = Diagnostics(
+            (o[12], o[13], o[14], o[15]) if sm else None, (o[16], o[17], o[18], o[19]) if gm else None,
+            (o[20], o[21], o[22], o[23]) if cm else None, (o[24], o[25], o[26], o[27]), (o[28], o[29], o[30], o[31]) if dm else None,
+        )  # fmt: skip
+        if o[40] != 0.0:
+            self.disarm()
+        return PipelineOutput(
+            (o[0], o[1], o[2], o[3]), (o[4], o[5], o[6], o[7]), (o[8] != 0.0, o[9] != 0.0, o[10] != 0.0, o[11] != 0.0), diag,
+            (o[32], o[33], o[34], o[35]), (o[36], o[37], o[38], o[39]),
+        )  # fmt: skip
 
     def _law_fault(self, why: str) -> None:
         self.law_faults += 1

@@ -1,0 +1,377 @@
+"""The FC process's pipeline tick, compiled: state held in compiled memory, one array across.
+
+In the FC process the pipeline (:func:`fc.pipeline.pipeline_step_sensed`: prefilters, position loop,
+observer, law, mixer, anti-windup) runs once per received state. Calling its compiled twin once per
+tick with the NamedTuples it takes would cost more than CPython (numba unboxes the nested
+parameters and state on every call); so here the carried state and the flattened parameters live
+in numba typed lists of one element (:class:`HeldPipeline`), the per-tick inputs and outputs in one
+float64 array (``io``: :data:`IO_STATE` …), the law's functions by address in another (:func:`smcpilot.jit.addressed`), and the call
+goes to the compiled entry point directly (no dispatch on argument types). A tick then costs a few µs
+instead of the CPython pipeline's 20-30 µs, and gives the same motor commands bit for bit
+(``tests/test_compiled_pipeline.py``).
+
+:class:`fc.flight.FlightControl` uses it once :meth:`HeldPipeline.attach` succeeded; its
+``pipeline_state`` then reads and writes the held state (rarely: on arming, a yaw set-point, a
+landing). A tick whose law output is not finite is not kept: the caller flies it again in CPython,
+which raises or reports as it always has.
+
+The compiled code is cached on disk (numba's cache, named after a hash of every source it was
+compiled from). :func:`attach_compiled` uses it when it is cached (loading takes about half a
+second) or compiles it first (10-30 s once) when asked to wait; otherwise the FC flies in CPython.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from typing import Any
+
+from fc import pipeline as pipeline_mod
+from fc.control.law import LawFunctions
+from fc.control.purity import law_problems, pure_closure
+from fc.pipeline import PipelineInputs, VehicleState, pipeline_step_full_sensed, pipeline_step_sensed
+from smcpilot.jit import addressed, cache_index, compile_pure, jit_unavailable_reason, numba_module, say_once
+
+#: the ``io`` array: inputs (the estimate: 12 floats of :class:`fc.pipeline.VehicleState`; the
+#: commander's :class:`fc.pipeline.PipelineInputs`, bools as 0/1; dt in s; the IMU's acceleration,
+#: paper frame, for a law that measures it) ...
+IO_STATE = 0
+IO_CMD = 12
+IO_DT = 20
+IO_SENSED = 21
+#: ... and outputs, each a 4-vector: motors, realised u, limited (0/1), S, sigma, chi_hat, u_law,
+#: u_dot, references (phi_r, theta_r, psi_r, z_r), d_hat; then touchdown (0/1) and kept (1: the
+#: tick's outputs were finite and its new state is held; 0: nothing changed).
+IO_OUT = 24
+IO_TOUCHDOWN = IO_OUT + 40
+IO_KEPT = IO_OUT + 41
+IO_SIZE = IO_OUT + 42
+
+_isfinite = math.isfinite
+
+#: numba's typed list, for the compiled twins (set by :func:`_twins`: importing this module loads no numba).
+List: Any = None
+
+
+def _step(ps, st, cmd, pp, dt_s, law, sensed):  # type: ignore[no-untyped-def]
+    """The pipeline's tick (rebound to the whole-stack pipeline for a whole-stack law)."""
+    return pipeline_step_sensed(ps, st, cmd, pp, dt_s, law, sensed)
+
+
+def _step_full(ps, st, cmd, pp, dt_s, law, sensed):  # type: ignore[no-untyped-def]
+    """The whole-stack pipeline's tick."""
+    return pipeline_step_full_sensed(ps, st, cmd, pp, dt_s, law, sensed)
+
+
+def _no_sensed(io):  # type: ignore[no-untyped-def]
+    """Nothing sensed beyond the state (a law that does not measure acceleration)."""
+    return ()
+
+
+def _imu_sensed(io):  # type: ignore[no-untyped-def]
+    """The IMU's acceleration (paper frame, m/s^2) the caller put in ``io``."""
+    return (io[IO_SENSED], io[IO_SENSED + 1], io[IO_SENSED + 2])
+
+
+def pipeline_tick_held(ps_box, pp_box, io, law_box):  # type: ignore[no-untyped-def]
+    """:func:`held_tick` with the law's functions held in ``law_box[0]`` (first-class functions:
+    a tuple of functions passed as an argument would cost ~16 µs a call to unbox)."""
+    return held_tick(ps_box, pp_box, io, law_box[0])
+
+
+def held_tick(ps_box, pp_box, io, law):  # type: ignore[no-untyped-def]
+    """One pipeline tick on the held state ``ps_box[0]`` and parameters ``pp_box[0]``, the inputs
+    in ``io`` (see :data:`IO_STATE`); writes the outputs to ``io`` and keeps the new state when
+    they are finite. Returns 1 when kept, 0 when not (the state is then unchanged)."""
+    st = VehicleState(
+        io[0], io[1], io[2], io[3], io[4], io[5], io[6], io[7], io[8], io[9], io[10], io[11]
+    )  # fmt: skip
+    cmd = PipelineInputs(io[12], io[13], io[14], io[15], io[16] != 0.0, io[17] != 0.0, io[18] != 0.0, io[19])
+    new, out = _step(ps_box[0], st, cmd, pp_box[0], io[IO_DT], law, _no_sensed(io))
+    motors, u, limited, s, sigma, chi, u_law, u_dot, ref, touchdown, d_hat = out
+    o = IO_OUT
+    for i in range(4):
+        io[o + i] = motors[i]
+        io[o + 4 + i] = u[i]
+        io[o + 8 + i] = 1.0 if limited[i] else 0.0
+        io[o + 12 + i] = s[i]
+        io[o + 16 + i] = sigma[i]
+        io[o + 20 + i] = chi[i]
+        io[o + 24 + i] = u_law[i]
+        io[o + 28 + i] = u_dot[i]
+        io[o + 32 + i] = ref[i]
+        io[o + 36 + i] = d_hat[i]
+    io[IO_TOUCHDOWN] = 1.0 if touchdown else 0.0
+    kept = _isfinite(motors[0] + motors[1] + motors[2] + motors[3]) and _isfinite(u_law[0] + u_law[1] + u_law[2] + u_law[3])
+    if kept:
+        ps_box[0] = new
+        io[IO_KEPT] = 1.0
+        return 1
+    io[IO_KEPT] = 0.0
+    return 0
+
+
+def held_new(value):  # type: ignore[no-untyped-def]
+    """A typed list holding ``value`` (compiled only: made in compiled code, as its reads and
+    writes below, so that no typed-list method is compiled at run time: each would stall the
+    first tick that used it for about half a second)."""
+    box = List()
+    box.append(value)
+    return box
+
+
+def held_get(box):  # type: ignore[no-untyped-def]
+    """What ``box`` holds."""
+    return box[0]
+
+
+def held_set(box, value):  # type: ignore[no-untyped-def]
+    """Hold ``value`` in ``box`` instead."""
+    box[0] = value
+    return 0
+
+
+#: the functions compiled here beside the pipeline's own (:data:`fc.pipeline.PURE_FUNCTIONS`).
+HELD_FUNCTIONS = (pipeline_tick_held, held_tick, _step, _step_full, _no_sensed, _imu_sensed, held_new, held_get, held_set)
+
+
+class CompiledUnavailable(Exception):
+    """The compiled pipeline cannot be had for this law now (the FC flies in CPython)."""
+
+
+def first_line(exc: BaseException) -> str:
+    """``Type: the first line of the message`` (numba's errors run to pages)."""
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    return f"{type(exc).__name__}: {(lines[0] if lines else '')[:160]}"
+
+
+def law_function_types(law: LawFunctions, flight: Any) -> tuple[Any, LawFunctions]:
+    """The numba type of a law's compiled functions as first-class functions, and the functions
+    by address (:func:`smcpilot.jit.addressed`): so a compiled caller is typed (and cached) for
+    the law's signatures rather than for its dispatchers (which numba does not cache).
+    ``law``: the compiled twins of the law's functions; ``flight``: a
+    :class:`fc.flight.FlightControl` flying that law (its parameters and state give the types)."""
+    numba = numba_module()
+    types = numba.types
+    typeof = numba.typeof
+    ps = flight.pipeline_state
+    f64 = types.float64
+    k_t = typeof(flight.params.law)
+    state_t = typeof(ps.law)
+    v4 = types.UniTuple(f64, 4)
+    sensed = 3 if flight.measures_accel else 0  # the IMU's acceleration follows the state in meas
+    if flight.law.full_stack:
+        init_args = (typeof(VehicleState(*(0.0,) * 12)), k_t)
+        step_args = (types.UniTuple(f64, 12 + sensed), types.UniTuple(f64, 16), state_t, f64, k_t, v4, typeof(ps.u_prev))
+    else:
+        init_args = (types.UniTuple(f64, 8), k_t)
+        step_args = (types.UniTuple(f64, 8 + sensed), types.UniTuple(f64, 16), state_t, f64, k_t, v4, typeof(ps.u_prev))
+    sigs = []
+    for fn, fargs in ((law.initial_state, init_args), (law.step, step_args)):
+        fn.compile(fargs)
+        sigs.append(fn.overloads[fargs].signature)
+    new_t = sigs[1].return_type[1]
+    aw_args = (state_t, new_t, v4, types.UniTuple(types.boolean, 4), k_t)
+    law.anti_windup.compile(aw_args)
+    sigs.append(law.anti_windup.overloads[aw_args].signature)
+    law_t = types.NamedTuple(tuple(types.FunctionType(s) for s in sigs), LawFunctions)
+    return law_t, LawFunctions(*(addressed(fn, s) for fn, s in zip(law, sigs)))
+
+
+_TWINS: dict[tuple, dict[Any, Any]] = {}
+
+
+def _twins(flight: Any) -> dict[Any, Any]:
+    """The compiled twins of this module's functions, the pipeline's and the flight's law's
+    (made once per process and law)."""
+    global List
+    key = law_key(flight)
+    found = _TWINS.get(key)
+    if found is None:
+        from numba.typed import List
+        fns, _problems = pure_closure((*HELD_FUNCTIONS, *pipeline_mod.PURE_FUNCTIONS, *flight.law_functions))
+        step = _step_full if flight.law.full_stack else _step
+        sensed = _imu_sensed if flight.measures_accel else _no_sensed
+        twins = compile_pure(fns, rebind={held_tick: {"_step": step, "_no_sensed": sensed}, pipeline_tick_held: {}})
+        found = _TWINS[key] = twins
+    return found
+
+
+class HeldPipeline:
+    """A flight's pipeline state and parameters in compiled memory, and its compiled tick.
+
+    Made by :func:`attach_compiled`; :class:`fc.flight.FlightControl` calls :meth:`tick` and goes
+    through :meth:`state` / :meth:`set_state` for its ``pipeline_state``."""
+
+    def __init__(self, entry: Any, ps_box: Any, pp_box: Any, law_box: Any, law_key: tuple, access: tuple) -> None:
+        import numpy as np
+
+        self._entry = entry
+        #: compiled entry points: the state's get and set, the parameters' set.
+        self._get_ps, self._set_ps, self._set_pp = access
+        self._law = law_box
+        self._ps = ps_box
+        self._pp = pp_box
+        #: the law (its functions, whole-stack, measures acceleration) this was compiled for.
+        self.law_key = law_key
+        #: the per-tick inputs and outputs (:data:`IO_STATE` ...).
+        self.io = np.zeros(IO_SIZE)
+        #: ticks flown compiled.
+        self.ticks = 0
+
+    def state(self) -> Any:
+        return self._get_ps(self._ps)
+
+    def set_state(self, ps: Any) -> None:
+        self._set_ps(self._ps, ps)
+
+    def set_params(self, pp: Any) -> None:
+        """New flattened parameters (same law); raises if their types changed."""
+        self._set_pp(self._pp, pp)
+
+    def tick(self, st: tuple, cmd: tuple, dt_s: float, sensed: tuple) -> list[float] | None:
+        """One tick: the outputs from ``io[IO_OUT]`` on (a list), or None when the law's output
+        was not finite (nothing kept)."""
+        io = self.io
+        io[0:12] = st
+        io[12:20] = cmd
+        io[IO_DT] = dt_s
+        if sensed:
+            io[IO_SENSED : IO_SENSED + 3] = sensed
+        if not self._entry(self._ps, self._pp, io, self._law):
+            return None
+        self.ticks += 1
+        return io[IO_OUT:IO_TOUCHDOWN + 1].tolist()  # type: ignore[no-any-return]
+
+
+def _entry(dispatcher: Any, sig: tuple) -> Any:
+    """``dispatcher`` compiled (or loaded from the cache) for ``sig``: its entry point, called
+    without numba's dispatch on the argument types."""
+    dispatcher.compile(sig)
+    return dispatcher.overloads[sig].entry_point
+
+
+def law_key(flight: Any) -> tuple:
+    return (tuple(flight.law_functions), flight.law.full_stack, flight.measures_accel)
+
+
+def attach_compiled(flight: Any, *, compile_new: bool) -> str | None:
+    """Give ``flight`` (a :class:`fc.flight.FlightControl`) its compiled tick. Returns None when
+    attached, else why not (the flight goes on in CPython). ``compile_new``: compile it now when
+    it is not cached yet (10-30 s once, said on stderr); else only a cached one is used."""
+    why = jit_unavailable_reason()
+    if why is not None:
+        return why
+    law = flight.law
+    problems = law_problems(law)
+    if problems:
+        return f"the law {law.name} is not in the pure style ({problems[0]})"
+    try:
+        twins = _twins(flight)
+        held_fn = twins[pipeline_tick_held]
+        index = cache_index(held_fn)
+        cached = index is not None and os.path.exists(index)
+        if not cached and not compile_new:
+            return f"the compiled pipeline for the law {law.name} is not cached yet"
+        what = f"the FC's compiled pipeline for the law {law.name}"
+        if not cached:
+            say_once(f"compiling {what} (once after an install or a change; cached on disk)...")
+        t0 = time.perf_counter()
+        numba = numba_module()
+        typeof = numba.typeof
+        law_t, law_fns = law_function_types(LawFunctions(*(twins[f] for f in flight.law_functions)), flight)
+        box_t = numba.types.ListType
+        ps_t, pp_t = typeof(flight.pipeline_state), typeof(flight.params)
+        new_e = _entry(twins[held_new], (law_t,))
+        law_box = new_e(law_fns)
+        ps_box = _entry(twins[held_new], (ps_t,))(flight.pipeline_state)
+        pp_box = _entry(twins[held_new], (pp_t,))(flight.params)
+        access = (
+            _entry(twins[held_get], (box_t(ps_t),)), _entry(twins[held_set], (box_t(ps_t), ps_t)),
+            _entry(twins[held_set], (box_t(pp_t), pp_t)),
+        )  # fmt: skip
+        entry = _entry(held_fn, (box_t(ps_t), box_t(pp_t), numba.types.float64[::1], box_t(law_t)))
+        if held_fn.stats.cache_misses:
+            say_once(f"compiled {what} in {time.perf_counter() - t0:.1f} s")
+    except Exception as exc:  # numba cannot type this law (its state changes shape, say)
+        return f"the law {law.name} could not be compiled ({first_line(exc)})"
+    flight.attach_held(HeldPipeline(entry, ps_box, pp_box, law_box, law_key(flight), access))
+    return None
+
+
+#: the FC's choices (``python -m fc --jit``): use the compiled tick when it is cached, else fly in
+#: CPython and compile it in the background for later runs; compile it first if need be; never.
+JIT_POLICIES = ("auto", "wait", "off")
+
+
+def _lock_path() -> str:
+    import tempfile
+
+    return os.path.join(tempfile.gettempdir(), f"smcpilot-fc-compile-{os.getuid() if hasattr(os, 'getuid') else 0}.lock")
+
+
+def compile_in_background(controller: str) -> int | None:
+    """Start a process that compiles (and caches) the FC's pipeline for ``controller``, unless one
+    is compiling already; its pid, or None when none was started. Later FCs then load it."""
+    import subprocess
+    import sys
+
+    if _compile_lock(blocking=False) is None:
+        return None  # another process compiles: it holds the lock (released when it exits)
+    _release_lock()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "fc.compiled_pipeline", controller],
+        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+    )  # fmt: skip
+    return proc.pid
+
+
+_LOCK: Any = None
+
+
+def _compile_lock(*, blocking: bool) -> Any:
+    """The machine-wide compile lock (an advisory lock on a file: released when its holder exits)."""
+    global _LOCK
+    try:
+        import fcntl
+    except ImportError:  # no advisory locks here: compile anyway
+        return True
+    f = open(_lock_path(), "a")  # noqa: SIM115 (held until release or exit)
+    try:
+        fcntl.flock(f, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
+    except OSError:
+        f.close()
+        return None
+    _LOCK = f
+    return f
+
+
+def _release_lock() -> None:
+    global _LOCK
+    if _LOCK is not None:
+        _LOCK.close()
+        _LOCK = None
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m fc.compiled_pipeline LAW``: compile and cache the FC's pipeline for LAW."""
+    import argparse
+
+    from fc.config import FcConfig
+    from fc.flight import FlightControl
+    from smcpilot.vehicle import DEFAULT_VEHICLE
+
+    p = argparse.ArgumentParser(prog="python -m fc.compiled_pipeline", description=main.__doc__)
+    p.add_argument("law", help="the control law (a built-in name or a plug-in, as --controller takes it)")
+    args = p.parse_args(argv)
+    if _compile_lock(blocking=False) is None:
+        print("another process is compiling; nothing done")
+        return 0
+    why = attach_compiled(FlightControl(FcConfig(controller=args.law), DEFAULT_VEHICLE), compile_new=True)
+    print("compiled" if why is None else f"not compiled: {why}")
+    return 0 if why is None else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
