@@ -29,7 +29,7 @@ from typing import Any
 
 from fc import pipeline as pipeline_mod
 from fc.control.law import LawFunctions
-from fc.control.purity import law_problems, pure_closure
+from fc.control.purity import pure_closure
 from fc.pipeline import PipelineInputs, VehicleState, pipeline_step_full_sensed, pipeline_step_sensed
 from smcpilot.jit import addressed, cache_index, compile_pure, jit_unavailable_reason, numba_module, say_once
 
@@ -136,8 +136,8 @@ def held_set(box, value):  # type: ignore[no-untyped-def]
 HELD_FUNCTIONS = (pipeline_tick_held, held_tick, _step, _step_full, _no_sensed, _imu_sensed, held_new, held_get, held_set)
 
 
-class CompiledUnavailable(Exception):
-    """The compiled pipeline cannot be had for this law now (the FC flies in CPython)."""
+class NotPure(Exception):
+    """The law is not in the pure style (:mod:`fc.control.purity`): it flies in CPython."""
 
 
 def first_line(exc: BaseException) -> str:
@@ -190,7 +190,12 @@ def _twins(flight: Any) -> dict[Any, Any]:
     found = _TWINS.get(key)
     if found is None:
         from numba.typed import List
-        fns, _problems = pure_closure((*HELD_FUNCTIONS, *pipeline_mod.PURE_FUNCTIONS, *flight.law_functions))
+
+        fns, problems = pure_closure((*HELD_FUNCTIONS, *pipeline_mod.PURE_FUNCTIONS, *flight.law_functions))
+        own = tuple(f"{f.__name__} " for f in HELD_FUNCTIONS)  # (this module's use range and typed lists, compiled only)
+        problems = [p for p in problems if not p.startswith(own)]
+        if problems:  # (the pipeline's functions are pure: these are the law's)
+            raise NotPure(f"the law {flight.law.name} is not in the pure style ({problems[0]})")
         step = _step_full if flight.law.full_stack else _step
         sensed = _imu_sensed if flight.measures_accel else _no_sensed
         twins = compile_pure(fns, rebind={held_tick: {"_step": step, "_no_sensed": sensed}, pipeline_tick_held: {}})
@@ -264,9 +269,6 @@ def attach_compiled(flight: Any, *, compile_new: bool) -> str | None:
     if why is not None:
         return why
     law = flight.law
-    problems = law_problems(law)
-    if problems:
-        return f"the law {law.name} is not in the pure style ({problems[0]})"
     try:
         twins = _twins(flight)
         held_fn = twins[pipeline_tick_held]
@@ -294,6 +296,8 @@ def attach_compiled(flight: Any, *, compile_new: bool) -> str | None:
         entry = _entry(held_fn, (box_t(ps_t), box_t(pp_t), numba.types.float64[::1], box_t(law_t)))
         if held_fn.stats.cache_misses:
             say_once(f"compiled {what} in {time.perf_counter() - t0:.1f} s")
+    except NotPure as exc:
+        return str(exc)
     except Exception as exc:  # numba cannot type this law (its state changes shape, say)
         return f"the law {law.name} could not be compiled ({first_line(exc)})"
     flight.attach_held(HeldPipeline(entry, ps_box, pp_box, law_box, law_key(flight), access))

@@ -308,7 +308,9 @@ class Sitl:
         if sysid is not None:
             fc_args += ["--sysid", str(sysid)]
         if o.scenario.swarm is not None:  # more processes than cores: nobody busy-polls (a spinning FC takes its simulator's core)
-            fc_args += ["--spin-s", "0"]
+            # and the pipelines fly in CPython: loading the compiled one costs each FC about a second of
+            # CPU at start-up, more than it saves a swarm in flights of a few minutes (fc_args may say --jit auto)
+            fc_args += ["--spin-s", "0", "--jit", "off"]
         if o.lockstep:
             fc_args.append("--lockstep")
         if param_file is not None:  # else the FC starts from defaults with a file of its own (NAME.parm)
