@@ -67,8 +67,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--watchdog-s", type=float, default=None, metavar="S",
                    help=f"exit if the simulator is silent this long, wall seconds (default {d.watchdog_s:g}, or FS_WATCHDOG)")
     p.add_argument("--jit", choices=("auto", "wait", "off"), default="auto",
-                   help="the pipeline compiled with numba: auto (when cached; else CPython, compiling it in the background"
-                        " for the next runs), wait (compile it first if need be: 10-30 s once), off (CPython);"
+                   help="the pipeline compiled with numba (the same commands bit for bit): auto (when cached, in real time and"
+                        " in lockstep flights of 60 s or more or open-ended; not cached: CPython, compiling it in the background"
+                        " for the next runs), wait (always; compile it first if need be: 10-30 s once), off (CPython);"
                         " SMCPILOT_JIT=0 also turns it off (default auto)")  # fmt: skip
     p.add_argument("--spin-s", type=float, default=0.002, metavar="S",
                    help="lockstep: busy-poll this long for the next state before blocking (default 0.002; 0: always"

@@ -4,7 +4,7 @@ Oracle: the CPython pipeline itself. A :class:`fc.flight.FlightControl` with the
 attached and one without fly the same randomized inputs — arming, set-points with yaw, ALT_HOLD,
 a parameter change, a landing to touchdown, an IMU for the law that measures acceleration — and
 must give equal outputs and equal carried state after every tick. Then the real FC process in
-lockstep SITL: ``--jit auto`` (the compiled pipeline cached by this test) and ``--jit off`` must
+lockstep SITL: ``--jit wait`` (the compiled pipeline cached by this test) and ``--jit off`` must
 write the same ``.tlog`` byte for byte.
 """
 
@@ -134,7 +134,7 @@ def test_the_fc_process_writes_the_same_log_compiled_and_in_cpython(tmp_path) ->
     _pair("adaptive_pid_smc")  # compiles and caches the FC's pipeline for the default law
     plan = ({"t_s": 0.0, "action": "takeoff", "alt_m": 2.0}, {"t_s": 4.0, "action": "goto", "north_m": 1.0, "east_m": 1.0, "alt_m": 2.0, "yaw_deg": 90.0},
             {"t_s": 8.0, "action": "land"})  # fmt: skip
-    sitl_c, _ = fly_sitl(tmp_path, "compiled", 12.0, plan=plan, fc_args=("--jit", "auto"))
+    sitl_c, _ = fly_sitl(tmp_path, "compiled", 12.0, plan=plan, fc_args=("--jit", "wait"))
     sitl_p, _ = fly_sitl(tmp_path, "cpython", 12.0, plan=plan, fc_args=("--jit", "off"))
     pc, pp = sitl_c.fc_summary["pipeline"], sitl_p.fc_summary["pipeline"]
     assert pc["compiled"] and pc["compiled_ticks"] > 1000, pc
@@ -143,3 +143,9 @@ def test_the_fc_process_writes_the_same_log_compiled_and_in_cpython(tmp_path) ->
     log_p = (tmp_path / "cpython" / "cpython.tlog").read_bytes()
     assert len(log_c) > 100_000
     assert log_c == log_p
+
+
+def test_auto_leaves_a_short_lockstep_flight_in_cpython(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    sitl, _ = fly_sitl(tmp_path, "short", 2.0, fc_args=("--jit", "auto"))
+    pipe = sitl.fc_summary["pipeline"]
+    assert not pipe["compiled"] and "shorter than 60 s" in pipe["why_not"], pipe
