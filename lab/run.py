@@ -40,25 +40,25 @@ from fc import telemetry
 from fc.core import FlightCore, TickOutput
 from fc.flight import VehicleState
 from fc.params import FcOptions, config_for, options_for, param_messages
+from lab.fast.kernel import LOG_IMU, LOG_TRUTH
 from lab.runner import simulate
 from sim_bridge.app import EXIT_DIVERGED
 from sim_bridge.build import plant_for
 from sim_bridge.faults import FaultEvent
+from sim_bridge.sensors import specific_force_frd
 from smcpilot.errors import DivergenceError, SmcpilotError
-from smcpilot.fastcodec import (
-    encode_attitude,
-    encode_debug_float_array,
-    encode_hil_actuator_controls,
-    encode_local_position_ned,
-)
 from smcpilot.geo import Home
 from smcpilot.lawref import law_argument
 from smcpilot.protocol import (
     ACTUATOR_FLAG_LOCKSTEP,
     FC_COMPONENT_ID,
+    IMU_FIELDS_UPDATED,
     SIM_COMPONENT_ID,
     SMC_ARRAY_ID,
     SMC_ARRAY_NAME,
+    TRUTH_ESTIMATOR_TYPE,
+    TRUTH_FRAME,
+    TRUTH_QUALITY,
 )
 from smcpilot.scenario import Scenario, ScenarioError
 from smcpilot.tlog import TlogWriter
@@ -114,14 +114,111 @@ class FlightResult:
 
 
 # -- in-process ---------------------------------------------------------------------------------
+#: ODOMETRY's covariances in the truth the simulator sends: unknown (NaN in the first element).
+_COV_UNKNOWN = (math.nan,) + (0.0,) * 20
+_NAN = math.nan
+_crc16: Any = mavlink.mcrf4xx
+if _crc16 is None:  # pragma: no cover - pymavlink without fastcrc: the same CRC, slower
+
+    def _crc16(data: bytes, initial: int | None = None) -> int:
+        crc = mavlink.x25crc()
+        if initial is not None:
+            crc.crc = initial
+        crc.accumulate(bytes(data))
+        return int(crc.crc)
+
+
+_HEADER = "<BBBBBBBHB"  # MAVLink 2: magic, length, flags x2, seq, system, component, message id (24 bits)
+_LENGTH = [bytes((0xFD, n)) for n in range(256)]
+
+
+def _framed(full: bytes, extra: bytes) -> bytes:
+    """A MAVLink 2 packet of ``full`` (the header, its length 0, then the whole payload) as
+    pymavlink frames it: the payload's trailing zeros trimmed (at least one byte kept), the CRC."""
+    body = full.rstrip(b"\x00")
+    n = len(body) - 10
+    if n < 1:
+        body = full[:11]
+        n = 1
+    packet = _LENGTH[n] + body[2:]
+    return packet + _crc16(extra, _crc16(packet[1:])).to_bytes(2, "little")
+
+
+class _Packets:
+    """The six messages of a logged tick (the simulator's ATTITUDE, LOCAL_POSITION_NED,
+    HIGHRES_IMU and ODOMETRY, the FC's HIL_ACTUATOR_CONTROLS and SMC record), the same bytes as
+    :mod:`smcpilot.fastcodec` (and pymavlink) give (a test checks it), in fewer steps: one ``pack``
+    a message, header and payload together. Encoding is most of the cost of a logged tick."""
+
+    def __init__(self, sysid: int) -> None:
+        self.sysid = sysid
+        m = mavlink
+
+        def layout(msg: Any, payload: str) -> tuple[struct.Struct, int, int, bytes]:
+            return struct.Struct(_HEADER + payload[1:]), msg.id & 0xFFFF, msg.id >> 16, bytes([msg.crc_extra])
+
+        self._att = layout(m.MAVLink_attitude_message, "<Iffffff")
+        self._lpn = layout(m.MAVLink_local_position_ned_message, "<Iffffff")
+        self._imu = layout(m.MAVLink_highres_imu_message, "<QfffffffffffffHB")
+        self._odo = layout(m.MAVLink_odometry_message, "<Q13f")
+        self._act = layout(m.MAVLink_hil_actuator_controls_message, "<QQ16fB")
+        self._dfa = layout(m.MAVLink_debug_float_array_message, "<QH10s58f")
+        #: ODOMETRY's constant tail: the covariances (unknown), frames, reset counter, estimator, quality.
+        self._odo_tail = struct.pack("<21f21fBBBBb", *_COV_UNKNOWN, *_COV_UNKNOWN, TRUTH_FRAME, TRUTH_FRAME, 0, TRUTH_ESTIMATOR_TYPE, TRUTH_QUALITY)
+
+    def attitude(self, seq: int, t_ms: int, roll: float, pitch: float, yaw: float, p: float, q: float, r: float) -> bytes:
+        st, lo, hi, extra = self._att
+        return _framed(st.pack(0xFD, 0, 0, 0, seq, self.sysid, SIM_COMPONENT_ID, lo, hi, t_ms, roll, pitch, yaw, p, q, r), extra)
+
+    def local_position_ned(self, seq: int, t_ms: int, x: float, y: float, z: float, vx: float, vy: float, vz: float) -> bytes:
+        st, lo, hi, extra = self._lpn
+        return _framed(st.pack(0xFD, 0, 0, 0, seq, self.sysid, SIM_COMPONENT_ID, lo, hi, t_ms, x, y, z, vx, vy, vz), extra)
+
+    def highres_imu(self, seq: int, t_us: int, fx: float, fy: float, fz: float, p: float, q: float, r: float) -> bytes:
+        """Specific force (m/s^2) and rates (rad/s), body FRD; the accelerometer and the gyro updated."""
+        st, lo, hi, extra = self._imu
+        return _framed(st.pack(0xFD, 0, 0, 0, seq, self.sysid, SIM_COMPONENT_ID, lo, hi, t_us, fx, fy, fz, p, q, r,
+                               0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, IMU_FIELDS_UPDATED, 0), extra)  # fmt: skip
+
+    def odometry(self, seq: int, t_us: int, x: float, y: float, z: float, qw: float, qx: float, qy: float, qz: float,
+                 vx: float, vy: float, vz: float, p: float, q: float, r: float) -> bytes:  # fmt: skip
+        """Position and velocity NED (m, m/s), the attitude quaternion (FRD body in NED), body rates FRD (rad/s)."""
+        st, lo, hi, extra = self._odo
+        head = st.pack(0xFD, 0, 0, 0, seq, self.sysid, SIM_COMPONENT_ID, lo, hi, t_us, x, y, z, qw, qx, qy, qz, vx, vy, vz, p, q, r)
+        return _framed(head + self._odo_tail, extra)
+
+    def actuators(self, seq: int, t_us: int, m: Sequence[float], mode: int) -> bytes:
+        st, lo, hi, extra = self._act
+        return _framed(st.pack(0xFD, 0, 0, 0, seq, self.sysid, FC_COMPONENT_ID, lo, hi, t_us, ACTUATOR_FLAG_LOCKSTEP, m[0], m[1], m[2], m[3],
+                               0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, mode), extra)  # fmt: skip
+
+    def smc(self, seq: int, t_us: int, data: Sequence[float]) -> bytes:
+        st, lo, hi, extra = self._dfa
+        return _framed(st.pack(0xFD, 0, 0, 0, seq, self.sysid, FC_COMPONENT_ID, lo, hi, t_us, SMC_ARRAY_ID, _SMC_NAME, *data), extra)
+
+
+_SMC_NAME = SMC_ARRAY_NAME.encode("ascii") if isinstance(SMC_ARRAY_NAME, str) else SMC_ARRAY_NAME
+
+
 class _TlogRecorder:
     """Writes an in-process flight's ``.tlog`` as the FC process writes its own: the simulator's
-    state messages, the actuator message and the ``SMC`` record of every tick, and the events."""
+    state messages (``ATTITUDE``, ``LOCAL_POSITION_NED`` and, given the ``plant``, the sensed IMU as
+    ``HIGHRES_IMU`` and the plant's true state as ``ODOMETRY``, what the simulator process sends
+    with each state), the actuator message and the ``SMC`` record of every tick, and the events.
 
-    def __init__(self, path: Path, core: FlightCore, sysid: int = 1, options: FcOptions | None = None) -> None:
+    The simulator's messages carry the sequence numbers the simulator process gives them (it sends
+    ATTITUDE, HIGHRES_IMU, ODOMETRY, LOCAL_POSITION_NED; the FC logs the state pair first), so a
+    tick's records are those of a SITL log of the same flight but for their record stamps (SITL:
+    when the datagram arrived, one tick earlier). A NaN is written as the canonical NaN."""
+
+    def __init__(self, path: Path, core: FlightCore, sysid: int = 1, options: FcOptions | None = None, plant: Any = None) -> None:
         self.tlog = TlogWriter(path)
         self.core = core
         self.sysid = sysid
+        #: the plant whose IMU and truth are logged (None: the state pair only).
+        self.plant = plant
+        self._gravity = float(plant.vehicle.gravity_mps2) if plant is not None else 0.0
+        self._packets = _Packets(sysid)
         self._sim_seq = 0
         self._fc_seq = 0
         self._log_seq = 0
@@ -138,31 +235,55 @@ class _TlogRecorder:
     def sim_event(self, ev: FaultEvent) -> None:
         """A fault start/stop as the simulator sends it (its component's STATUSTEXT), at its time."""
         mav = self._sim_mav
+        mav.seq = self._sim_seq  # one sequence for everything the simulator sends
         self.tlog.write(int(round(ev.t_s * 1e6)), telemetry.statustext(mav, ev.severity, ev.text).pack(mav))
+        self._sim_seq = mav.seq
 
     def on_tick(self, k: int, t_us: int, w: tuple[float, ...], st: VehicleState, out: TickOutput, motors: tuple[float, ...]) -> None:
-        self._write_tick(t_us, w, out.motors, out.armed, telemetry.smc_record(self.core, out))
+        plant = self.plant
+        if plant is None:
+            self._write_tick(t_us, w, out.motors, out.armed, telemetry.smc_record(self.core, out))
+            return
+        tru = plant.truth()
+        f = specific_force_frd(plant.observe().accel_mps2, tru.quaternion, self._gravity)
+        self._write_tick(t_us, w, out.motors, out.armed, telemetry.smc_record(self.core, out),
+                         f, (*tru.position_m, *tru.velocity_mps, *tru.quaternion, *tru.body_rates_radps))  # fmt: skip
 
     def on_rows(self, rows: np.ndarray) -> None:
         """The ticks a compiled flight logged (:data:`lab.fast.kernel.LOG_COLUMNS`): the same records."""
+        imu = self.plant is not None
         for r in rows.tolist():
-            self._write_tick(int(r[0]), r[1:13], r[13:17], r[17] != 0.0, r[18:49] + _ZEROS27)
+            self._write_tick(int(r[0]), r[1:13], r[13:17], r[17] != 0.0, r[18:49] + _ZEROS27,
+                             r[LOG_IMU:LOG_TRUTH] if imu else None, r[LOG_TRUTH:LOG_TRUTH + 13] if imu else None)  # fmt: skip
 
-    def _write_tick(self, t_us: int, w: Sequence[float], m: Sequence[float], armed: bool, data: list[float]) -> None:
-        tl = self.tlog
-        sysid = self.sysid
+    def _write_tick(self, t_us: int, w: Sequence[float], m: Sequence[float], armed: bool, data: list[float],
+                    imu: Sequence[float] | None = None, truth: Sequence[float] | None = None) -> None:  # fmt: skip
+        enc = self._packets
         t_ms = (t_us // 1000) & 0xFFFFFFFF
         s = self._sim_seq
-        tl.write(t_us, encode_attitude(s, sysid, SIM_COMPONENT_ID, t_ms, w[0], w[1], w[2], w[3], w[4], w[5]))
-        tl.write(t_us, encode_local_position_ned((s + 1) & 0xFF, sysid, SIM_COMPONENT_ID, t_ms, w[6], w[7], w[8], w[9], w[10], w[11]))
-        self._sim_seq = (s + 2) & 0xFF
-        tl.write(t_us, encode_hil_actuator_controls(
-            self._fc_seq, sysid, FC_COMPONENT_ID, t_us, [m[0], m[1], m[2], m[3]] + _ZEROS12,
-            _ARMED if armed else 0, ACTUATOR_FLAG_LOCKSTEP,
-        ))  # fmt: skip
+        att = enc.attitude(s, t_ms, w[0], w[1], w[2], w[3], w[4], w[5])
+        act = enc.actuators(self._fc_seq, t_us, m, _ARMED if armed else 0)
+        smc = enc.smc(self._log_seq, t_us, data)
         self._fc_seq = (self._fc_seq + 1) & 0xFF
-        tl.write(t_us, encode_debug_float_array(self._log_seq, sysid, FC_COMPONENT_ID, t_us, SMC_ARRAY_NAME, SMC_ARRAY_ID, data))
         self._log_seq = (self._log_seq + 1) & 0xFF
+        if truth is None or imu is None:
+            self.tlog.write_many(t_us, (att, enc.local_position_ned((s + 1) & 0xFF, t_ms, w[6], w[7], w[8], w[9], w[10], w[11]), act, smc))
+            self._sim_seq = (s + 2) & 0xFF
+            return
+        # the simulator sends ATTITUDE, HIGHRES_IMU, ODOMETRY, LOCAL_POSITION_NED; the FC logs the state pair first
+        self._sim_seq = (s + 4) & 0xFF
+        lpn = enc.local_position_ned((s + 3) & 0xFF, t_ms, w[6], w[7], w[8], w[9], w[10], w[11])
+        # the truth NED/FRD as smcpilot.frames' nwu_to_ned, rates_flu_to_frd and quat_nwu_flu_to_ned_frd give it
+        x, y, z, vx, vy, vz, qw, qx, qy, qz, p, q, r = truth
+        fx, fy, fz = imu
+        try:
+            sensed = enc.highres_imu((s + 1) & 0xFF, t_us, fx if fx == fx else _NAN, fy if fy == fy else _NAN, fz if fz == fz else _NAN,
+                                     w[3], w[4], w[5])  # fmt: skip
+            odo = enc.odometry((s + 2) & 0xFF, t_us, x, -y, -z, qw, qx, -qy, -qz, vx, -vy, -vz, p, -q, -r)
+        except (OverflowError, struct.error):  # beyond float32 (a vehicle about to diverge): not logged
+            self.tlog.write_many(t_us, (att, lpn, act, smc))
+            return
+        self.tlog.write_many(t_us, (att, lpn, sensed, odo, act, smc))
 
     def close(self) -> None:
         self.tlog.close()
@@ -191,7 +312,7 @@ def fly_in_process(scenario: Scenario, tlog_path: Path, *, echo=None) -> FlightR
     core = FlightCore(config, scenario.vehicle, home=home, plan=scenario.plan, event=event, estimator=options.estimator)
     plant = plant_for(scenario)
     tlog_path.parent.mkdir(parents=True, exist_ok=True)
-    recorder = _TlogRecorder(tlog_path, core, options=options)
+    recorder = _TlogRecorder(tlog_path, core, options=options, plant=plant)
     status, message = "ok", ""
     t0 = time.perf_counter()
     ticks = 0

@@ -104,7 +104,7 @@ def fly_swarm_in_process(scenario: Scenario, tlog: Path, *, echo: Callable[[str]
 
         cores.append(FlightCore(config_for(sc), sc.vehicle, home=home, plan=sc.plan, event=event, estimator=options.estimator))
         plants.append(plant_for(sc))
-        recorders.append(_TlogRecorder(vehicle_tlog(tlog, v.sysid), cores[i], sysid=v.sysid, options=options))
+        recorders.append(_TlogRecorder(vehicle_tlog(tlog, v.sysid), cores[i], sysid=v.sysid, options=options, plant=plants[i]))
 
     def sim_event(i: int, ev: FaultEvent) -> None:
         events[i].append((ev.t_s, ev.text))

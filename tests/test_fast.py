@@ -11,6 +11,7 @@ flies that one again.
 
 from __future__ import annotations
 
+import math
 import os
 import random
 import struct
@@ -39,6 +40,7 @@ from smcpilot.errors import DivergenceError
 from smcpilot.geo import Home
 from smcpilot.protocol import Mode
 from smcpilot.scenario import Scenario
+from smcpilot.tlog import read_tlog
 
 pytest.importorskip("numba")
 
@@ -358,6 +360,30 @@ def test_the_tlog_of_a_compiled_flight_is_the_same_file(name: str, tmp_path: Pat
     assert (compiled.status, compiled.ticks, compiled.events) == (cpython.status, cpython.ticks, cpython.events)
     assert compiled.events, "the flight had events (take-off, the fault or the landing)"
     assert (tmp_path / "compiled.tlog").read_bytes() == (tmp_path / "cpython.tlog").read_bytes()
+    kinds = [m.get_type() for _, m in read_tlog(tmp_path / "compiled.tlog")]
+    assert kinds.count("HIGHRES_IMU") == kinds.count("ODOMETRY") == kinds.count("ATTITUDE") == compiled.ticks  # the IMU and the truth
+
+
+@pytest.mark.parametrize("sensor", ["accel", "gyro"])
+def test_a_compiled_flight_with_an_imu_dropout_writes_the_cpython_file(sensor: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """NaN in the IMU (a dropout) and noise: the compiled and the CPython flight write the same bytes."""
+    from lab.run import fly_in_process
+
+    sc = Scenario.from_mapping({
+        "name": f"{sensor}-dropout", "duration_s": 4.0, "seed": 5, "environment": {"noise": True, "gust_std_n": 0.1},
+        "step": [{"t_s": 0.0, "action": "takeoff", "alt_m": 2.0}],
+        "fault": [{"kind": "sensor", "sensor": sensor, "mode": "dropout", "start_s": 1.5, "stop_s": 2.0}],
+    })  # fmt: skip
+    compiled = fly_in_process(sc, tmp_path / "compiled.tlog")
+    monkeypatch.setenv("SMCPILOT_JIT", "0")
+    cpython = fly_in_process(sc, tmp_path / "cpython.tlog")
+    assert compiled.status == cpython.status == "ok"
+    data = (tmp_path / "compiled.tlog").read_bytes()
+    assert data == (tmp_path / "cpython.tlog").read_bytes()
+    imu = [m for _, m in read_tlog(tmp_path / "compiled.tlog") if m.get_type() == "HIGHRES_IMU"]
+    gap = [m for m in imu if 1_500_000 <= m.time_usec < 2_000_000]
+    field = "xacc" if sensor == "accel" else "xgyro"
+    assert gap and all(math.isnan(getattr(m, field)) for m in gap) and not math.isnan(getattr(imu[-1], field))
 
 
 @pytest.mark.parametrize("case", ["gusts", "gyro-bias", "pos-dropout", "motor30-step", "paper-dist"])

@@ -111,7 +111,7 @@ def _fly_in_process(unit: Unit, row: dict[str, Any], tlog: Path | None, trace: b
         from lab.run import _TlogRecorder
 
         tlog.parent.mkdir(parents=True, exist_ok=True)
-        recorder = _TlogRecorder(tlog, core, options=options)
+        recorder = _TlogRecorder(tlog, core, options=options, plant=plant)
     every = unit.record_every
     rec = MetricsRecorder(core, every=every)
 

@@ -64,8 +64,15 @@ SF_NOISE = 3
 SF_DROPOUT = 4
 #: columns of a fault gust's row: state (N, E, x, y, z), force std, torque std, tau, last step, a, b.
 FG_COLUMNS = 11
-#: columns of a log row (what :class:`lab.run._TlogRecorder` writes for a tick).
-LOG_COLUMNS = 49
+#: columns of a log row (what :class:`lab.run._TlogRecorder` writes for a tick): time, the 12 wire
+#: values, the motor commands, armed, the 31 leading values of the ``SMC`` record, then the IMU's
+#: specific force (body FRD, m/s^2, float64 as computed: ``HIGHRES_IMU``) and the plant's true state
+#: at the tick (its 13 leading states: position, velocity, attitude quaternion, body rates, in the
+#: paper's frames: ``ODOMETRY``).
+LOG_COLUMNS = 65
+#: the first column of the specific force and of the true state in a log row.
+LOG_IMU = 49
+LOG_TRUTH = 52
 
 
 def _f32(x: float) -> float:
@@ -150,7 +157,7 @@ def fly_span(
     received one, the tick number of the first tick, whether the law has a sigma; the output
     arrays; whether to log every tick into ``lg`` (rows of :data:`LOG_COLUMNS`: time µs, the 12
     wire values, the motor commands, armed, the 31 leading values of the ``SMC`` record of
-    :func:`fc.telemetry.smc_data`), which of the law's diagnostics exist (s, sigma, chi_hat,
+    :func:`fc.telemetry.smc_data`, the IMU's specific force and the plant's true state), which of the law's diagnostics exist (s, sigma, chi_hat,
     u_dot) and the mode's number; the faults' gusts (``fg``: one row each, :data:`FG_COLUMNS`;
     ``n_fg`` of them) and their random stream; the sensor faults as a program per sensor (``sp``
     [sensor, op] = (mode, x, y, z) in the paper's frames, ``sn`` ops per sensor, sensors in
@@ -315,8 +322,10 @@ def fly_span(
         f0 = nan
         f1 = nan
         f2 = nan
-        if imu_on:
+        fa = (nan, nan, nan)
+        if imu_on or log_on:
             fa = specific_force_frd((oax, oay, oaz), (qw, qx, qy, qz), g_plant)
+        if imu_on:
             if _f32_overflows(fa[0]) or _f32_overflows(fa[1]) or _f32_overflows(fa[2]):
                 code = 3
                 break
@@ -430,6 +439,23 @@ def fly_span(
             lg[k, 46] = (1.0 if lim[0] else 0.0) + (2.0 if lim[1] else 0.0) + (4.0 if lim[2] else 0.0) + (8.0 if lim[3] else 0.0)
             lg[k, 47] = flags
             lg[k, 48] = mode_num
+            # the IMU and the truth the simulator sends with the state (HIGHRES_IMU, ODOMETRY)
+            lg[k, 49] = fa[0]
+            lg[k, 50] = fa[1]
+            lg[k, 51] = fa[2]
+            lg[k, 52] = x
+            lg[k, 53] = y
+            lg[k, 54] = z
+            lg[k, 55] = vx
+            lg[k, 56] = vy
+            lg[k, 57] = vz
+            lg[k, 58] = qw
+            lg[k, 59] = qx
+            lg[k, 60] = qy
+            lg[k, 61] = qz
+            lg[k, 62] = p_
+            lg[k, 63] = q_
+            lg[k, 64] = r_
         # -- the physics: sub-steps with the motor commands held --------------------------------
         t_tick = t_us
         targets = rigid_body_targets((m0, m1, m2, m3), armed, rbp)
