@@ -369,6 +369,8 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m fc.compiled_pipeline", description=main.__doc__)
     p.add_argument("law", help="the control law (a built-in name or a plug-in, as --controller takes it)")
     args = p.parse_args(argv)
+    if hasattr(os, "nice"):  # a background job: the flights running meanwhile keep their CPU
+        os.nice(19)
     if _compile_lock(blocking=False) is None:
         print("another process is compiling; nothing done")
         return 0
