@@ -149,3 +149,20 @@ def test_auto_leaves_a_short_lockstep_flight_in_cpython(tmp_path) -> None:  # ty
     sitl, _ = fly_sitl(tmp_path, "short", 2.0, fc_args=("--jit", "auto"))
     pipe = sitl.fc_summary["pipeline"]
     assert not pipe["compiled"] and "shorter than 60 s" in pipe["why_not"], pipe
+
+
+def test_one_background_compile_at_a_time() -> None:
+    from fc import compiled_pipeline as cp
+
+    held = cp._compile_lock(blocking=False)  # as a compiling process holds it
+    assert held is not None
+    try:
+        assert cp.compile_in_background("adaptive_pid_smc") is None  # nobody else starts
+    finally:
+        cp._release_lock()
+    pytest.importorskip("fcntl")
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "fc.compiled_pipeline", "--help"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and "compile and cache the FC's pipeline" in r.stdout
