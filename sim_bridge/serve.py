@@ -9,7 +9,9 @@ Both are lockstep: the autopilot's motor message steps the physics, the answer c
 What they share (here): the plant factory, the IMU an autopilot expects (gyro and specific force in
 body FRD), bad input counted with rate-limited messages (:class:`Complaints`), the watchdog, the
 clean stop on SIGINT/SIGTERM with a one-line summary (``SIM_SUMMARY {json}``), the announcements of
-fault starts and stops (printed: neither protocol has a channel for them), and the command line.
+fault starts and stops (printed: neither protocol has a channel for them), the physics step with
+its log (:meth:`ServerBase.step_plant`: the served flight's ``.tlog``, :mod:`sim_bridge.serve_log`,
+which ``smcpilot log summary`` scores), and the command line.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import signal
 import sys
 import time
@@ -28,6 +31,7 @@ from typing import Any, TextIO
 from sim_bridge.build import plant_for
 from sim_bridge.plants.paper_vehicle import PaperVehiclePlant
 from sim_bridge.plants.rigid_body import RigidBodyPlant
+from sim_bridge.serve_log import ServedLog
 from smcpilot.complaints import Complaints
 from smcpilot.errors import ConfigError, DivergenceError, WatchdogError
 from smcpilot.scenario import Scenario
@@ -38,6 +42,7 @@ EXIT_OK = 0
 EXIT_CONFIG = 2
 EXIT_WATCHDOG = 3
 EXIT_DIVERGED = 4
+WARNING = 4  # MAV_SEVERITY_WARNING
 
 Vec3 = tuple[float, float, float]
 
@@ -57,6 +62,8 @@ class ServeOptions:
     pwm_max: int = 2000
     #: PX4: sensor (and step) rate, Hz.
     rate_hz: float = 250.0
+    #: the served flight's log (:mod:`sim_bridge.serve_log`); None: none.
+    tlog: Path | None = None
 
 
 def parse_serve(text: str) -> tuple[str, int]:
@@ -90,6 +97,8 @@ class ServerBase:
         self.restarts = 0
         #: sensor values that were NaN (a dropout) where the protocol cannot say "not measured".
         self.held_values = 0
+        #: the served flight's log, if one is written (opened when serving starts).
+        self.log: ServedLog | None = None
 
     def say(self, line: str) -> None:
         print(line, file=self.out, flush=True)
@@ -97,16 +106,41 @@ class ServerBase:
     def request_stop(self, *_: object) -> None:
         self._stop = True
 
-    def restart_plant(self) -> None:
-        """A fresh vehicle at rest, as the scenario describes it (the autopilot restarted)."""
+    def restart_plant(self, why: str, step_s: float) -> None:
+        """A fresh vehicle at rest, as the scenario describes it (the autopilot restarted: ``why``);
+        in the log, its time goes on ``step_s`` after the last state."""
         self.plant = plant_for(self.scenario)
         self.restarts += 1
+        if self.log is not None:
+            self.log.restarted(int(round(step_s * 1e6)))
+            self.log.event(self.log.stamp_us(0.0), WARNING, why)
 
     def announce_faults(self) -> None:
         faults = self.plant.faults
         if faults is not None and faults.events:
+            log = self.log
             for ev in faults.take_events():
                 self.say(f"{self.name}: t = {ev.t_s:.3f} s: {ev.text}")
+                if log is not None:
+                    log.event(log.stamp_us(ev.t_s), ev.severity, ev.text)
+
+    def step_plant(self, t_s: float, dt_s: float, commands: tuple[float, float, float, float], armed: bool, lockstep: bool) -> None:
+        """One physics step from ``t_s`` (the plant's time now) of ``dt_s`` with these motor
+        commands, logged: the commands, the fault events, the state after the step."""
+        plant = self.plant
+        log = self.log
+        if log is not None:
+            log.commands_flown(log.stamp_us(t_s), commands, armed, lockstep)
+        plant.step(t_s, dt_s, commands, armed)
+        self.announce_faults()
+        self.log_state()
+
+    def log_state(self) -> None:
+        """Log the state now (if a log is written and it is not logged yet). Observing the state
+        draws the sensors' noise once a step: the protocol observes it too, the same draw."""
+        if self.log is not None:
+            self.log.state(self.plant, self.gravity)
+            self.announce_faults()  # (those of observing it)
 
     def duration_reached(self) -> bool:
         d = self.options.duration_s
@@ -134,7 +168,10 @@ class ServerBase:
         raise NotImplementedError
 
     def run(self) -> int:
-        """Serve until stopped (signal, duration, watchdog); print the summary; the exit code."""
+        """Serve until stopped (signal, duration, watchdog); print the summary; the exit code.
+        Raises :class:`smcpilot.errors.TlogError` before serving if the log cannot be written."""
+        if self.options.tlog is not None:
+            self.log = ServedLog(self.options.tlog, self.options.kind)
         code = EXIT_OK
         try:
             self._serve()
@@ -146,6 +183,10 @@ class ServerBase:
             code = EXIT_DIVERGED
         finally:
             self.close()
+            if self.log is not None:
+                self.log.close()
+                self.say(f"{self.name}: log {self.log.path} ({self.log.states} states); its score: smcpilot log summary {self.log.path}"
+                         " [--setpoints AUTOPILOT.tlog]")  # fmt: skip
             wall = self._mono() - self._wall_start
             faults = self.plant.faults
             summary = {
@@ -157,6 +198,7 @@ class ServerBase:
                 "held_values": self.held_values,
                 "faults_started": faults.started if faults is not None else 0,
                 "faults_stopped": faults.stopped if faults is not None else 0,
+                "tlog": str(self.log.path) if self.log is not None else None,
                 **self.counters(),
             }
             self.say("SIM_SUMMARY " + json.dumps(summary, sort_keys=True))
@@ -191,6 +233,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pwm-min", type=int, default=1000, metavar="US", help="ardupilot-json: PWM of a stopped motor, MOT_PWM_MIN (default 1000)")
     p.add_argument("--pwm-max", type=int, default=2000, metavar="US", help="ardupilot-json: PWM of a motor at full thrust, MOT_PWM_MAX (default 2000)")
     p.add_argument("--rate-hz", type=float, default=250.0, metavar="HZ", help="px4: the sensor rate, one physics step of 1/HZ per HIL_ACTUATOR_CONTROLS (default 250)")
+    log = p.add_mutually_exclusive_group()
+    log.add_argument("--tlog", type=Path, metavar="FILE",
+                     help="the served flight's log: every state (sensed and true), every motor command, the faults;"
+                     " `smcpilot log summary FILE` scores it (default logs/serve-PROTOCOL-DATE-TIME-PID.tlog, the scenario beside it)")  # fmt: skip
+    log.add_argument("--no-tlog", action="store_true", help="write no log")
 
 
 def options_from_args(args: argparse.Namespace) -> ServeOptions:
@@ -199,9 +246,18 @@ def options_from_args(args: argparse.Namespace) -> ServeOptions:
         raise ConfigError(f"--pwm-min and --pwm-max must satisfy 0 < min < max <= 3000, got {args.pwm_min} and {args.pwm_max}")
     if not (math.isfinite(args.rate_hz) and 1.0 <= args.rate_hz <= 2000.0):
         raise ConfigError(f"--rate-hz must lie in [1, 2000], got {args.rate_hz:g}")
+    if args.no_tlog:
+        tlog = None
+    elif args.tlog is not None:
+        tlog = args.tlog
+        if tlog.is_dir():
+            raise ConfigError(f"--tlog {tlog}: a directory, not a file")
+    else:
+        tlog = Path("logs") / time.strftime(f"serve-{kind}-%Y%m%d-%H%M%S-{os.getpid()}.tlog")
     return ServeOptions(
         kind=kind, host=args.listen, port=port, duration_s=args.duration or None, watchdog_s=args.watchdog_s,
         startup_timeout_s=args.startup_timeout_s or None, pwm_min=args.pwm_min, pwm_max=args.pwm_max, rate_hz=args.rate_hz,
+        tlog=tlog,
     )  # fmt: skip
 
 
@@ -224,5 +280,11 @@ def main(args: argparse.Namespace) -> int:
         server = make_server(scenario, options)
     except OSError as exc:
         raise ConfigError(f"cannot listen on {options.host}:{options.port}: {exc.strerror or exc}") from None
+    if options.tlog is not None:  # the flight can be served again: the scenario beside its log
+        try:
+            scenario.save(options.tlog.with_name(options.tlog.stem + ".scenario.toml"))
+        except OSError as exc:
+            server.close()
+            raise ConfigError(f"--tlog {options.tlog}: cannot write beside it: {exc.strerror or exc}") from None
     install_signal_handlers(server)
     return server.run()

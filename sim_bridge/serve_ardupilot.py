@@ -204,13 +204,12 @@ class ArduPilotJsonServer(ServerBase):
                 self.resent_frames += 1
                 return self._last_reply
             if frame.frame_count < last:
-                self.restart_plant()
+                self.restart_plant(f"ArduPilot restarted (frame {frame.frame_count} after {last})", 1.0 / frame.frame_rate)
                 self._held.clear()
                 self.say(f"{self.name}: frame {frame.frame_count} after {last}: ArduPilot restarted; the vehicle starts again at rest")
             elif frame.frame_count > last + 1:
                 self.missed_frames += frame.frame_count - last - 1
-        plant = self.plant
-        plant.step(plant.t_s, 1.0 / frame.frame_rate, commands, spinning)
+        self.step_plant(self.plant.t_s, 1.0 / frame.frame_rate, commands, spinning, True)
         self.frames += 1
         self._last_count = frame.frame_count
         self._last_reply = self.reply()

@@ -103,6 +103,8 @@ class Px4Server(ServerBase):
         self.gps_msgs = 0
         self.other_msgs = 0
         self._said_not_lockstep = False
+        #: the lockstep flag of the last HIL_ACTUATOR_CONTROLS (logged with the steps it flies).
+        self._lockstep_flag = False
         self._gps_every = max(1, int(round(options.rate_hz / GPS_RATE_HZ)))
         self._steps = 0
 
@@ -185,10 +187,8 @@ class Px4Server(ServerBase):
             raise WatchdogError(f"the connection to PX4 broke ({exc.strerror or exc}); stopping") from None
 
     def _step(self) -> None:
-        plant = self.plant
-        plant.step(self.t_us * 1e-6, self.period_us * 1e-6, self.commands, self.armed)
+        self.step_plant(self.t_us * 1e-6, self.period_us * 1e-6, self.commands, self.armed, self._lockstep_flag)
         self._steps += 1
-        self.announce_faults()
 
     # -- in ----------------------------------------------------------------------------------------
     def on_message(self, msg: Any) -> bool:
@@ -213,6 +213,7 @@ class Px4Server(ServerBase):
             self.say(f"{self.name}: PX4's HIL_ACTUATOR_CONTROLS lack the lockstep flag: each still steps the physics one period")
         self.commands = (min(max(c[0], 0.0), 1.0), min(max(c[1], 0.0), 1.0), min(max(c[2], 0.0), 1.0), min(max(c[3], 0.0), 1.0))
         self.armed = bool(msg.mode & _ARMED)
+        self._lockstep_flag = bool(msg.flags & 1)
         self.actuator_msgs += 1
         return True
 
@@ -236,6 +237,7 @@ class Px4Server(ServerBase):
         if conn is None:
             return
         period_s = self.period_us * 1e-6
+        self.log_state()  # the vehicle at rest (the first sensors PX4 gets)
         self._send_sensors()
         next_wall = self._mono() + period_s
         last_heard: float | None = None

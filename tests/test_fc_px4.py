@@ -30,6 +30,8 @@ from fc.sim_px4 import (
     px4_controls,
     wire_of_hil_state,
 )
+from ground.logs import load_log, summarize
+from ground.logs.setpoints import load_setpoints
 from smcpilot.errors import EndpointError
 from smcpilot.frames import quat_from_euler
 from smcpilot.geo import Home, ned_to_global
@@ -371,6 +373,19 @@ def test_flies_on_smcpilot_sim_serve_px4(tmp_path: Path) -> None:
     assert f.north[i] == pytest.approx(2.0, abs=0.05) and f.alt[i] == pytest.approx(3.0, abs=0.05)
     assert f.alt[-1] < 0.05 and not f.armed[-1]
     assert [text for _, text in f.events][-1].startswith("Landed")
+    # the served flight's log, scored against our FC's own set-points, gives the FC's own log's score
+    (served,) = (tmp_path / "logs").glob("serve-px4-*.tlog")
+    ours = summarize(load_log(tmp_path / "fc.tlog"))["metrics"]  # on the state the FC got: HIL_STATE_QUATERNION
+    theirs = summarize(load_log(served), setpoints=load_setpoints(tmp_path / "fc.tlog"))["truth_metrics"]
+    assert theirs["scored_against"].startswith("our flight controller's set-points in fc.tlog")
+    for key in ("samples", "flight_time_s", "armed_time_s", "effort_u2_s", "motor_tv", "max_pos_err_m", "crashed"):
+        assert theirs[key] == pytest.approx(ours[key], rel=1e-12), key  # the same ticks, commands, set-points
+    for key in ("iae_att_rad_s", "ise_att_rad2_s", "max_tilt_deg"):
+        assert theirs[key] == pytest.approx(ours[key], rel=1e-6), key  # the same float32 quaternion, converted apart
+    # HIL_STATE_QUATERNION rounds the position to 1e-7 deg of latitude and longitude and to 1 mm: at most
+    # half of that off (a degree of latitude is at most 111.7 km), |e_p| differs by at most 0.79 cm, the IAE by that over the flight time
+    lsb_m = math.sqrt(2 * (0.5e-7 * 111_700.0) ** 2 + 0.0005**2)
+    assert abs(theirs["iae_pos_m_s"] - ours["iae_pos_m_s"]) <= lsb_m * ours["flight_time_s"]
 
 
 def test_smcpilot_sitl_flies_on_another_simulator(tmp_path: Path) -> None:

@@ -303,8 +303,8 @@ def test_an_ardupilot_that_stops_ends_the_server_with_a_clear_message() -> None:
     assert run.summary()["frames"] == 3
 
 
-def test_smcpilot_sim_serves_until_sigint_and_prints_a_summary() -> None:
-    proc = subprocess.Popen([sys.executable, "-m", "lab.cli", "sim", "--serve", "ardupilot-json:0"], cwd=ROOT,
+def test_smcpilot_sim_serves_until_sigint_and_prints_a_summary(tmp_path: Path) -> None:
+    proc = subprocess.Popen([sys.executable, "-m", "lab.cli", "sim", "--serve", "ardupilot-json:0", "--no-tlog"], cwd=tmp_path,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
     try:
         assert proc.stdout is not None

@@ -15,6 +15,7 @@ from typing import Callable
 from ground.logs.housekeeping import DEFAULT_KEEP, clean_logs, compress_logs, flight_stem, format_bytes
 from ground.logs.load import LogError, load_log
 from ground.logs.plots import plot_log
+from ground.logs.setpoints import SETPOINT_MAX_AGE_S, load_setpoints
 from ground.logs.summary import DEFAULT_SETTLE_S, print_summary, summarize
 
 __all__ = ["add_log_arguments", "add_plot_arguments", "log_main", "plot_main"]
@@ -63,6 +64,15 @@ def add_log_arguments(p: argparse.ArgumentParser) -> None:
         "--json", type=Path, default=None, metavar="PATH", help="also write the summary as JSON to PATH ('-': stdout, instead of text)"
     )
     s.add_argument(
+        "--setpoints",
+        type=Path,
+        default=None,
+        metavar="AUTOPILOT.tlog",
+        help="for a served flight's log (smcpilot sim --serve): the autopilot's own log, whose POSITION_TARGET_LOCAL_NED and"
+        " ATTITUDE_TARGET (or our FC's SMC records) the position and attitude errors are scored against"
+        " (without it only the set-point-free metrics are)",
+    )
+    s.add_argument(
         "--settle-s",
         type=float,
         default=DEFAULT_SETTLE_S,
@@ -104,7 +114,25 @@ def log_main(args: argparse.Namespace) -> int:
 def _summary_main(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.settle_s) and args.settle_s >= 0.0):
         raise LogError(f"--settle-s must be a finite number >= 0, got {args.settle_s}")
-    summary = summarize(load_log(args.log), settle_s=args.settle_s)
+    log = load_log(args.log)
+    if log.records == 0:
+        raise LogError(f"{args.log} is empty: no records (a flight that never started, or a log cut at its start)")
+    setpoints = None
+    if log.served_to is not None:
+        if not log.has_truth:
+            raise LogError(f"{args.log}: a served flight's log without a served state: the autopilot never stepped the physics")
+        if args.setpoints is not None:
+            setpoints = load_setpoints(args.setpoints)
+            first, last = setpoints.span_s()
+            t0 = (log.t0_us or 0) * 1e-6
+            start, end = t0 + float(log.truth_t_s[0]), t0 + float(log.truth_t_s[-1])
+            if first > end or last + SETPOINT_MAX_AGE_S < start:
+                raise LogError(f"--setpoints {args.setpoints}: its set-points ({first:.3f} to {last:.3f} s of the autopilot's time) are"
+                               f" outside the served flight ({start:.3f} to {end:.3f} s): not this flight's autopilot log?")  # fmt: skip
+    elif args.setpoints is not None:
+        raise LogError(f"--setpoints is for a served flight's log (smcpilot sim --serve); {args.log} is our flight controller's,"
+                       " scored against its own set-points")  # fmt: skip
+    summary = summarize(log, settle_s=args.settle_s, setpoints=setpoints)
     text = json.dumps(summary, indent=2, allow_nan=False)
     if args.json is not None and str(args.json) == "-":
         print(text)

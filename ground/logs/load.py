@@ -12,6 +12,9 @@ What the flight controller logs (see :mod:`fc.app` and :mod:`fc.telemetry`):
   attitude quaternion FRD in NED, ``time_usec`` = simulated time; read into the ``truth_*`` arrays;
 - log-only, every tick: ``DEBUG_FLOAT_ARRAY`` "SMC" (array_id 1) whose entries
   :data:`smcpilot.protocol.SMC_FIELDS` names, in the paper's frames (NWU world, FLU body);
+- a served flight's log (``smcpilot sim --serve``: another autopilot flew our plant) holds the
+  same state, IMU, truth and actuator messages, no SMC record, and starts with the STATUSTEXT
+  ``smcpilot sim --serve PROTOCOL`` (:attr:`FlightLog.served_to`);
 - to ground stations, if one was attached: ``HEARTBEAT``, ``SYS_STATUS``, ``NAMED_VALUE_INT``
   "OVERRUN", 10 Hz copies of ``ATTITUDE`` / ``LOCAL_POSITION_NED`` (component 1) and
   ``NAMED_VALUE_FLOAT`` ``CHI_*`` / ``SIG_*``; ``STATUSTEXT`` events.
@@ -57,6 +60,9 @@ __all__ = ["CHANNELS", "SIM_COMPONENT", "FlightLog", "LogError", "LogEvent", "Ti
 CHANNELS: tuple[str, ...] = ("phi", "theta", "psi", "z")
 
 SIM_COMPONENT = SIM_COMPONENT_ID
+#: the first STATUSTEXT of a served flight's log, before the protocol's name (:mod:`sim_bridge.serve_log`
+#: writes it; a test checks the two agree).
+SERVED_PREFIX = "smcpilot sim --serve "
 _ARMED_BIT = 128  # MAV_MODE_FLAG_SAFETY_ARMED in HIL_ACTUATOR_CONTROLS.mode
 _LOCKSTEP_FLAG = 1  # HIL_ACTUATOR_CONTROLS.flags bit 0
 _TRUTH_ESTIMATOR = TRUTH_ESTIMATOR_TYPE  # ODOMETRY.estimator_type of the simulator's truth
@@ -127,6 +133,9 @@ class FlightLog:
     message_counts: dict[str, int] = field(default_factory=dict)
     #: where ATTITUDE / LOCAL_POSITION_NED came from, e.g. "simulator (component 200)".
     state_source: str | None = None
+    #: a served flight's log (``smcpilot sim --serve``): the protocol served (``px4``,
+    #: ``ardupilot-json``), from its first STATUSTEXT; None for our flight controller's logs.
+    served_to: str | None = None
 
     # ATTITUDE: FRD body in NED, degrees.
     att_t_s: np.ndarray = field(default_factory=_empty)
@@ -355,7 +364,10 @@ def load_log(path: str | os.PathLike[str]) -> FlightLog:
                 # FC logs the whole datagram batch before its clock reaches that state's time.
                 t_ev = max(time_us, sim_state_us) if msg.get_srcComponent() == SIM_COMPONENT_ID else time_us
                 log_s[0] = time_us * 1e-6
-                events.extend((t_ev, whole.severity, whole.text) for whole in texts.feed(msg))
+                for whole in texts.feed(msg):
+                    events.append((t_ev, whole.severity, whole.text))
+                    if whole.text.startswith(SERVED_PREFIX) and msg.get_srcComponent() == SIM_COMPONENT_ID and log.served_to is None:
+                        log.served_to = whole.text[len(SERVED_PREFIX) :].strip() or "?"
     except TlogFormatError as exc:
         reason = str(exc)
         prefix = f"{p}: "

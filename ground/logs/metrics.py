@@ -24,8 +24,9 @@ Windows
 -------
 - *in flight*: armed and not landing. *Armed*: armed.
 - A *set-point change* is a sample whose position target (or heading target, if given) differs
-  from the previous sample's by more than 1e-4 m (rad); a *segment* starts at each change and
-  wherever the in-flight window (re)starts.
+  from the previous sample's by more than 1e-4 m (rad), or is given (finite) where the previous
+  one was not or the other way round; a *segment* starts at each change and wherever the
+  in-flight window (re)starts.
 - Integrals are trapezoids on the sample times over the intervals [t_k, t_k+1] whose both ends
   lie in the window: for a signal f, ∫ f dt = Σ_k ½ (f_k + f_k+1)(t_k+1 − t_k). A window
   without any interval gives None (the vehicle never flew / never armed).
@@ -159,14 +160,19 @@ def _wrap_pi(a: np.ndarray) -> np.ndarray:
 
 def setpoint_changes(target_m: np.ndarray, target_yaw_rad: np.ndarray | None = None, tolerance: float = SETPOINT_TOLERANCE) -> np.ndarray:
     """Mask of the samples whose position target (or wrapped heading target) differs from the
-    previous sample's by more than ``tolerance`` (m, rad); the first sample counts as a change."""
+    previous sample's by more than ``tolerance`` (m, rad), or is given where the previous one was
+    not (NaN) or the other way round; the first sample counts as a change."""
     n = target_m.shape[0]
     changed = np.zeros(n, dtype=bool)
     if n:
         changed[0] = True
+        given = np.isfinite(target_m)
+        changed[1:] |= np.any(given[1:] != given[:-1], axis=1)
         with np.errstate(invalid="ignore"):
             changed[1:] |= np.any(np.abs(np.diff(target_m, axis=0)) > tolerance, axis=1)
             if target_yaw_rad is not None:
+                yaw_given = np.isfinite(target_yaw_rad)
+                changed[1:] |= yaw_given[1:] != yaw_given[:-1]
                 changed[1:] |= np.abs(_wrap_pi(np.diff(target_yaw_rad))) > tolerance
     return changed
 

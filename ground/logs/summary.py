@@ -20,9 +20,10 @@ from ground.logs.metrics import (
     flight_metrics,
     sigma_metrics,
 )
+from ground.logs.setpoints import SetPoints
 from smcpilot.protocol import FLAG_ARMED, FLAG_FAILSAFE, FLAG_LANDING
 
-__all__ = ["DEFAULT_SETTLE_S", "DEFAULT_SIGMA_WINDOW_S", "format_metrics", "log_metrics", "print_summary", "summarize"]
+__all__ = ["DEFAULT_SETTLE_S", "DEFAULT_SIGMA_WINDOW_S", "format_metrics", "log_metrics", "print_summary", "served_metrics", "summarize"]
 
 #: Seconds a set-point change is given before the tracking error counts (see :func:`summarize`).
 DEFAULT_SETTLE_S = 8.0
@@ -139,7 +140,8 @@ def _sigma_window(log: FlightLog, window_s: float) -> np.ndarray:
 
 
 def log_metrics(
-    log: FlightLog, *, sigma_window_s: float = DEFAULT_SIGMA_WINDOW_S, recover_radius_m: float = RECOVER_RADIUS_M, truth: bool = False
+    log: FlightLog, *, sigma_window_s: float = DEFAULT_SIGMA_WINDOW_S, recover_radius_m: float = RECOVER_RADIUS_M, truth: bool = False,
+    setpoints: SetPoints | None = None,
 ) -> dict[str, Any] | None:
     """The :func:`ground.logs.metrics.flight_metrics` of a flight log, or None when the log lacks
     what they need (the per-tick "SMC" records, which carry the set-point, and the state).
@@ -157,7 +159,12 @@ def log_metrics(
     simulator's ``SIM:`` events, a divergence from an event saying so, the LAND speed from the
     logged ``LAND_SPD`` parameter. Times in the result (``fault_start_s``, ``crash_t_s``) are
     seconds since the log's first record.
+
+    A served flight's log (:attr:`FlightLog.served_to`: another autopilot flew our plant) is
+    scored by :func:`served_metrics`, against ``setpoints`` if given.
     """
+    if log.served_to is not None and not log.has_smc:
+        return served_metrics(log, truth=truth, setpoints=setpoints, sigma_window_s=sigma_window_s, recover_radius_m=recover_radius_m)
     if not (log.has_smc and log.pos_t_s.size and log.att_t_s.size):
         return None
     t = log.smc_t_s
@@ -201,8 +208,72 @@ def log_metrics(
     )
 
 
+#: the keys of a served flight's metrics that need a position set-point, and those that need an attitude one.
+_POSITION_KEYS = ("iae_pos_m_s", "ise_pos_m2_s", "itae_pos_m_s2", "max_pos_err_m", "recover_s", "recovered")
+_ATTITUDE_KEYS = ("iae_att_rad_s", "ise_att_rad2_s", "itae_att_rad_s2")
+
+
+def served_metrics(
+    log: FlightLog, *, truth: bool = False, setpoints: SetPoints | None = None, sigma_window_s: float = DEFAULT_SIGMA_WINDOW_S,
+    recover_radius_m: float = RECOVER_RADIUS_M,
+) -> dict[str, Any] | None:
+    """The :func:`ground.logs.metrics.flight_metrics` of a served flight's log (``smcpilot sim
+    --serve``: another autopilot flew our plant), or None without its states.
+
+    The samples are the served states (every physics step): the true state (``ODOMETRY``,
+    ``truth``) or the sensors' output as served (``ATTITUDE`` + ``LOCAL_POSITION_NED``), the motor
+    commands flown from the step's ``HIL_ACTUATOR_CONTROLS`` and armed while the rotors spin; the
+    faults from the simulator's events. The autopilot's set-points are not in this log: with
+    ``setpoints`` (:func:`ground.logs.setpoints.load_setpoints`, the autopilot's log or our FC's)
+    the position, heading and attitude errors are scored against them where they hold (landing
+    too, from our FC's log; otherwise never), and without them those metrics (IAE/ISE/ITAE,
+    the in-flight max error, the recovery) are None: only the set-point-free ones (effort, motor
+    total variation, tilt, crash, flight and armed time) are scored. ``"scored_against"`` in the
+    result says which.
+    """
+    tt = log.truth_t_s if truth else log.pos_t_s
+    if tt.size == 0 or (truth and not log.has_truth) or log.act_t_s.size == 0:
+        return None
+    t = tt
+    if truth:
+        pos = np.column_stack([log.truth_north_m, log.truth_east_m, log.truth_alt_m])
+        vel = np.column_stack([log.truth_v_north_mps, log.truth_v_east_mps, -log.truth_v_down_mps])
+        euler = np.radians(np.column_stack([log.truth_roll_deg, log.truth_pitch_deg, log.truth_yaw_deg]))
+    else:
+        pos = np.column_stack([log.north_m, log.east_m, log.alt_m])
+        vel = np.column_stack([log.v_north_mps, log.v_east_mps, -log.v_down_mps])
+        euler = _hold(log.att_t_s, np.radians(np.column_stack([log.roll_deg, log.pitch_deg, log.yaw_deg])), t)
+    motors = _hold(log.act_t_s, log.motors, t)
+    armed = _hold(log.act_t_s, log.armed.astype(float), t) > 0.5
+    n = t.size
+    if setpoints is not None:
+        served_s = t + (log.t0_us or 0) * 1e-6  # the set-points' clock is served time
+        target, target_yaw, ref, landing = setpoints.at(served_s)
+        against = setpoints.source
+    else:
+        target, target_yaw, ref = np.full((n, 3), math.nan), np.full(n, math.nan), np.full((n, 3), math.nan)
+        landing = np.zeros(n, dtype=bool)
+        against = "no set-points (give the autopilot's log: --setpoints): the position and attitude errors and the recovery are not scored"
+    events = [(e.t_s, e.severity, e.text) for e in log.events]
+    m = flight_metrics(
+        t, pos, target, euler, ref, motors, armed, landing,
+        fault_starts_s=fault_starts_from_events(events), velocity_m_s=vel, target_yaw_rad=target_yaw,
+        sigma_window_s=sigma_window_s, diverged_t_s=divergence_from_events(events), recover_radius_m=recover_radius_m,
+    )  # fmt: skip
+    flying = armed & ~landing
+    if not np.any(flying & np.all(np.isfinite(target), axis=1)):
+        for key in _POSITION_KEYS:
+            m[key] = None
+    if not np.any(flying & np.all(np.isfinite(ref), axis=1)):
+        for key in _ATTITUDE_KEYS:
+            m[key] = None
+    m["scored_against"] = against
+    return m
+
+
 def summarize(
-    log: FlightLog, *, settle_s: float = DEFAULT_SETTLE_S, sigma_window_s: float = DEFAULT_SIGMA_WINDOW_S
+    log: FlightLog, *, settle_s: float = DEFAULT_SETTLE_S, sigma_window_s: float = DEFAULT_SIGMA_WINDOW_S,
+    setpoints: SetPoints | None = None,
 ) -> dict[str, Any]:
     """Headline numbers of a flight, as a JSON-serialisable dict (NaN and missing values are None).
 
@@ -318,12 +389,18 @@ def summarize(
         out["sigma_lpf_rms"] = None
         out["sigma_dither_rms"] = None
     out["sigma_window_s"] = sigma_window_s
-    out["metrics"] = log_metrics(log, sigma_window_s=sigma_window_s)
-    out["truth_metrics"] = log_metrics(log, sigma_window_s=sigma_window_s, truth=True)
+    out["served"] = log.served_to
+    out["metrics"] = log_metrics(log, sigma_window_s=sigma_window_s, setpoints=setpoints)
+    out["truth_metrics"] = log_metrics(log, sigma_window_s=sigma_window_s, truth=True, setpoints=setpoints)
+    sensed = "sensed state: ATTITUDE + LOCAL_POSITION_NED"
     out["metrics_sources"] = {
-        "metrics": f"sensed state: ATTITUDE + LOCAL_POSITION_NED from the {log.state_source}" if log.state_source else None,
+        "metrics": (f"{sensed}: the sensors' output as served to {log.served_to}" if log.served_to is not None
+                    else f"{sensed} from the {log.state_source}") if log.state_source else None,
         "truth_metrics": "true state: ODOMETRY from the simulator" if log.has_truth else None,
-    }
+    }  # fmt: skip
+    if log.served_to is not None:
+        m = out["truth_metrics"] or out["metrics"]
+        out["metrics_sources"]["setpoints"] = m["scored_against"] if m is not None else None
     out["events"] = [{"t_s": round(e.t_s, 6), "severity": e.severity, "text": e.text} for e in log.events]
     return out
 
@@ -343,7 +420,9 @@ def format_metrics(m: dict[str, Any], time_note: str = "") -> list[tuple[str, st
         recovery = "n/a (no fault)"
     else:
         where = f"fault at {m['fault_start_s']:.2f} s, radius {m.get('recover_radius_m', RECOVER_RADIUS_M):g} m"
-        if m.get("recovered") is None:
+        if m.get("recovered") is None and "scored_against" in m and m.get("iae_pos_m_s") is None:
+            recovery = f"n/a: no position set-point to come back to ({where})"
+        elif m.get("recovered") is None:
             recovery = f"n/a: not in flight after the fault ({where})"
         elif m.get("recovered"):
             recovery = f"back for good {m['recover_s']:.2f} s after the fault ({where})"
@@ -389,28 +468,34 @@ def print_summary(summary: dict[str, Any], file: TextIO | None = None) -> None:
         f"{c['errors_comm']}: {c['errors_count1']} bad frames, {c['errors_count2']} signing, {c['errors_count3']} refused,"
         f" {c['errors_count4']} on the sim link",
     )  # fmt: skip
+    if s.get("served"):
+        line("Served", f"our plant as the physics of {s['served']} (smcpilot sim --serve): another autopilot flew it")
+        line("  scored against", (s.get("metrics_sources") or {}).get("setpoints") or "n/a (no served state)")
     line("State from", s.get("state_source") or "n/a")
     line("Controller data", s.get("controller_data") or "n/a")
     line("Max tilt", _fmt(s.get("max_tilt_deg"), ".1f", " deg"))
     settle = s.get("settle_s")
-    if s.get("settled_time_s") is None:
+    if s.get("served"):
+        line("Tracking", "n/a (another autopilot's flight: scored against its set-points under Metrics, with --setpoints)")
+    elif s.get("settled_time_s") is None:
         line("Tracking", f"no settled flight (needs SMC set-points held >= {settle:g} s while armed)")
     else:
         line("Tracking", f"{s['settled_time_s']:.1f} s of settled flight (>= {settle:g} s after a set-point change)")
-    # Two windows hold a "max position error": settled flight here, all flight under Metrics;
-    # each number says which.
-    line(
-        "  position error",
-        f"final {_fmt(s.get('position_error_final_m'), '.3g', ' m')}; settled RMS {_fmt(s.get('position_error_rms_m'), '.3g', ' m')},"
-        f" settled max {_fmt(s.get('position_error_max_m'), '.3g', ' m')}",
-    )
-    ned = s.get("position_error_final_ned_m")
-    if ned:
-        line("    final N/E/alt", "  ".join(_fmt(ned[k], "+.3g", " m") for k in ("north", "east", "alt")))
-    line(
-        "  yaw error",
-        f"final {_fmt(s.get('yaw_error_final_deg'), '+.3g', ' deg')}; settled RMS {_fmt(s.get('yaw_error_rms_deg'), '.3g', ' deg')}",
-    )
+    if not s.get("served"):
+        # Two windows hold a "max position error": settled flight here, all flight under Metrics;
+        # each number says which.
+        line(
+            "  position error",
+            f"final {_fmt(s.get('position_error_final_m'), '.3g', ' m')}; settled RMS {_fmt(s.get('position_error_rms_m'), '.3g', ' m')},"
+            f" settled max {_fmt(s.get('position_error_max_m'), '.3g', ' m')}",
+        )
+        ned = s.get("position_error_final_ned_m")
+        if ned:
+            line("    final N/E/alt", "  ".join(_fmt(ned[k], "+.3g", " m") for k in ("north", "east", "alt")))
+        line(
+            "  yaw error",
+            f"final {_fmt(s.get('yaw_error_final_deg'), '+.3g', ' deg')}; settled RMS {_fmt(s.get('yaw_error_rms_deg'), '.3g', ' deg')}",
+        )
     chans = s.get("channels", list(CHANNELS))
     chi = s.get("chi_hat_final")
     line("chi_hat final", "n/a" if chi is None else "  ".join(f"{c} {_fmt(v, '.3f')}" for c, v in zip(chans, chi)))
@@ -420,10 +505,11 @@ def print_summary(summary: dict[str, Any], file: TextIO | None = None) -> None:
         line(f"{label} ({window:g} s)", "n/a" if sig is None else "  ".join(f"{c} {_fmt(v, '.2e')}" for c, v in zip(chans, sig)))
     m = s.get("metrics")
     if m is None:
-        line("Metrics", "n/a (they need the FC's per-tick SMC records and the state)")
+        line("Metrics", "n/a (they need the FC's per-tick SMC records and the state)" if not s.get("served") else "n/a (no served state)")
     else:
         truth_m = s.get("truth_metrics")
-        for label, text in format_metrics(m, " (on the sensed state the FC flew on)" if truth_m is not None else ""):
+        sensed = " (on the sensors' output as served)" if s.get("served") else " (on the sensed state the FC flew on)"
+        for label, text in format_metrics(m, sensed if truth_m is not None else ""):
             line(label, text)
         if truth_m is not None:
             for label, text in format_metrics(truth_m, " (on the true state: the simulator's ODOMETRY)"):
