@@ -154,8 +154,9 @@ class _Packets:
         self.sysid = sysid
         m = mavlink
 
-        def layout(msg: Any, payload: str) -> tuple[struct.Struct, int, int, bytes]:
-            return struct.Struct(_HEADER + payload[1:]), msg.id & 0xFFFF, msg.id >> 16, bytes([msg.crc_extra])
+        def layout(msg: Any, payload: str) -> tuple[Any, int, int, bytes]:
+            """(pack(header..., payload...), the message id's low 16 bits and high 8, its CRC extra)."""
+            return struct.Struct(_HEADER + payload[1:]).pack, msg.id & 0xFFFF, msg.id >> 16, bytes([msg.crc_extra])
 
         self._att = layout(m.MAVLink_attitude_message, "<Iffffff")
         self._lpn = layout(m.MAVLink_local_position_ned_message, "<Iffffff")
@@ -163,38 +164,40 @@ class _Packets:
         self._odo = layout(m.MAVLink_odometry_message, "<Q13f")
         self._act = layout(m.MAVLink_hil_actuator_controls_message, "<QQ16fB")
         self._dfa = layout(m.MAVLink_debug_float_array_message, "<QH10s58f")
+        #: the SMC record's 31 leading values: the rest are zeros, which MAVLink 2 trims anyway.
+        self._smc31 = layout(m.MAVLink_debug_float_array_message, "<QH10s31f")
         #: ODOMETRY's constant tail: the covariances (unknown), frames, reset counter, estimator, quality.
         self._odo_tail = struct.pack("<21f21fBBBBb", *_COV_UNKNOWN, *_COV_UNKNOWN, TRUTH_FRAME, TRUTH_FRAME, 0, TRUTH_ESTIMATOR_TYPE, TRUTH_QUALITY)
 
     def attitude(self, seq: int, t_ms: int, roll: float, pitch: float, yaw: float, p: float, q: float, r: float) -> bytes:
         st, lo, hi, extra = self._att
-        return _framed(st.pack(0xFD, 0, 0, 0, seq, self.sysid, SIM_COMPONENT_ID, lo, hi, t_ms, roll, pitch, yaw, p, q, r), extra)
+        return _framed(st(0xFD, 0, 0, 0, seq, self.sysid, SIM_COMPONENT_ID, lo, hi, t_ms, roll, pitch, yaw, p, q, r), extra)
 
     def local_position_ned(self, seq: int, t_ms: int, x: float, y: float, z: float, vx: float, vy: float, vz: float) -> bytes:
         st, lo, hi, extra = self._lpn
-        return _framed(st.pack(0xFD, 0, 0, 0, seq, self.sysid, SIM_COMPONENT_ID, lo, hi, t_ms, x, y, z, vx, vy, vz), extra)
+        return _framed(st(0xFD, 0, 0, 0, seq, self.sysid, SIM_COMPONENT_ID, lo, hi, t_ms, x, y, z, vx, vy, vz), extra)
 
     def highres_imu(self, seq: int, t_us: int, fx: float, fy: float, fz: float, p: float, q: float, r: float) -> bytes:
         """Specific force (m/s^2) and rates (rad/s), body FRD; the accelerometer and the gyro updated."""
         st, lo, hi, extra = self._imu
-        return _framed(st.pack(0xFD, 0, 0, 0, seq, self.sysid, SIM_COMPONENT_ID, lo, hi, t_us, fx, fy, fz, p, q, r,
+        return _framed(st(0xFD, 0, 0, 0, seq, self.sysid, SIM_COMPONENT_ID, lo, hi, t_us, fx, fy, fz, p, q, r,
                                0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, IMU_FIELDS_UPDATED, 0), extra)  # fmt: skip
 
     def odometry(self, seq: int, t_us: int, x: float, y: float, z: float, qw: float, qx: float, qy: float, qz: float,
                  vx: float, vy: float, vz: float, p: float, q: float, r: float) -> bytes:  # fmt: skip
         """Position and velocity NED (m, m/s), the attitude quaternion (FRD body in NED), body rates FRD (rad/s)."""
         st, lo, hi, extra = self._odo
-        head = st.pack(0xFD, 0, 0, 0, seq, self.sysid, SIM_COMPONENT_ID, lo, hi, t_us, x, y, z, qw, qx, qy, qz, vx, vy, vz, p, q, r)
+        head = st(0xFD, 0, 0, 0, seq, self.sysid, SIM_COMPONENT_ID, lo, hi, t_us, x, y, z, qw, qx, qy, qz, vx, vy, vz, p, q, r)
         return _framed(head + self._odo_tail, extra)
 
     def actuators(self, seq: int, t_us: int, m: Sequence[float], mode: int) -> bytes:
         st, lo, hi, extra = self._act
-        return _framed(st.pack(0xFD, 0, 0, 0, seq, self.sysid, FC_COMPONENT_ID, lo, hi, t_us, ACTUATOR_FLAG_LOCKSTEP, m[0], m[1], m[2], m[3],
+        return _framed(st(0xFD, 0, 0, 0, seq, self.sysid, FC_COMPONENT_ID, lo, hi, t_us, ACTUATOR_FLAG_LOCKSTEP, m[0], m[1], m[2], m[3],
                                0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, mode), extra)  # fmt: skip
 
     def smc(self, seq: int, t_us: int, data: Sequence[float]) -> bytes:
         st, lo, hi, extra = self._dfa
-        return _framed(st.pack(0xFD, 0, 0, 0, seq, self.sysid, FC_COMPONENT_ID, lo, hi, t_us, SMC_ARRAY_ID, _SMC_NAME, *data), extra)
+        return _framed(st(0xFD, 0, 0, 0, seq, self.sysid, FC_COMPONENT_ID, lo, hi, t_us, SMC_ARRAY_ID, _SMC_NAME, *data), extra)
 
 
 _SMC_NAME = SMC_ARRAY_NAME.encode("ascii") if isinstance(SMC_ARRAY_NAME, str) else SMC_ARRAY_NAME
@@ -250,11 +253,52 @@ class _TlogRecorder:
                          f, (*tru.position_m, *tru.velocity_mps, *tru.quaternion, *tru.body_rates_radps))  # fmt: skip
 
     def on_rows(self, rows: np.ndarray) -> None:
-        """The ticks a compiled flight logged (:data:`lab.fast.kernel.LOG_COLUMNS`): the same records."""
-        imu = self.plant is not None
+        """The ticks a compiled flight logged (:data:`lab.fast.kernel.LOG_COLUMNS`): the records
+        :meth:`_write_tick` writes, byte for byte (a test compares the files), in one loop: a
+        logged compiled flight spends most of its time here."""
+        if self.plant is None:
+            for r in rows.tolist():
+                self._write_tick(int(r[0]), r[1:13], r[13:17], r[17] != 0.0, r[18:49] + _ZEROS27)
+            return
+        enc = self._packets
+        sysid, sim, fcc = self.sysid, SIM_COMPONENT_ID, FC_COMPONENT_ID
+        att_p, att_lo, att_hi, att_x = enc._att
+        lpn_p, lpn_lo, lpn_hi, lpn_x = enc._lpn
+        imu_p, imu_lo, imu_hi, imu_x = enc._imu
+        odo_p, odo_lo, odo_hi, odo_x = enc._odo
+        act_p, act_lo, act_hi, act_x = enc._act
+        smc_p, smc_lo, smc_hi, smc_x = enc._smc31
+        odo_tail = enc._odo_tail
+        framed, nan, fields = _framed, _NAN, IMU_FIELDS_UPDATED
+        write_many = self.tlog.write_many
+        s, fs, ls = self._sim_seq, self._fc_seq, self._log_seq
+        i0, t0 = LOG_IMU, LOG_TRUTH
         for r in rows.tolist():
-            self._write_tick(int(r[0]), r[1:13], r[13:17], r[17] != 0.0, r[18:49] + _ZEROS27,
-                             r[LOG_IMU:LOG_TRUTH] if imu else None, r[LOG_TRUTH:LOG_TRUTH + 13] if imu else None)  # fmt: skip
+            t_us = int(r[0])
+            t_ms = (t_us // 1000) & 0xFFFFFFFF
+            p, q, rr = r[4], r[5], r[6]
+            packets = [
+                framed(att_p(0xFD, 0, 0, 0, s, sysid, sim, att_lo, att_hi, t_ms, r[1], r[2], r[3], p, q, rr), att_x),
+                framed(lpn_p(0xFD, 0, 0, 0, (s + 3) & 0xFF, sysid, sim, lpn_lo, lpn_hi, t_ms, r[7], r[8], r[9], r[10], r[11], r[12]), lpn_x),
+            ]
+            fx, fy, fz = r[i0], r[i0 + 1], r[i0 + 2]
+            try:
+                packets.append(framed(imu_p(0xFD, 0, 0, 0, (s + 1) & 0xFF, sysid, sim, imu_lo, imu_hi, t_us, fx if fx == fx else nan,
+                                            fy if fy == fy else nan, fz if fz == fz else nan, p, q, rr, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                                            fields, 0), imu_x))  # fmt: skip
+                packets.append(framed(odo_p(0xFD, 0, 0, 0, (s + 2) & 0xFF, sysid, sim, odo_lo, odo_hi, t_us, r[t0], -r[t0 + 1], -r[t0 + 2],
+                                            r[t0 + 6], r[t0 + 7], -r[t0 + 8], -r[t0 + 9], r[t0 + 3], -r[t0 + 4], -r[t0 + 5],
+                                            r[t0 + 10], -r[t0 + 11], -r[t0 + 12]) + odo_tail, odo_x))  # fmt: skip
+            except (OverflowError, struct.error):  # beyond float32 (as _write_tick)
+                del packets[2:]
+            s = (s + 4) & 0xFF
+            packets.append(framed(act_p(0xFD, 0, 0, 0, fs, sysid, fcc, act_lo, act_hi, t_us, ACTUATOR_FLAG_LOCKSTEP, r[13], r[14], r[15], r[16],
+                                        0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, _ARMED if r[17] != 0.0 else 0), act_x))  # fmt: skip
+            packets.append(framed(smc_p(0xFD, 0, 0, 0, ls, sysid, fcc, smc_lo, smc_hi, t_us, SMC_ARRAY_ID, _SMC_NAME, *r[18:49]), smc_x))
+            fs = (fs + 1) & 0xFF
+            ls = (ls + 1) & 0xFF
+            write_many(t_us, packets)
+        self._sim_seq, self._fc_seq, self._log_seq = s, fs, ls
 
     def _write_tick(self, t_us: int, w: Sequence[float], m: Sequence[float], armed: bool, data: list[float],
                     imu: Sequence[float] | None = None, truth: Sequence[float] | None = None) -> None:  # fmt: skip
