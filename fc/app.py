@@ -45,8 +45,8 @@ simulator (its port closed, reported by the OS) ends the FC at once (exit 3); a 
 
 from __future__ import annotations
 
-import ipaddress
 import gc
+import ipaddress
 import json
 import math
 import os

@@ -146,7 +146,7 @@ def first_line(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {(lines[0] if lines else '')[:160]}"
 
 
-def law_function_types(law: LawFunctions, flight: Any) -> tuple[Any, LawFunctions]:
+def law_function_types(law: Any, flight: Any) -> tuple[Any, LawFunctions]:
     """The numba type of a law's compiled functions as first-class functions, and the functions
     by address (:func:`smcpilot.jit.addressed`): so a compiled caller is typed (and cached) for
     the law's signatures rather than for its dispatchers (which numba does not cache).

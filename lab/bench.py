@@ -18,8 +18,8 @@ import sys
 import time
 import timeit
 from collections.abc import Callable
-from typing import Any
 from pathlib import Path
+from typing import Any
 
 from fc.control import CONTROLLER_NAMES
 from smcpilot.errors import ConfigError
