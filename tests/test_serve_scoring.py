@@ -391,3 +391,27 @@ def test_smcpilot_sim_serve_writes_its_log_and_the_scenario_beside_it(tmp_path: 
     r = subprocess.run([sys.executable, "-m", "lab.cli", "sim", "--serve", "px4:0", "--tlog", str(tmp_path)], cwd=tmp_path,
                        capture_output=True, text=True, timeout=60)  # fmt: skip
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "a directory, not a file" in r.stderr
+
+
+def test_log_compare_puts_a_served_flight_beside_ours(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from lab.run import fly_in_process
+
+    served, sp, _, _ = fly_ardupilot(tmp_path)
+    ours = fly_in_process(SCENARIO.with_changes(duration_s=FLIGHT_S), tmp_path / "fc.tlog").tlog
+    capsys.readouterr()
+    assert smcpilot(["log", "compare", str(served), str(ours), "--setpoints", f"{served}={sp}", "--json", "-"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert [r["log"] for r in rows] == [str(served), str(ours)]
+    # each column is what `log summary` scores for that log alone (the truth, against the right set-points)
+    assert rows[0]["metrics"] == _summary(served, sp)["truth_metrics"]
+    assert rows[1]["metrics"] == _summary(ours)["truth_metrics"]
+    assert rows[0]["scored"] == rows[1]["scored"] == "true state"
+    assert "ardupilot.tlog" in rows[0]["scored_against"] and rows[1]["scored_against"] is None
+    capsys.readouterr()
+    assert smcpilot(["log", "compare", str(served), str(ours), "--setpoints", f"{served}={sp}"]) == 0
+    table = capsys.readouterr().out
+    iae = f"{rows[0]['metrics']['iae_pos_m_s']:.3f}"
+    assert "IAE position, m s" in table and iae in table and f"{ours.name}: true state, against its own set-points" in table
+    assert "wants LOG=AUTOPILOT.tlog" in _error(["log", "compare", str(served), "--setpoints", str(sp)], capsys)
+    assert "is not one of the logs compared" in _error(["log", "compare", str(ours), "--setpoints", f"{served}={sp}"], capsys)
+    assert "is for a served flight's log" in _error(["log", "compare", str(ours), "--setpoints", f"{ours}={sp}"], capsys)
