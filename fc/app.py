@@ -78,6 +78,7 @@ from smcpilot.fastcodec import encode_debug_float_array, encode_hil_actuator_con
 from smcpilot.faults import SIM_PARAM_INDEX
 from smcpilot.geo import Home
 from smcpilot.impair import LinkImpairment
+from smcpilot.jit import AUTO_MIN_LOCKSTEP_S
 from smcpilot.link import Address, MavlinkUdp
 from smcpilot.plan import PlanStep
 from smcpilot.protocol import (
@@ -295,7 +296,7 @@ class FlightControllerApp:
         self.startup_timeout_s = startup_timeout_s
         #: lockstep: busy-poll this long after each tick before blocking (0: always block).
         self.spin_s = spin_s
-        #: the compiled pipeline: ``auto``, ``wait`` or ``off`` (:data:`fc.compiled_pipeline.JIT_POLICIES`).
+        #: the compiled pipeline: ``auto``, ``wait`` or ``off`` (:data:`smcpilot.jit.JIT_POLICIES`).
         self.jit = jit
         #: why the pipeline flies in CPython (None: compiled).
         self.jit_why: str | None = "not started"
@@ -440,9 +441,8 @@ class FlightControllerApp:
             self.tlog.close()
         self.params.close()  # the last parameter change on disk before we exit
 
-    #: ``--jit auto`` loads the compiled pipeline for lockstep flights at least this long (or open-ended):
-    #: loading it costs about a second of CPU, which a tick 15-25 µs cheaper repays in about a minute.
-    JIT_AUTO_MIN_LOCKSTEP_S = 60.0
+    #: ``--jit auto`` loads the compiled pipeline for lockstep flights at least this long (or open-ended).
+    JIT_AUTO_MIN_LOCKSTEP_S = AUTO_MIN_LOCKSTEP_S
 
     def _attach_compiled(self) -> None:
         """The pipeline compiled (:mod:`fc.compiled_pipeline`) as ``--jit`` says; one line says

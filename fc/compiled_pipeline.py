@@ -31,7 +31,8 @@ from fc import pipeline as pipeline_mod
 from fc.control.law import LawFunctions
 from fc.control.purity import pure_closure
 from fc.pipeline import PipelineInputs, VehicleState, pipeline_step_full_sensed, pipeline_step_sensed
-from smcpilot.jit import addressed, cache_index, compile_pure, jit_unavailable_reason, numba_module, say_once
+from smcpilot.jit import addressed, cache_index, compile_lock, compile_pure, jit_unavailable_reason, numba_module, say_once
+from smcpilot.jit import compile_in_background as background_compile
 
 #: the ``io`` array: inputs (the estimate: 12 floats of :class:`fc.pipeline.VehicleState`; the
 #: commander's :class:`fc.pipeline.PipelineInputs`, bools as 0/1; dt in s; the IMU's acceleration,
@@ -247,7 +248,7 @@ class HeldPipeline:
         if not self._entry(self._ps, self._pp, io, self._law):
             return None
         self.ticks += 1
-        return io[IO_OUT:IO_TOUCHDOWN + 1].tolist()  # type: ignore[no-any-return]
+        return io[IO_OUT : IO_TOUCHDOWN + 1].tolist()  # type: ignore[no-any-return]
 
 
 def _entry(dispatcher: Any, sig: tuple) -> Any:
@@ -304,58 +305,10 @@ def attach_compiled(flight: Any, *, compile_new: bool) -> str | None:
     return None
 
 
-#: the FC's choices (``python -m fc --jit``): use the compiled tick when it is cached, else fly in
-#: CPython and compile it in the background for later runs; compile it first if need be; never.
-JIT_POLICIES = ("auto", "wait", "off")
-
-
-def _lock_path() -> str:
-    import tempfile
-
-    return os.path.join(tempfile.gettempdir(), f"smcpilot-fc-compile-{os.getuid() if hasattr(os, 'getuid') else 0}.lock")
-
-
 def compile_in_background(controller: str) -> int | None:
     """Start a process that compiles (and caches) the FC's pipeline for ``controller``, unless one
-    is compiling already; its pid, or None when none was started. Later FCs then load it."""
-    import subprocess
-    import sys
-
-    if _compile_lock(blocking=False) is None:
-        return None  # another process compiles: it holds the lock (released when it exits)
-    _release_lock()
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "fc.compiled_pipeline", controller],
-        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
-    )  # fmt: skip
-    return proc.pid
-
-
-_LOCK: Any = None
-
-
-def _compile_lock(*, blocking: bool) -> Any:
-    """The machine-wide compile lock (an advisory lock on a file: released when its holder exits)."""
-    global _LOCK
-    try:
-        import fcntl
-    except ImportError:  # no advisory locks here: compile anyway
-        return True
-    f = open(_lock_path(), "a")  # noqa: SIM115 (held until release or exit)
-    try:
-        fcntl.flock(f, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
-    except OSError:
-        f.close()
-        return None
-    _LOCK = f
-    return f
-
-
-def _release_lock() -> None:
-    global _LOCK
-    if _LOCK is not None:
-        _LOCK.close()
-        _LOCK = None
+    is compiling already (:func:`smcpilot.jit.compile_in_background`); its pid, or None."""
+    return background_compile("fc.compiled_pipeline", controller)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -371,7 +324,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     if hasattr(os, "nice"):  # a background job: the flights running meanwhile keep their CPU
         os.nice(19)
-    if _compile_lock(blocking=False) is None:
+    if compile_lock(blocking=False) is None:
         print("another process is compiling; nothing done")
         return 0
     why = attach_compiled(FlightControl(FcConfig(controller=args.law), DEFAULT_VEHICLE), compile_new=True)

@@ -57,7 +57,7 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TextIO
+from typing import TYPE_CHECKING, TextIO
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -69,9 +69,13 @@ from smcpilot.errors import DivergenceError, WatchdogError
 from smcpilot.fastcodec import encode_attitude, encode_highres_imu, encode_local_position_ned, encode_odometry
 from smcpilot.faults import SIM_PARAM_INDEX, SIM_PARAMS, FaultError
 from smcpilot.frames import quat_nwu_flu_to_ned_frd
+from smcpilot.jit import AUTO_MIN_LOCKSTEP_S, compile_in_background
 from smcpilot.link import MavlinkUdp
 from smcpilot.protocol import IMU_FIELDS_UPDATED, SIM_COMPONENT_ID, TRUTH_ESTIMATOR_TYPE, TRUTH_FRAME, TRUTH_QUALITY
 from smcpilot.wire import wire_of_paper
+
+if TYPE_CHECKING:
+    from sim_bridge.plants.compiled_physics import CompiledPhysics
 
 #: Component id the bridge sends from (a sensor-ish component of the vehicle's system).
 SIM_COMPONENT = SIM_COMPONENT_ID
@@ -328,12 +332,15 @@ class SimBridgeApp:
         vehicles: Sequence[tuple[Plant, str, int, tuple[float, float]]] = (),
         proximity: Proximity | None = None,
         lost: str = "stop",
+        jit: str = "off",
         out: TextIO = sys.stdout,
         monotonic: Callable[[], float] = time.monotonic,
         sleep: Callable[[float], None] = time.sleep,
     ) -> None:
         """One vehicle (``plant``, ``fc_url``, ``system_id``) or many (``vehicles``: (plant, FC
-        URL, system id, spawn offset north/east m) each, with ``proximity`` checking their separation)."""
+        URL, system id, spawn offset north/east m) each, with ``proximity`` checking their separation).
+        ``jit``: the physics compiled (:mod:`sim_bridge.plants.compiled_physics`) as ``--jit`` says
+        (:data:`smcpilot.jit.JIT_POLICIES`; ``off``, the default here: stepped in Python)."""
         self.timing = timing
         self.out = out
         self._mono = monotonic
@@ -367,6 +374,12 @@ class SimBridgeApp:
         self._stop = False
         self._exit = EXIT_OK
         self._wall_start = 0.0
+        self.jit = jit
+        #: the compiled physics once loaded (:meth:`_attach_physics`), why not, and the physics steps
+        #: it handed back to Python (something drawn or timed acted on the physics).
+        self.physics: CompiledPhysics | None = None
+        self.physics_why: str | None = "not started"
+        self.physics_python_steps = 0
 
     def _clock_us(self) -> int:
         return self._t_us
@@ -386,10 +399,45 @@ class SimBridgeApp:
     def request_stop(self, *_: object) -> None:
         self._stop = True
 
+    def _attach_physics(self) -> None:
+        """The physics compiled as ``--jit`` says (the FC's rule: under ``auto``, when cached and
+        not in a short lockstep flight; not cached, compiled in the background for later runs)."""
+        tm = self.timing
+        if self.jit == "off":
+            self.physics_why = "--jit off"
+            return
+        if self.jit == "auto" and tm.lockstep and tm.duration_s is not None and tm.duration_s < AUTO_MIN_LOCKSTEP_S:
+            self.physics_why = f"--jit auto: a lockstep flight shorter than {AUTO_MIN_LOCKSTEP_S:g} s (loading costs more than it saves)"
+            return
+        from sim_bridge.plants import compiled_physics
+
+        self.physics, why = compiled_physics.load([v.plant for v in self.vehicles], compile_new=self.jit == "wait")
+        self.physics_why = why
+        if why is None or why == "no rigid-body plant":
+            return
+        note = f"sim: the physics is stepped in Python: {why}"
+        if self.jit == "auto" and why.endswith("not cached yet"):
+            pid = compile_in_background("sim_bridge.plants.compiled_physics")
+            if pid is not None:
+                note += f"; compiling it in the background (pid {pid}) for the next runs"
+        self.say(note)
+
     def _integrate(self, n_steps: int) -> None:
         dt = 1.0 / self.timing.physics_hz
         dt_us = int(round(dt * 1e6))
         vehicles = [v for v in self.vehicles if v not in self._removed] if self._removed else self.vehicles
+        phys = self.physics
+        if phys is not None:
+            try:
+                why = phys.fly([v.plant for v in vehicles], [v.commands for v in vehicles], [v.armed for v in vehicles],
+                               self._t_us, dt_us, dt, n_steps)  # fmt: skip
+            except DivergenceError as exc:  # as the Python steps leave it: the clock at the failing step
+                self._t_us += exc.steps_done * dt_us  # type: ignore[attr-defined]
+                raise
+            if why is None:
+                self._t_us += n_steps * dt_us
+                return
+            self.physics_python_steps += n_steps
         if len(vehicles) == 1:
             v = vehicles[0]
             step, cmds, armed = v.plant.step, v.commands, v.armed
@@ -448,6 +496,7 @@ class SimBridgeApp:
         fcs = " ".join(f"fc={v.link.endpoint.url}" for v in self.vehicles)
         local = " ".join("local={}:{}".format(*v.link.local_address) for v in self.vehicles)
         count = f" vehicles={len(self.vehicles)}" if len(self.vehicles) > 1 else ""
+        self._attach_physics()
         self.say(f"SIM_READY {fcs} {local} lockstep={tm.lockstep} physics_hz={tm.physics_hz:g} rate_hz={tm.rate_hz:g}{count}"
                  f" pid={os.getpid()}")  # fmt: skip
         self._wall_start = self._mono()
@@ -466,7 +515,9 @@ class SimBridgeApp:
             wall = self._mono() - self._wall_start
             summary: dict = {"sim_time_s": self._t_us * 1e-6, "wall_s": wall, "speed": (self._t_us * 1e-6 / wall) if wall > 0 else None,
                              "rtt_mean_s": self.rtt_s, "cpu_s": round(time.process_time(), 3),
-                             "cpu_sys_s": round(os.times().system, 3)}  # fmt: skip
+                             "cpu_sys_s": round(os.times().system, 3),
+                             "physics": {"compiled": self.physics is not None, "compiled_steps": self.physics.steps if self.physics else 0,
+                                         "python_steps": self.physics_python_steps, "why_not": self.physics_why}}  # fmt: skip
             if len(self.vehicles) == 1:
                 summary.update(v0.summary())
                 del summary["system_id"], summary["crashed"]

@@ -12,6 +12,7 @@ from sim_bridge.app import BridgeTiming, SimBridgeApp, install_signal_handlers
 from sim_bridge.build import make_plant, plant_for
 from sim_bridge.proximity import Proximity
 from smcpilot.errors import ConfigError, SmcpilotError
+from smcpilot.jit import AUTO_MIN_LOCKSTEP_S, JIT_POLICIES
 from smcpilot.scenario import PLANTS, EnvironmentSpec, Scenario
 from smcpilot.vehicle import DEFAULT_VEHICLE, VehicleParams
 
@@ -59,6 +60,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scenario", type=Path, metavar="FILE",
                    help="scenario TOML (smcpilot.scenario): plant, vehicle, environment, faults, seed and rates come from it"
                    " (their flags are then ignored)")
+    p.add_argument("--jit", choices=JIT_POLICIES, default="auto",
+                   help="the physics compiled with numba (the same states bit for bit; spans with gusts or a timed fault due"
+                        " are stepped in Python): auto (when cached, in real time and in lockstep flights of"
+                        f" {AUTO_MIN_LOCKSTEP_S:g} s or more or open-ended; not cached: Python, compiling it in the background"
+                        " for the next runs), wait (always; compile it first if need be: about 10 s once), off (Python);"
+                        " SMCPILOT_JIT=0 also turns it off (default auto)")  # fmt: skip
     p.add_argument("--sysid", type=int, default=1, metavar="N", help="MAVLink system id of the vehicle (default 1)")
     return p
 
@@ -77,7 +84,7 @@ def build_plant(args: argparse.Namespace, vehicle: VehicleParams):
     return make_plant(args.plant, vehicle, env, args.seed)
 
 
-def swarm_app(scenario: Scenario, fc_urls: Sequence[str], timing: BridgeTiming) -> SimBridgeApp:
+def swarm_app(scenario: Scenario, fc_urls: Sequence[str], timing: BridgeTiming, *, jit: str = "off") -> SimBridgeApp:
     """The bridge of a swarm scenario: every vehicle's plant (its own seed, faults, spawn) on one clock."""
     fleet = scenario.fleet()
     if len(fc_urls) != len(fleet):
@@ -90,6 +97,7 @@ def swarm_app(scenario: Scenario, fc_urls: Sequence[str], timing: BridgeTiming) 
         vehicles=[(plant_for(v.scenario), url, v.sysid, v.offset_ne_m) for v, url in zip(fleet, fc_urls)],
         proximity=Proximity(len(fleet), swarm.separation_m, contact),
         lost=swarm.lost,
+        jit=jit,
     )
 
 
@@ -125,12 +133,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         fc_urls = args.fc or ["udp:127.0.0.1:14560"]
         if scenario is not None and scenario.swarm is not None:
-            app = swarm_app(scenario, fc_urls, timing)
+            app = swarm_app(scenario, fc_urls, timing, jit=args.jit)
         else:
             if len(fc_urls) != 1:
                 raise ConfigError(f"{len(fc_urls)} --fc links for one vehicle (a swarm scenario takes one per vehicle)")
             plant = plant_for(scenario) if scenario is not None else build_plant(args, vehicle)
-            app = SimBridgeApp(plant, fc_url=fc_urls[0], timing=timing, system_id=args.sysid)
+            app = SimBridgeApp(plant, fc_url=fc_urls[0], timing=timing, system_id=args.sysid, jit=args.jit)
     except (SmcpilotError, OSError) as exc:
         print(f"sim_bridge: error: {exc}", file=sys.stderr)
         return EXIT_CONFIG

@@ -300,6 +300,14 @@ class SimFaults:
         self.events.append(FaultEvent(t_s, SEVERITY_REJECTED, PREFIX + reason))
 
     # -- per physics step ---------------------------------------------------------------------------
+    def quiet_until(self) -> float:
+        """The simulated time (s) before which :meth:`advance` changes nothing: no gust process to
+        draw, and no timed fault due to start or stop (-inf while a gust acts). What acts meanwhile
+        (:attr:`motor_eff`, :attr:`force_world_n` ...) stays as it is, unless a live parameter changes."""
+        if self._gusts:
+            return -_INF
+        return self._next_s - TIME_EPS_S
+
     def advance(self, t_s: float, h: float) -> None:
         """Evaluate the faults for the physics step of ``h`` seconds starting at ``t_s``.
 

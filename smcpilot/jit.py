@@ -38,7 +38,20 @@ __all__ = [
     "say_once",
     "addressed",
     "cache_index",
+    "AUTO_MIN_LOCKSTEP_S",
+    "JIT_POLICIES",
+    "compile_in_background",
+    "compile_lock",
+    "release_compile_lock",
 ]
+
+#: the processes' ``--jit`` choices: use the compiled code when it is cached (else fly in CPython
+#: and compile it in the background for later runs); compile it first if need be; never.
+JIT_POLICIES = ("auto", "wait", "off")
+#: ``--jit auto`` loads compiled code in a lockstep flight at least this long (or open-ended): loading
+#: costs a process about a second of CPU (numba's import and registries), which a tick some
+#: 15-25 µs cheaper repays in about a minute of flight.
+AUTO_MIN_LOCKSTEP_S = 60.0
 
 #: environment variable: "0" (or "off", "false", "no") runs every compiled path in CPython.
 JIT_ENV = "SMCPILOT_JIT"
@@ -173,3 +186,55 @@ def cache_index(dispatcher: Any) -> str | None:
         return str(dispatcher._cache._cache_file._index_path)
     except AttributeError:
         return None
+
+
+def _lock_path() -> str:
+    import tempfile
+
+    return os.path.join(tempfile.gettempdir(), f"smcpilot-compile-{os.getuid() if hasattr(os, 'getuid') else 0}.lock")
+
+
+_LOCK: Any = None
+
+
+def compile_lock(*, blocking: bool) -> Any:
+    """The machine-wide compile lock (an advisory lock on a file in the temporary directory,
+    released when its holder exits): one background compile at a time on a machine. The lock
+    (truthy), or None when another process holds it and ``blocking`` is False."""
+    global _LOCK
+    try:
+        import fcntl
+    except ImportError:  # no advisory locks here: compile anyway
+        return True
+    f = open(_lock_path(), "a")  # noqa: SIM115 (held until release or exit)
+    try:
+        fcntl.flock(f, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
+    except OSError:
+        f.close()
+        return None
+    _LOCK = f
+    return f
+
+
+def release_compile_lock() -> None:
+    """Release :func:`compile_lock` (if this process holds it)."""
+    global _LOCK
+    if _LOCK is not None:
+        _LOCK.close()
+        _LOCK = None
+
+
+def compile_in_background(module: str, *args: str) -> int | None:
+    """Start ``python -m module args...`` (a command that compiles and caches something, at a low
+    priority, under :func:`compile_lock`), unless another process is compiling: its pid, or None
+    when none was started. Later processes then load what it cached."""
+    import subprocess
+
+    if compile_lock(blocking=False) is None:
+        return None  # another process compiles: it holds the lock (released when it exits)
+    release_compile_lock()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", module, *args],
+        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+    )  # fmt: skip
+    return proc.pid

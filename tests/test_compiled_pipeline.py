@@ -20,6 +20,7 @@ from fc.compiled_pipeline import attach_compiled
 from fc.config import FcConfig
 from fc.flight import FlightControl, LawFault
 from fc.pipeline import VehicleState
+from smcpilot import jit
 from smcpilot.jit import jit_enabled
 from smcpilot.vehicle import DEFAULT_VEHICLE
 from tests.sitl_helpers import fly_sitl
@@ -154,12 +155,12 @@ def test_auto_leaves_a_short_lockstep_flight_in_cpython(tmp_path) -> None:  # ty
 def test_one_background_compile_at_a_time() -> None:
     from fc import compiled_pipeline as cp
 
-    held = cp._compile_lock(blocking=False)  # as a compiling process holds it
+    held = jit.compile_lock(blocking=False)  # as a compiling process holds it
     assert held is not None
     try:
         assert cp.compile_in_background("adaptive_pid_smc") is None  # nobody else starts
     finally:
-        cp._release_lock()
+        jit.release_compile_lock()
     pytest.importorskip("fcntl")
     import subprocess
     import sys

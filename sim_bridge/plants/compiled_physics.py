@@ -1,0 +1,326 @@
+"""The simulator process's physics, compiled: every vehicle's steps of a control period in one call.
+
+Between two control periods the simulator integrates each vehicle's rigid body for a few physics
+steps (:meth:`sim_bridge.plants.rigid_body.RigidBodyPlant.step`: one or more RK4 sub-steps of
+:func:`~sim_bridge.plants.rigid_body.rigid_body_substep` each, and the heading's turns). In CPython
+that costs about 9 µs a physics step and vehicle; called once per sub-step from Python, a compiled
+sub-step would save little (its tuples are unboxed on every call). Here one compiled call flies all
+the steps of all the vehicles: the per-vehicle inputs and the state go in one float64 array
+(a row per vehicle, :data:`IO_STATE` ...), the flattened constants in another, and the call goes
+to the compiled entry point directly.
+
+It flies only what it can fly the same, bit for bit, as :meth:`RigidBodyPlant.step` would: a span
+in which nothing drawn or timed acts on the physics (no gust process, in the environment or a
+fault; no timed fault starting or stopping; the wind and the faults' constant forces, torques,
+rotor efficiencies and the paper's disturbances are fine). Otherwise :meth:`CompiledPhysics.fly`
+says so and the caller steps the plants in Python, as before. A span whose physics becomes
+non-finite is handed back with the step and vehicle that failed; the caller raises as the plant
+would have (``tests/test_compiled_physics.py``).
+
+The compiled code is cached on disk (numba's cache, named after a hash of every source it was
+compiled from): :func:`load` uses it when it is cached or compiles it first (about 10 s once)
+when asked to; ``python -m sim_bridge.plants.compiled_physics`` compiles it ahead.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import time
+from collections.abc import Sequence
+from typing import Any
+
+from sim_bridge.plants import rigid_body as rb
+from sim_bridge.plants.rigid_body import RigidBodyParams, RigidBodyPlant, StepInput, rigid_body_substep, rigid_body_targets
+from smcpilot.errors import DivergenceError
+from smcpilot.jit import cache_index, compile_pure, jit_unavailable_reason, say_once
+
+#: a vehicle's row of the ``io`` array: the 17 states (in and out), the motor commands (4, in [0, 1]),
+#: armed (0/1), the force (world NWU, N) and torque (body FLU, N m) held over the span, the rotor
+#: efficiencies (4), the paper's disturbances (0/1), the heading's whole turns and its value at the
+#: start (rad; both in and out), the last step's acceleration (world, m/s^2; out), the sub-steps a
+#: physics step and their length (s), and active (0: not stepped).
+IO_STATE = 0
+IO_CMD = 17
+IO_ARMED = 21
+IO_FORCE = 22
+IO_TORQUE = 25
+IO_EFF = 28
+IO_PAPER = 32
+IO_TURNS = 33
+IO_PSI = 34
+IO_ACCEL = 35
+IO_NSUB = 38
+IO_H = 39
+IO_ACTIVE = 40
+IO_SIZE = 41
+#: a vehicle's row of the constants: :class:`RigidBodyParams` with ground contact as 0/1 and its
+#: ``deriv`` tuple (12 floats) after the first 13 fields.
+PP_SIZE = 25
+#: what the call returns: the physics steps completed; if fewer than asked, the failing vehicle's
+#: row and the time at the end of the failing sub-step (s) in ``out``.
+OUT_SIZE = 2
+
+_atan2 = math.atan2
+_PI = math.pi
+_isfinite = math.isfinite
+
+
+def _params_of(pp, i):  # type: ignore[no-untyped-def]
+    """Row ``i`` of the constants as :class:`RigidBodyParams`."""
+    return RigidBodyParams(
+        pp[i, 0], pp[i, 1], pp[i, 2], pp[i, 3], pp[i, 4], pp[i, 5], pp[i, 6], pp[i, 7], pp[i, 8], pp[i, 9], pp[i, 10],
+        pp[i, 11], pp[i, 12] != 0.0,
+        (pp[i, 13], pp[i, 14], pp[i, 15], pp[i, 16], pp[i, 17], pp[i, 18], pp[i, 19], pp[i, 20], pp[i, 21], pp[i, 22],
+         pp[i, 23], pp[i, 24]),
+    )  # fmt: skip
+
+
+def physics_span(io, pp, t_us0, dt_us, dt_s, n_steps, out):  # type: ignore[no-untyped-def]
+    """Fly ``n_steps`` physics steps of ``dt_s`` seconds from ``t_us0`` µs (the k-th at
+    ``(t_us0 + k dt_us) 1e-6`` s, as the simulator's clock counts) for every active row of ``io``,
+    as :meth:`RigidBodyPlant.step` does: the steps outside, the vehicles inside. Returns the steps
+    completed (``n_steps``: all; else the vehicle ``out[0]`` became non-finite at ``out[1]`` s and
+    its row holds the state before the failing sub-step)."""
+    n_veh = io.shape[0]
+    for k in range(n_steps):
+        t_s = (t_us0 + k * dt_us) * 1e-6
+        for i in range(n_veh):
+            if io[i, IO_ACTIVE] == 0.0:
+                continue
+            p = _params_of(pp, i)
+            s = (io[i, 0], io[i, 1], io[i, 2], io[i, 3], io[i, 4], io[i, 5], io[i, 6], io[i, 7], io[i, 8], io[i, 9],
+                 io[i, 10], io[i, 11], io[i, 12], io[i, 13], io[i, 14], io[i, 15], io[i, 16])  # fmt: skip
+            targets = rigid_body_targets((io[i, IO_CMD], io[i, IO_CMD + 1], io[i, IO_CMD + 2], io[i, IO_CMD + 3]), io[i, IO_ARMED] != 0.0, p)
+            force = (io[i, IO_FORCE], io[i, IO_FORCE + 1], io[i, IO_FORCE + 2])
+            torque = (io[i, IO_TORQUE], io[i, IO_TORQUE + 1], io[i, IO_TORQUE + 2])
+            eff = (io[i, IO_EFF], io[i, IO_EFF + 1], io[i, IO_EFF + 2], io[i, IO_EFF + 3])
+            paper = io[i, IO_PAPER] != 0.0
+            turns = io[i, IO_TURNS]
+            psi0 = io[i, IO_PSI]
+            n_sub = int(io[i, IO_NSUB])
+            h = io[i, IO_H]
+            accel = (io[i, IO_ACCEL], io[i, IO_ACCEL + 1], io[i, IO_ACCEL + 2])
+            for j in range(n_sub):
+                t = t_s + j * h
+                s, accel_j, ok = rigid_body_substep(s, targets, force, torque, t, h, p, StepInput(eff, paper, turns))
+                if not ok:  # as step() leaves it: the state before this sub-step, the turns so far
+                    for m in range(17):
+                        io[i, m] = s[m]
+                    io[i, IO_ACCEL] = accel[0]
+                    io[i, IO_ACCEL + 1] = accel[1]
+                    io[i, IO_ACCEL + 2] = accel[2]
+                    io[i, IO_TURNS] = turns
+                    out[0] = i
+                    out[1] = t + h
+                    return k
+                accel = accel_j
+                qw = s[6]
+                qz = s[9]
+                psi1 = _atan2(2.0 * (qw * qz + s[7] * s[8]), 1.0 - 2.0 * (s[8] * s[8] + qz * qz))
+                if psi1 - psi0 > _PI:
+                    turns = turns - 1.0
+                elif psi1 - psi0 < -_PI:
+                    turns = turns + 1.0
+                psi0 = psi1
+            for m in range(17):
+                io[i, m] = s[m]
+            io[i, IO_ACCEL] = accel[0]
+            io[i, IO_ACCEL + 1] = accel[1]
+            io[i, IO_ACCEL + 2] = accel[2]
+            io[i, IO_TURNS] = turns
+            io[i, IO_PSI] = psi0
+    return n_steps
+
+
+#: this module's functions compiled with the plant's.
+SPAN_FUNCTIONS = (physics_span, _params_of)
+
+
+def params_row(p: RigidBodyParams) -> tuple[float, ...]:
+    """:class:`RigidBodyParams` flattened as a row of the constants (:data:`PP_SIZE` floats)."""
+    return (*p[:12], 1.0 if p.ground_contact else 0.0, *p.deriv)
+
+
+def steady(plant: Any, t_end_s: float) -> str | None:
+    """Why ``plant`` cannot be flown compiled up to simulated time ``t_end_s`` (None: it can): only a
+    rigid body, and nothing drawn or timed acting on its physics before then."""
+    if type(plant) is not RigidBodyPlant:
+        return f"the {type(plant).__name__} plant is stepped in Python"
+    if plant.env.gusts_enabled:
+        return "gusts are drawn in Python"
+    faults = plant.faults
+    if faults is not None and faults.quiet_until() <= t_end_s:
+        return "a fault acts on the physics in this span"
+    return None
+
+
+_TWINS: dict[str, Any] = {}
+
+
+def _twins() -> dict[Any, Any]:
+    found = _TWINS.get("span")
+    if found is None:
+        found = _TWINS["span"] = compile_pure((*SPAN_FUNCTIONS, *rb.PURE_FUNCTIONS))
+    return found
+
+
+class CompiledPhysics:
+    """The compiled span and its arrays for a set of plants (rows in their order)."""
+
+    def __init__(self, entry: Any, plants: Sequence[Any]) -> None:
+        import numpy as np
+
+        self._entry = entry
+        self._np = np
+        self.plants = list(plants)
+        n = len(self.plants)
+        #: the per-vehicle rows (:data:`IO_STATE` ...) and the constants (:func:`params_row`).
+        self.io = np.zeros((n, IO_SIZE))
+        self.pp = np.zeros((n, PP_SIZE))
+        self.out = np.zeros(OUT_SIZE)
+        self._rows = {id(p): i for i, p in enumerate(self.plants)}
+        for i, p in enumerate(self.plants):
+            if isinstance(p, RigidBodyPlant):
+                self.pp[i] = params_row(p.params)
+        #: physics steps flown compiled (each counts once however many vehicles it stepped).
+        self.steps = 0
+
+    def fly(self, plants: Sequence[Any], commands: Sequence[Sequence[float]], armed: Sequence[bool],
+            t_us0: int, dt_us: int, dt_s: float, n_steps: int) -> str | None:  # fmt: skip
+        """Step ``plants`` (a subset of :attr:`plants`, in their order) ``n_steps`` physics steps as
+        their :meth:`RigidBodyPlant.step` would, called once a step at ``(t_us0 + k dt_us) 1e-6`` s
+        for ``dt_s`` s. Returns None when done, or why it did not fly them (nothing changed: step
+        them in Python). Raises :class:`DivergenceError` as the plant does (its state and time as
+        Python leaves them), with the steps completed in :attr:`DivergenceError.steps_done`."""
+        t_end = (t_us0 + n_steps * dt_us) * 1e-6
+        for p in plants:
+            why = steady(p, t_end)
+            if why is not None:
+                return why
+        io = self.io
+        rows = self._rows
+        io[:, IO_ACTIVE] = 0.0
+        inputs = []
+        for p, cmd, on in zip(plants, commands, armed):
+            i = rows[id(p)]
+            u, force, torque = _span_input(p)
+            n = math.ceil(dt_s / p.max_step_s - 1e-9)
+            if n < 1:
+                n = 1
+            io[i, :IO_SIZE] = (*p._s, cmd[0], cmd[1], cmd[2], cmd[3], 1.0 if on else 0.0, *force, *torque, *u.motor_eff,
+                               1.0 if u.paper_disturbance else 0.0, u.psi_turns, p._psi, *p._accel, n, dt_s / n, 1.0)  # fmt: skip
+            inputs.append((i, p, u))
+        done = self._entry(io, self.pp, t_us0, dt_us, dt_s, n_steps, self.out)
+        self.steps += done
+        failed = int(self.out[0]) if done < n_steps else -1
+        for i, p, u in inputs:
+            row = io[i]
+            # the steps this vehicle completed: in the failing step, those before the failing one flew it
+            flown = n_steps if failed < 0 else done + 1 if i < failed else done
+            if flown == 0 and i != failed:
+                continue
+            p._s = tuple(row[:17].tolist())
+            p._accel = tuple(row[IO_ACCEL : IO_ACCEL + 3].tolist())
+            p._input = StepInput(u.motor_eff, u.paper_disturbance, float(row[IO_TURNS]))
+            if flown > 0:
+                p._psi = float(row[IO_PSI])
+                p._t_s = (t_us0 + (flown - 1) * dt_us) * 1e-6 + dt_s
+                p._obs_cache = None
+        if failed >= 0:
+            exc = DivergenceError("rigid-body plant state became non-finite", float(self.out[1]))
+            exc.steps_done = done  # type: ignore[attr-defined]
+            exc.vehicle = failed  # type: ignore[attr-defined]
+            raise exc
+        return None
+
+
+def _span_input(p: RigidBodyPlant) -> tuple[StepInput, tuple[float, float, float], tuple[float, float, float]]:
+    """What :meth:`RigidBodyPlant.step` holds over a steady span: the step input, force, torque."""
+    env = p.env
+    faults = p.faults
+    force = env.force_world_n
+    torque = env.torque_body_n_m
+    env_paper = env.paper_disturbance
+    u = p._input
+    if faults is not None:
+        if faults.physics_on:
+            if faults.forces_on:
+                ff = faults.force_world_n
+                ft = faults.torque_body_n_m
+                force = (force[0] + ff[0], force[1] + ff[1], force[2] + ff[2])
+                torque = (torque[0] + ft[0], torque[1] + ft[1], torque[2] + ft[2])
+            paper = env_paper or faults.paper_disturbance
+            if faults.motor_eff is not u.motor_eff or paper != u.paper_disturbance:
+                u = StepInput(faults.motor_eff, paper, u.psi_turns)
+        elif u.motor_eff is not rb._ONES4 or u.paper_disturbance != env_paper:
+            u = StepInput(rb._ONES4, env_paper, u.psi_turns)
+    return u, force, torque
+
+
+def _sig() -> tuple:
+    from numba import types
+
+    arr2 = types.float64[:, ::1]
+    return (arr2, arr2, types.int64, types.int64, types.float64, types.int64, types.float64[::1])
+
+
+def _entry_of(dispatcher: Any, sig: tuple) -> Any:
+    dispatcher.compile(sig)
+    return dispatcher.overloads[sig].entry_point
+
+
+def is_cached() -> bool:
+    """Whether the compiled span is in numba's cache (loading it then takes about half a second)."""
+    if jit_unavailable_reason() is not None:
+        return False
+    index = cache_index(_twins()[physics_span])
+    return index is not None and os.path.exists(index)
+
+
+def load(plants: Sequence[Any], *, compile_new: bool) -> tuple[CompiledPhysics | None, str | None]:
+    """The compiled physics for ``plants`` (None and why not): from the cache, or compiled first
+    when ``compile_new`` (about 10 s once, said on stderr)."""
+    why = jit_unavailable_reason()
+    if why is not None:
+        return None, why
+    if not any(isinstance(p, RigidBodyPlant) for p in plants):
+        return None, "no rigid-body plant"
+    try:
+        twins = _twins()
+        fn = twins[physics_span]
+        index = cache_index(fn)
+        cached = index is not None and os.path.exists(index)
+        if not cached and not compile_new:
+            return None, "the compiled physics is not cached yet"
+        t0 = time.perf_counter()
+        if not cached:
+            say_once("compiling the simulator's physics (once after an install or a change; cached on disk)...")
+        entry = _entry_of(fn, _sig())
+        if not cached:
+            say_once(f"compiled the simulator's physics in {time.perf_counter() - t0:.1f} s")
+        return CompiledPhysics(entry, plants), None
+    except Exception as exc:  # numba's typing or lowering errors: fly in Python, say why
+        return None, f"the simulator's physics could not be compiled ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})"
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m sim_bridge.plants.compiled_physics``: compile and cache the simulator's physics."""
+    args = sys.argv[1:] if argv is None else argv
+    if args and args[0] in ("-h", "--help"):
+        print("usage: python -m sim_bridge.plants.compiled_physics\n\nCompile (and cache on disk) the simulator's"
+              " physics span, so later simulator processes load it instead of stepping in Python.")  # fmt: skip
+        return 0
+    from smcpilot.vehicle import DEFAULT_VEHICLE
+
+    phys, why = load([RigidBodyPlant(DEFAULT_VEHICLE)], compile_new=True)
+    if phys is None:
+        print(f"python -m sim_bridge.plants.compiled_physics: not compiled: {why}", file=sys.stderr)
+        return 1
+    print("the simulator's physics is compiled and cached")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
