@@ -99,7 +99,8 @@ def _add_sitl(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--realtime-s", type=float, default=60.0, metavar="S", help="real-time run length, wall seconds (default 60; 0 skips it)")
     c.add_argument("--controller", default="adaptive_pid_smc", choices=("adaptive_pid_smc", "pid_smc", "cascade_pid"))
     c.add_argument("--repeat", type=int, default=2, metavar="N",
-                   help="lockstep runs per variant (raw UDP, FC pipeline in CPython, compiled), alternating; the best is printed (default 2)")
+                   help="lockstep runs per variant (raw UDP; all CPython; the FC's pipeline compiled; and the simulator's physics too),"
+                        " alternating; the best is printed (default 2)")
     c.set_defaults(bench=bench_sitl)
 
 
@@ -205,37 +206,49 @@ def bench_sitl(args: argparse.Namespace) -> int:
     # the FC's compiled pipeline, compiled (or loaded) here first so the FC processes find it cached
     from fc.compiled_pipeline import attach_compiled
     from fc.flight import FlightControl
+    from sim_bridge.plants import compiled_physics
 
     why = attach_compiled(FlightControl(cfg, DEFAULT_VEHICLE), compile_new=True)
-    variants = [("CPython pipeline (--jit off)", "off")] + ([("compiled pipeline", "wait")] if why is None else [])
-    if why is not None:
+    _phys, why_phys = compiled_physics.load([plant], compile_new=True)
+    # (name, the FC's --jit, the simulator's --jit)
+    variants = [("all CPython (--jit off)", "off", "off")]
+    if why is None:
+        variants.append(("FC pipeline compiled", "wait", "off"))
+    else:
         print(f"  (the FC's compiled pipeline is not available: {why})")
+    if why_phys is None:
+        variants.append(("FC pipeline + sim physics compiled" if why is None else "sim physics compiled", "wait" if why is None else "off", "wait"))
+    else:
+        print(f"  (the simulator's compiled physics is not available: {why_phys})")
     best: dict[str, float] = {}
     raw_us = raw_spin_us = math.inf
     with tempfile.TemporaryDirectory() as tmp:
         for rep in range(max(1, args.repeat)):  # alternating, so a machine that speeds up or slows down favours no one
             raw_us = min(raw_us, raw_udp_round_trip_us(spin=False))
             raw_spin_us = min(raw_spin_us, raw_udp_round_trip_us(spin=True))
-            for name, jit in variants:
+            for name, jit, sim_jit in variants:
                 opts = SitlOptions.of(lockstep=True, duration_s=args.duration, controller=args.controller, gcs=None,
-                                   plan=plan_path, tlog=Path(tmp) / f"bench-{jit}-{rep}.tlog", fc_args=("--jit", jit))  # fmt: skip
+                                   plan=plan_path, tlog=Path(tmp) / f"bench-{jit}-{sim_jit}-{rep}.tlog", fc_args=("--jit", jit),
+                                   sim_args=("--jit", sim_jit))  # fmt: skip
                 sitl = Sitl(opts)
                 with sitl:
                     sitl.wait()
                 speed = (sitl.sim_summary or {}).get("speed") or float("nan")
                 if jit == "wait" and not (sitl.fc_summary or {}).get("pipeline", {}).get("compiled"):
                     print(f"  (run {rep + 1}: the FC flew its pipeline in CPython: {(sitl.fc_summary or {}).get('pipeline')})")
+                if sim_jit == "wait" and not (sitl.sim_summary or {}).get("physics", {}).get("compiled"):
+                    print(f"  (run {rep + 1}: the simulator stepped its physics in Python: {(sitl.sim_summary or {}).get('physics')})")
                 best[name] = max(best.get(name, 0.0), speed)
         raw_speed = 2000.0 / raw_us
         print(f"raw Python UDP round trip, two processes, 80 bytes, no codec, blocking reads: {raw_us:6.1f} µs = {raw_speed:6.1f}× real time"
               " at 500 Hz (the baseline of the ratios below)\n"
               f"  the same, both sides polling without blocking (each takes a core):   {raw_spin_us:6.1f} µs = {2000.0 / raw_spin_us:6.1f}×")  # fmt: skip
         base = best.get(variants[0][0])
-        for name, _jit in variants:
+        for name, _jit, _sim_jit in variants:
             loop_speed = best[name]
-            extra = f"; {loop_speed / base:.2f}× the CPython pipeline" if base and name != variants[0][0] else ""
+            extra = f"; {loop_speed / base:.2f}× all CPython" if base and name != variants[0][0] else ""
             print(
-                f"lockstep over UDP, two processes, {name + ':':<29} {loop_speed:6.1f}× real time"
+                f"lockstep over UDP, two processes, {name + ':':<36} {loop_speed:6.1f}× real time"
                 f" ({1e6 / (loop_speed * 500):.1f} µs per control tick; {loop_speed / raw_speed:.2f} of the raw UDP round trip,"
                 f" {loop_speed / ceiling:.2f} of the in-process ceiling{extra})"
             )
@@ -259,6 +272,8 @@ def bench_sitl(args: argparse.Namespace) -> int:
             )
             pipe = fcs.get("pipeline") or {}
             print(f"  the FC's pipeline: {'compiled' if pipe.get('compiled') else 'CPython (' + str(pipe.get('why_not')) + ')'}")
+            phys = (sitl.sim_summary or {}).get("physics") or {}
+            print(f"  the simulator's physics: {'compiled' if phys.get('compiled') else 'Python (' + str(phys.get('why_not')) + ')'}")
     return 0
 
 

@@ -406,8 +406,10 @@ class SimBridgeApp:
         if self.jit == "off":
             self.physics_why = "--jit off"
             return
-        if self.jit == "auto" and tm.lockstep and tm.duration_s is not None and tm.duration_s < AUTO_MIN_LOCKSTEP_S:
-            self.physics_why = f"--jit auto: a lockstep flight shorter than {AUTO_MIN_LOCKSTEP_S:g} s (loading costs more than it saves)"
+        # (a swarm's physics is one call for every vehicle: what it saves grows with their number)
+        if self.jit == "auto" and tm.lockstep and tm.duration_s is not None and tm.duration_s * len(self.vehicles) < AUTO_MIN_LOCKSTEP_S:
+            self.physics_why = (f"--jit auto: a lockstep flight shorter than {AUTO_MIN_LOCKSTEP_S:g} vehicle-seconds"
+                                " (loading costs more than it saves)")  # fmt: skip
             return
         from sim_bridge.plants import compiled_physics
 
@@ -500,6 +502,7 @@ class SimBridgeApp:
         self.say(f"SIM_READY {fcs} {local} lockstep={tm.lockstep} physics_hz={tm.physics_hz:g} rate_hz={tm.rate_hz:g}{count}"
                  f" pid={os.getpid()}")  # fmt: skip
         self._wall_start = self._mono()
+        cpu_start = time.process_time()
         try:
             if tm.lockstep:
                 self._run_lockstep()
@@ -515,6 +518,7 @@ class SimBridgeApp:
             wall = self._mono() - self._wall_start
             summary: dict = {"sim_time_s": self._t_us * 1e-6, "wall_s": wall, "speed": (self._t_us * 1e-6 / wall) if wall > 0 else None,
                              "rtt_mean_s": self.rtt_s, "cpu_s": round(time.process_time(), 3),
+                             "cpu_start_s": round(cpu_start, 3),
                              "cpu_sys_s": round(os.times().system, 3),
                              "physics": {"compiled": self.physics is not None, "compiled_steps": self.physics.steps if self.physics else 0,
                                          "python_steps": self.physics_python_steps, "why_not": self.physics_why}}  # fmt: skip
