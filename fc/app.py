@@ -74,7 +74,7 @@ from fc.streams import StreamScheduler
 from smcpilot.clock import SimClock, WallClock
 from smcpilot.complaints import Complaints
 from smcpilot.errors import LinkError, RateMismatchError, TlogError, WatchdogError
-from smcpilot.fastcodec import encode_debug_float_array, encode_hil_actuator_controls
+from smcpilot.fastcodec import TickRecords
 from smcpilot.faults import SIM_PARAM_INDEX
 from smcpilot.geo import Home
 from smcpilot.impair import LinkImpairment
@@ -87,8 +87,6 @@ from smcpilot.protocol import (
     IMU_ACCEL_BITS,
     OVERRUN_NAME,
     SIM_COMPONENT_ID,
-    SMC_ARRAY_ID,
-    SMC_ARRAY_NAME,
 )
 from smcpilot.signing import Signing
 from smcpilot.tlog import TlogWriter
@@ -118,7 +116,6 @@ def _f32(v: float) -> float:
     """``v`` rounded to float32, as PARAM_VALUE carries it."""
     return _F32.unpack(_F32.pack(v))[0]
 _ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
-_ZEROS12 = [0.0] * 12
 _yield = getattr(os, "sched_yield", lambda: None)
 #: real time, the loop first: ground-link work (handling datagrams, streaming telemetry) draws on
 #: a budget refilled by this share of the control period each tick and holding at most that much;
@@ -326,6 +323,8 @@ class FlightControllerApp:
             raise
         # Log-only messages have their own sequence numbers: the links' numbering stays gap-free.
         self._logmav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=FC_COMPONENT)
+        #: the tick's answer and log record, encoded (the in-process runner writes the same records)
+        self._records = TickRecords(sysid)
         gcs = self.gcs
         #: the flight core: the one control tick (plan, modes, failsafes, pipeline, events).
         self.core = FlightCore(
@@ -1013,7 +1012,7 @@ class FlightControllerApp:
             tlog.write(self.clock.now_us(), act)
             data = telemetry.smc_record(core, out)
             lm = self._logmav
-            tlog.write(t_us, encode_debug_float_array(lm.seq, lm.srcSystem, FC_COMPONENT, t_us, SMC_ARRAY_NAME, SMC_ARRAY_ID, data))
+            tlog.write(t_us, self._records.smc(lm.seq, t_us, data))
             lm.seq = (lm.seq + 1) & 0xFF
             self._unflushed_ticks += 1
             if self._unflushed_ticks >= self._flush_ticks:
@@ -1026,12 +1025,8 @@ class FlightControllerApp:
 
     def _actuator_packet(self, t_us: int, out: TickOutput) -> bytes:
         """The tick's answer to the simulator: HIL_ACTUATOR_CONTROLS, controls[0..3] our rotors 1..4."""
-        m = out.motors
-        sim = self.sim
-        return encode_hil_actuator_controls(
-            sim.take_seq(), *sim.source, t_us, [m[0], m[1], m[2], m[3]] + _ZEROS12,
-            _ARMED if out.armed else 0, ACTUATOR_FLAG_LOCKSTEP if self.lockstep else 0,
-        )  # fmt: skip
+        return self._records.actuators(self.sim.take_seq(), t_us, out.motors, _ARMED if out.armed else 0,
+                                       ACTUATOR_FLAG_LOCKSTEP if self.lockstep else 0)  # fmt: skip
 
     def _item_reached(self, seq: int) -> None:
         """``MISSION_ITEM_REACHED`` to every ground station."""

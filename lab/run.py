@@ -47,6 +47,7 @@ from sim_bridge.build import plant_for
 from sim_bridge.faults import FaultEvent
 from sim_bridge.sensors import specific_force_frd
 from smcpilot.errors import DivergenceError, SmcpilotError
+from smcpilot.fastcodec import SMC_NAME, TickRecords, framed
 from smcpilot.geo import Home
 from smcpilot.lawref import law_argument
 from smcpilot.protocol import (
@@ -55,10 +56,6 @@ from smcpilot.protocol import (
     IMU_FIELDS_UPDATED,
     SIM_COMPONENT_ID,
     SMC_ARRAY_ID,
-    SMC_ARRAY_NAME,
-    TRUTH_ESTIMATOR_TYPE,
-    TRUTH_FRAME,
-    TRUTH_QUALITY,
 )
 from smcpilot.scenario import Scenario, ScenarioError
 from smcpilot.tlog import TlogWriter
@@ -114,93 +111,7 @@ class FlightResult:
 
 
 # -- in-process ---------------------------------------------------------------------------------
-#: ODOMETRY's covariances in the truth the simulator sends: unknown (NaN in the first element).
-_COV_UNKNOWN = (math.nan,) + (0.0,) * 20
 _NAN = math.nan
-_crc16: Any = mavlink.mcrf4xx
-if _crc16 is None:  # pragma: no cover - pymavlink without fastcrc: the same CRC, slower
-
-    def _crc16(data: bytes, initial: int | None = None) -> int:
-        crc = mavlink.x25crc()
-        if initial is not None:
-            crc.crc = initial
-        crc.accumulate(bytes(data))
-        return int(crc.crc)
-
-
-_HEADER = "<BBBBBBBHB"  # MAVLink 2: magic, length, flags x2, seq, system, component, message id (24 bits)
-_LENGTH = [bytes((0xFD, n)) for n in range(256)]
-
-
-def _framed(full: bytes, extra: bytes) -> bytes:
-    """A MAVLink 2 packet of ``full`` (the header, its length 0, then the whole payload) as
-    pymavlink frames it: the payload's trailing zeros trimmed (at least one byte kept), the CRC."""
-    body = full.rstrip(b"\x00")
-    n = len(body) - 10
-    if n < 1:
-        body = full[:11]
-        n = 1
-    packet = _LENGTH[n] + body[2:]
-    return packet + _crc16(extra, _crc16(packet[1:])).to_bytes(2, "little")
-
-
-class _Packets:
-    """The six messages of a logged tick (the simulator's ATTITUDE, LOCAL_POSITION_NED,
-    HIGHRES_IMU and ODOMETRY, the FC's HIL_ACTUATOR_CONTROLS and SMC record), the same bytes as
-    :mod:`smcpilot.fastcodec` (and pymavlink) give (a test checks it), in fewer steps: one ``pack``
-    a message, header and payload together. Encoding is most of the cost of a logged tick."""
-
-    def __init__(self, sysid: int) -> None:
-        self.sysid = sysid
-        m = mavlink
-
-        def layout(msg: Any, payload: str) -> tuple[Any, int, int, bytes]:
-            """(pack(header..., payload...), the message id's low 16 bits and high 8, its CRC extra)."""
-            return struct.Struct(_HEADER + payload[1:]).pack, msg.id & 0xFFFF, msg.id >> 16, bytes([msg.crc_extra])
-
-        self._att = layout(m.MAVLink_attitude_message, "<Iffffff")
-        self._lpn = layout(m.MAVLink_local_position_ned_message, "<Iffffff")
-        self._imu = layout(m.MAVLink_highres_imu_message, "<QfffffffffffffHB")
-        self._odo = layout(m.MAVLink_odometry_message, "<Q13f")
-        self._act = layout(m.MAVLink_hil_actuator_controls_message, "<QQ16fB")
-        self._dfa = layout(m.MAVLink_debug_float_array_message, "<QH10s58f")
-        #: the SMC record's 31 leading values: the rest are zeros, which MAVLink 2 trims anyway.
-        self._smc31 = layout(m.MAVLink_debug_float_array_message, "<QH10s31f")
-        #: ODOMETRY's constant tail: the covariances (unknown), frames, reset counter, estimator, quality.
-        self._odo_tail = struct.pack("<21f21fBBBBb", *_COV_UNKNOWN, *_COV_UNKNOWN, TRUTH_FRAME, TRUTH_FRAME, 0, TRUTH_ESTIMATOR_TYPE, TRUTH_QUALITY)
-
-    def attitude(self, seq: int, t_ms: int, roll: float, pitch: float, yaw: float, p: float, q: float, r: float) -> bytes:
-        st, lo, hi, extra = self._att
-        return _framed(st(0xFD, 0, 0, 0, seq, self.sysid, SIM_COMPONENT_ID, lo, hi, t_ms, roll, pitch, yaw, p, q, r), extra)
-
-    def local_position_ned(self, seq: int, t_ms: int, x: float, y: float, z: float, vx: float, vy: float, vz: float) -> bytes:
-        st, lo, hi, extra = self._lpn
-        return _framed(st(0xFD, 0, 0, 0, seq, self.sysid, SIM_COMPONENT_ID, lo, hi, t_ms, x, y, z, vx, vy, vz), extra)
-
-    def highres_imu(self, seq: int, t_us: int, fx: float, fy: float, fz: float, p: float, q: float, r: float) -> bytes:
-        """Specific force (m/s^2) and rates (rad/s), body FRD; the accelerometer and the gyro updated."""
-        st, lo, hi, extra = self._imu
-        return _framed(st(0xFD, 0, 0, 0, seq, self.sysid, SIM_COMPONENT_ID, lo, hi, t_us, fx, fy, fz, p, q, r,
-                               0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, IMU_FIELDS_UPDATED, 0), extra)  # fmt: skip
-
-    def odometry(self, seq: int, t_us: int, x: float, y: float, z: float, qw: float, qx: float, qy: float, qz: float,
-                 vx: float, vy: float, vz: float, p: float, q: float, r: float) -> bytes:  # fmt: skip
-        """Position and velocity NED (m, m/s), the attitude quaternion (FRD body in NED), body rates FRD (rad/s)."""
-        st, lo, hi, extra = self._odo
-        head = st(0xFD, 0, 0, 0, seq, self.sysid, SIM_COMPONENT_ID, lo, hi, t_us, x, y, z, qw, qx, qy, qz, vx, vy, vz, p, q, r)
-        return _framed(head + self._odo_tail, extra)
-
-    def actuators(self, seq: int, t_us: int, m: Sequence[float], mode: int) -> bytes:
-        st, lo, hi, extra = self._act
-        return _framed(st(0xFD, 0, 0, 0, seq, self.sysid, FC_COMPONENT_ID, lo, hi, t_us, ACTUATOR_FLAG_LOCKSTEP, m[0], m[1], m[2], m[3],
-                               0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, mode), extra)  # fmt: skip
-
-    def smc(self, seq: int, t_us: int, data: Sequence[float]) -> bytes:
-        st, lo, hi, extra = self._dfa
-        return _framed(st(0xFD, 0, 0, 0, seq, self.sysid, FC_COMPONENT_ID, lo, hi, t_us, SMC_ARRAY_ID, _SMC_NAME, *data), extra)
-
-
-_SMC_NAME = SMC_ARRAY_NAME.encode("ascii") if isinstance(SMC_ARRAY_NAME, str) else SMC_ARRAY_NAME
 
 
 class _TlogRecorder:
@@ -221,7 +132,7 @@ class _TlogRecorder:
         #: the plant whose IMU and truth are logged (None: the state pair only).
         self.plant = plant
         self._gravity = float(plant.vehicle.gravity_mps2) if plant is not None else 0.0
-        self._packets = _Packets(sysid)
+        self._packets = TickRecords(sysid)
         self._sim_seq = 0
         self._fc_seq = 0
         self._log_seq = 0
@@ -262,14 +173,14 @@ class _TlogRecorder:
             return
         enc = self._packets
         sysid, sim, fcc = self.sysid, SIM_COMPONENT_ID, FC_COMPONENT_ID
-        att_p, att_lo, att_hi, att_x = enc._att
-        lpn_p, lpn_lo, lpn_hi, lpn_x = enc._lpn
-        imu_p, imu_lo, imu_hi, imu_x = enc._imu
-        odo_p, odo_lo, odo_hi, odo_x = enc._odo
-        act_p, act_lo, act_hi, act_x = enc._act
-        smc_p, smc_lo, smc_hi, smc_x = enc._smc31
-        odo_tail = enc._odo_tail
-        framed, nan, fields = _framed, _NAN, IMU_FIELDS_UPDATED
+        att_p, att_lo, att_hi, att_x = enc.att
+        lpn_p, lpn_lo, lpn_hi, lpn_x = enc.lpn
+        imu_p, imu_lo, imu_hi, imu_x = enc.imu
+        odo_p, odo_lo, odo_hi, odo_x = enc.odo
+        act_p, act_lo, act_hi, act_x = enc.act
+        smc_p, smc_lo, smc_hi, smc_x = enc.smc31
+        odo_tail = enc.odo_tail
+        nan, fields = _NAN, IMU_FIELDS_UPDATED
         write_many = self.tlog.write_many
         s, fs, ls = self._sim_seq, self._fc_seq, self._log_seq
         i0, t0 = LOG_IMU, LOG_TRUTH
@@ -294,7 +205,7 @@ class _TlogRecorder:
             s = (s + 4) & 0xFF
             packets.append(framed(act_p(0xFD, 0, 0, 0, fs, sysid, fcc, act_lo, act_hi, t_us, ACTUATOR_FLAG_LOCKSTEP, r[13], r[14], r[15], r[16],
                                         0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, _ARMED if r[17] != 0.0 else 0), act_x))  # fmt: skip
-            packets.append(framed(smc_p(0xFD, 0, 0, 0, ls, sysid, fcc, smc_lo, smc_hi, t_us, SMC_ARRAY_ID, _SMC_NAME, *r[18:49]), smc_x))
+            packets.append(framed(smc_p(0xFD, 0, 0, 0, ls, sysid, fcc, smc_lo, smc_hi, t_us, SMC_ARRAY_ID, SMC_NAME, *r[18:49]), smc_x))
             fs = (fs + 1) & 0xFF
             ls = (ls + 1) & 0xFF
             write_many(t_us, packets)

@@ -66,12 +66,12 @@ from sim_bridge.plants.base import Plant
 from sim_bridge.proximity import Proximity
 from sim_bridge.sensors import specific_force_frd
 from smcpilot.errors import DivergenceError, WatchdogError
-from smcpilot.fastcodec import encode_attitude, encode_highres_imu, encode_local_position_ned, encode_odometry
+from smcpilot.fastcodec import TickRecords
 from smcpilot.faults import SIM_PARAM_INDEX, SIM_PARAMS, FaultError
 from smcpilot.frames import quat_nwu_flu_to_ned_frd
 from smcpilot.jit import AUTO_MIN_LOCKSTEP_S, compile_in_background
 from smcpilot.link import MavlinkUdp
-from smcpilot.protocol import IMU_FIELDS_UPDATED, SIM_COMPONENT_ID, TRUTH_ESTIMATOR_TYPE, TRUTH_FRAME, TRUTH_QUALITY
+from smcpilot.protocol import SIM_COMPONENT_ID
 from smcpilot.wire import wire_of_paper
 
 if TYPE_CHECKING:
@@ -93,7 +93,6 @@ _REAL32 = mavlink.MAV_PARAM_TYPE_REAL32
 _yield = getattr(os, "sched_yield", lambda: None)
 _isfinite = math.isfinite
 #: ODOMETRY's covariances: unknown (NaN in the first element, as MAVLink says).
-_COV_UNKNOWN = (math.nan,) + (0.0,) * 20
 
 
 @dataclass(frozen=True)
@@ -141,6 +140,7 @@ class SimVehicle:
         )  # fmt: skip
         self.link.report_peer_errors()
         self._clock_us = clock_us
+        self._records = TickRecords(system_id)
         self._gravity = float(plant.vehicle.gravity_mps2)  # type: ignore[attr-defined]
         self._truth = plant.truth  # type: ignore[attr-defined]
         #: the FC's address: motor commands and parameters are taken from it only.
@@ -179,7 +179,6 @@ class SimVehicle:
         obs = self.plant.observe()
         tru = self._truth()
         link = self.link
-        sysid, comp = link.source
         t_us = self._clock_us()
         t_ms = (t_us // 1000) & 0xFFFFFFFF
         (phi, theta, psi), (pf, qf, rf), (xw, yw, zw), (vxw, vyw, vzw) = obs.euler_rad, obs.body_rates_radps, obs.position_m, obs.velocity_mps
@@ -187,14 +186,15 @@ class SimVehicle:
         fx, fy, fz = specific_force_frd(obs.accel_mps2, tru.quaternion, self._gravity)
         (phi, theta, psi), (pf, qf, rf), (xw, yw, zw), (vxw, vyw, vzw) = tru.euler_rad, tru.body_rates_radps, tru.position_m, tru.velocity_mps
         _, _, _, tp, tq, tr, tx, ty, tz, tvx, tvy, tvz = wire_of_paper(phi, theta, psi, pf, qf, rf, xw, yw, zw, vxw, vyw, vzw)
-        # The per-tick messages, encoded straight to bytes (smcpilot.fastcodec; the same bytes as
-        # pymavlink); the state's pair last, so the FC has the IMU when the state ticks it.
+        # The per-tick messages, encoded straight to bytes (smcpilot.fastcodec.TickRecords: the same
+        # bytes as pymavlink); the state's pair last, so the FC has the IMU when the state ticks it.
+        rec = self._records
+        qw, qx, qy, qz = quat_nwu_flu_to_ned_frd(tru.quaternion)
         packets = (
-            encode_attitude(link.take_seq(), sysid, comp, t_ms, roll, pitch, yaw, p, q, r),
-            encode_highres_imu(link.take_seq(), sysid, comp, t_us, fx, fy, fz, p, q, r, IMU_FIELDS_UPDATED),
-            encode_odometry(link.take_seq(), sysid, comp, t_us, TRUTH_FRAME, TRUTH_FRAME, tx, ty, tz, quat_nwu_flu_to_ned_frd(tru.quaternion),
-                            tvx, tvy, tvz, tp, tq, tr, _COV_UNKNOWN, _COV_UNKNOWN, 0, TRUTH_ESTIMATOR_TYPE, TRUTH_QUALITY),  # fmt: skip
-            encode_local_position_ned(link.take_seq(), sysid, comp, t_ms, x, y, z, vx, vy, vz),
+            rec.attitude(link.take_seq(), t_ms, roll, pitch, yaw, p, q, r),
+            rec.highres_imu(link.take_seq(), t_us, fx, fy, fz, p, q, r),
+            rec.odometry(link.take_seq(), t_us, tx, ty, tz, qw, qx, qy, qz, tvx, tvy, tvz, tp, tq, tr),
+            rec.local_position_ned(link.take_seq(), t_ms, x, y, z, vx, vy, vz),
         )
         link.send_packets(packets)
         self.last_state = packets

@@ -25,7 +25,6 @@ restart (the fresh vehicle's states follow the old one's, one step later).
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -33,15 +32,9 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from sim_bridge.plants.paper_vehicle import PaperVehiclePlant
 from sim_bridge.plants.rigid_body import RigidBodyPlant
 from sim_bridge.sensors import specific_force_frd
-from smcpilot.fastcodec import (
-    encode_attitude,
-    encode_highres_imu,
-    encode_hil_actuator_controls,
-    encode_local_position_ned,
-    encode_odometry,
-)
+from smcpilot.fastcodec import TickRecords, encode_hil_actuator_controls
 from smcpilot.frames import quat_nwu_flu_to_ned_frd
-from smcpilot.protocol import IMU_FIELDS_UPDATED, SIM_COMPONENT_ID, TRUTH_ESTIMATOR_TYPE, TRUTH_FRAME, TRUTH_QUALITY
+from smcpilot.protocol import SIM_COMPONENT_ID
 from smcpilot.tlog import TlogWriter
 from smcpilot.wire import wire_of_paper
 
@@ -54,7 +47,6 @@ AUTOPILOT_COMPONENT_ID = 1
 _ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
 _ZEROS12 = [0.0] * 12
 #: ODOMETRY's covariances: unknown (NaN first, as MAVLink says).
-_COV_UNKNOWN = (math.nan,) + (0.0,) * 20
 
 
 class ServedLog:
@@ -66,6 +58,7 @@ class ServedLog:
         self.path = path
         self.tlog = TlogWriter(path)
         self.sysid = sysid
+        self._records = TickRecords(sysid)
         self._sim_seq = 0
         self._ap_seq = 0
         #: the offset of the current plant's time in served time (µs), and the last state's stamp.
@@ -105,14 +98,14 @@ class ServedLog:
         fx, fy, fz = specific_force_frd(obs.accel_mps2, tru.quaternion, gravity_mps2)
         (phi, theta, psi), (p, q, r), (x, y, z), (vx, vy, vz) = tru.euler_rad, tru.body_rates_radps, tru.position_m, tru.velocity_mps
         _, _, _, tp, tq, tr, tx, ty, tz, tvx, tvy, tvz = wire_of_paper(phi, theta, psi, p, q, r, x, y, z, vx, vy, vz)
-        s, sysid, comp = self._sim_seq, self.sysid, SIM_COMPONENT_ID
+        s, rec = self._sim_seq, self._records
         t_ms = (t_us // 1000) & 0xFFFFFFFF
+        qw, qx, qy, qz = quat_nwu_flu_to_ned_frd(tru.quaternion)
         packets = (  # in the order our FC logs a state: the state pair, then the IMU and the truth
-            encode_attitude(s, sysid, comp, t_ms, roll, pitch, yaw, ps, qs, rs),
-            encode_local_position_ned((s + 3) & 0xFF, sysid, comp, t_ms, xn, yn, zn, vxn, vyn, vzn),
-            encode_highres_imu((s + 1) & 0xFF, sysid, comp, t_us, fx, fy, fz, ps, qs, rs, IMU_FIELDS_UPDATED),
-            encode_odometry((s + 2) & 0xFF, sysid, comp, t_us, TRUTH_FRAME, TRUTH_FRAME, tx, ty, tz, quat_nwu_flu_to_ned_frd(tru.quaternion),
-                            tvx, tvy, tvz, tp, tq, tr, _COV_UNKNOWN, _COV_UNKNOWN, 0, TRUTH_ESTIMATOR_TYPE, TRUTH_QUALITY),  # fmt: skip
+            rec.attitude(s, t_ms, roll, pitch, yaw, ps, qs, rs),
+            rec.local_position_ned((s + 3) & 0xFF, t_ms, xn, yn, zn, vxn, vyn, vzn),
+            rec.highres_imu((s + 1) & 0xFF, t_us, fx, fy, fz, ps, qs, rs),
+            rec.odometry((s + 2) & 0xFF, t_us, tx, ty, tz, qw, qx, qy, qz, tvx, tvy, tvz, tp, tq, tr),
         )
         self._sim_seq = (s + 4) & 0xFF
         self.tlog.write_many(t_us, packets)

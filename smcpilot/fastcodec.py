@@ -33,6 +33,19 @@ from collections.abc import Callable, Sequence
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from smcpilot.protocol import (
+    ACTUATOR_FLAG_LOCKSTEP,
+    COV_UNKNOWN,
+    FC_COMPONENT_ID,
+    IMU_FIELDS_UPDATED,
+    SIM_COMPONENT_ID,
+    SMC_ARRAY_ID,
+    SMC_ARRAY_NAME,
+    TRUTH_ESTIMATOR_TYPE,
+    TRUTH_FRAME,
+    TRUTH_QUALITY,
+)
+
 __all__ = [
     "FAST_MSG_IDS",
     "FAST_MESSAGE_TYPES",
@@ -44,6 +57,10 @@ __all__ = [
     "encode_odometry",
     "pack_message",
     "decode_packet",
+    "Layout",
+    "layout",
+    "framed",
+    "TickRecords",
 ]
 
 _crc16 = mavlink.mcrf4xx
@@ -113,12 +130,47 @@ assert _ODOMETRY.ordered_fieldnames == [
 ]  # fmt: skip
 
 
-def _frame(payload: bytes, seq: int, src_system: int, src_component: int, msg_id: int, crc_extra: bytes) -> bytes:
-    """Wrap ``payload`` in a MAVLink 2 frame the way pymavlink does (trailing zeros trimmed)."""
-    length = len(payload.rstrip(b"\x00")) or 1  # pymavlink keeps at least one payload byte
-    packet = _HEADER_PACK(_MAGIC_V2, length, 0, 0, seq, src_system, src_component, msg_id, 0) + payload[:length]
-    crc = _crc16(crc_extra, _crc16(packet[1:]))
-    return packet + crc.to_bytes(2, "little")
+# -- one pack a message: header and payload together ------------------------------------------------
+#: (pack(magic, 0, 0, 0, seq, system, component, id low 16 bits, id high 8 bits, payload fields...),
+#: id low 16 bits, id high 8 bits, CRC_EXTRA): a message's header and payload packed in one call
+#: and then :func:`framed`, the same bytes as :func:`_frame` (and pymavlink) in fewer steps.
+Layout = tuple[Callable[..., bytes], int, int, bytes]
+_LENGTH = [bytes((_MAGIC_V2, n)) for n in range(256)]
+
+
+def layout(msg_class: type, payload_format: str) -> Layout:
+    """The one-pack :data:`Layout` of ``msg_class`` with ``payload_format`` (its wire order; a
+    prefix of its fields is allowed: the rest are zeros, which MAVLink 2 trims anyway)."""
+    msg_id: int = msg_class.id  # type: ignore[attr-defined]
+    return struct.Struct(_HEADER.format + payload_format[1:]).pack, msg_id & 0xFFFF, msg_id >> 16, bytes([msg_class.crc_extra])  # type: ignore[attr-defined]
+
+
+def framed(full: bytes, crc_extra: bytes) -> bytes:
+    """A MAVLink 2 packet of ``full`` (a :data:`Layout`'s pack: the header, length 0, then the whole
+    payload) as pymavlink frames it: the payload's trailing zeros trimmed (at least one byte kept),
+    the length set, the CRC appended."""
+    body = full.rstrip(b"\x00")
+    n = len(body) - _HEADER_BYTES
+    if n < 1:
+        body = full[: _HEADER_BYTES + 1]
+        n = 1
+    packet = _LENGTH[n] + body[2:]
+    return packet + _crc16(crc_extra, _crc16(packet[1:])).to_bytes(2, "little")
+
+
+ATTITUDE_LAYOUT = layout(_ATTITUDE, "<Iffffff")
+LOCAL_POSITION_NED_LAYOUT = layout(_LOCAL_POSITION_NED, "<Iffffff")
+HIGHRES_IMU_LAYOUT = layout(_HIGHRES_IMU, "<QfffffffffffffHB")
+ODOMETRY_LAYOUT = layout(_ODOMETRY, "<Q13f")  # the 13 leading floats: the tail packed on its own
+HIL_ACTUATOR_CONTROLS_LAYOUT = layout(_HIL_ACTUATOR_CONTROLS, "<QQ16fB")
+DEBUG_FLOAT_ARRAY_LAYOUT = layout(_DEBUG_FLOAT_ARRAY, "<QH10s58f")
+_ODO_TAIL = struct.Struct("<21f21fBBBBb").pack
+_ATT_PACK, _ATT_LO, _ATT_HI, _ = ATTITUDE_LAYOUT
+_LPN_PACK, _LPN_LO, _LPN_HI, _ = LOCAL_POSITION_NED_LAYOUT
+_IMU_PACK, _IMU_LO, _IMU_HI, _ = HIGHRES_IMU_LAYOUT
+_ODO_PACK, _ODO_LO, _ODO_HI, _ = ODOMETRY_LAYOUT
+_HIL_PACK, _HIL_LO, _HIL_HI, _ = HIL_ACTUATOR_CONTROLS_LAYOUT
+_DFA_PACK, _DFA_LO, _DFA_HI, _ = DEBUG_FLOAT_ARRAY_LAYOUT
 
 
 def encode_attitude(
@@ -134,8 +186,8 @@ def encode_attitude(
     yawspeed: float,
 ) -> bytes:
     """ATTITUDE packet (angles rad, rates rad/s) with sequence number ``seq`` (0..255)."""
-    payload = _ATTITUDE_PAYLOAD.pack(time_boot_ms, roll, pitch, yaw, rollspeed, pitchspeed, yawspeed)
-    return _frame(payload, seq, src_system, src_component, ID_ATTITUDE, _ATTITUDE_EXTRA)
+    return framed(_ATT_PACK(0xFD, 0, 0, 0, seq, src_system, src_component, _ATT_LO, _ATT_HI, time_boot_ms, roll, pitch, yaw,
+                            rollspeed, pitchspeed, yawspeed), _ATTITUDE_EXTRA)  # fmt: skip
 
 
 def encode_local_position_ned(
@@ -151,8 +203,8 @@ def encode_local_position_ned(
     vz: float,
 ) -> bytes:
     """LOCAL_POSITION_NED packet (positions m, velocities m/s, NED) with sequence number ``seq``."""
-    payload = _LOCAL_POSITION_NED_PAYLOAD.pack(time_boot_ms, x, y, z, vx, vy, vz)
-    return _frame(payload, seq, src_system, src_component, ID_LOCAL_POSITION_NED, _LOCAL_POSITION_NED_EXTRA)
+    return framed(_LPN_PACK(0xFD, 0, 0, 0, seq, src_system, src_component, _LPN_LO, _LPN_HI, time_boot_ms, x, y, z, vx, vy, vz),
+                  _LOCAL_POSITION_NED_EXTRA)  # fmt: skip
 
 
 def encode_hil_actuator_controls(
@@ -166,13 +218,12 @@ def encode_hil_actuator_controls(
 ) -> bytes:
     """HIL_ACTUATOR_CONTROLS packet; ``controls`` holds 16 values (extra ones are ignored, as pymavlink does)."""
     c = controls
-    payload = _HIL_PAYLOAD.pack(
-        time_usec, flags,
+    return framed(_HIL_PACK(
+        0xFD, 0, 0, 0, seq, src_system, src_component, _HIL_LO, _HIL_HI, time_usec, flags,
         c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7],
         c[8], c[9], c[10], c[11], c[12], c[13], c[14], c[15],
         mode,
-    )  # fmt: skip
-    return _frame(payload, seq, src_system, src_component, ID_HIL_ACTUATOR_CONTROLS, _HIL_EXTRA)
+    ), _HIL_EXTRA)  # fmt: skip
 
 
 def encode_debug_float_array(
@@ -190,8 +241,7 @@ def encode_debug_float_array(
     """
     if isinstance(name, str):  # pymavlink keeps str names on messages it built
         name = name.encode("utf-8")
-    payload = _DFA_PAYLOAD.pack(time_usec, array_id, name, *data)
-    return _frame(payload, seq, src_system, src_component, ID_DEBUG_FLOAT_ARRAY, _DFA_EXTRA)
+    return framed(_DFA_PACK(0xFD, 0, 0, 0, seq, src_system, src_component, _DFA_LO, _DFA_HI, time_usec, array_id, name, *data), _DFA_EXTRA)
 
 
 def encode_highres_imu(
@@ -217,11 +267,11 @@ def encode_highres_imu(
 ) -> bytes:
     """HIGHRES_IMU packet: specific force (m/s^2) and rates (rad/s), body FRD; ``fields_updated``
     the HIGHRES_IMU_UPDATED_* bits of the valid fields."""
-    payload = _IMU_PAYLOAD.pack(
+    return framed(_IMU_PACK(
+        0xFD, 0, 0, 0, seq, src_system, src_component, _IMU_LO, _IMU_HI,
         time_usec, xacc, yacc, zacc, xgyro, ygyro, zgyro, xmag, ymag, zmag, abs_pressure, diff_pressure, pressure_alt, temperature,
         fields_updated, imu_id,
-    )  # fmt: skip
-    return _frame(payload, seq, src_system, src_component, ID_HIGHRES_IMU, _IMU_EXTRA)
+    ), _IMU_EXTRA)  # fmt: skip
 
 
 def encode_odometry(
@@ -249,11 +299,69 @@ def encode_odometry(
 ) -> bytes:
     """ODOMETRY packet (``q`` 4 floats w, x, y, z; each covariance 21 floats), arguments in
     pymavlink's ``odometry_encode`` order."""
-    payload = _ODO_PAYLOAD.pack(
-        time_usec, x, y, z, q[0], q[1], q[2], q[3], vx, vy, vz, rollspeed, pitchspeed, yawspeed,
-        *pose_covariance[:21], *velocity_covariance[:21], frame_id, child_frame_id, reset_counter, estimator_type, quality,
-    )  # fmt: skip
-    return _frame(payload, seq, src_system, src_component, ID_ODOMETRY, _ODO_EXTRA)
+    head = _ODO_PACK(0xFD, 0, 0, 0, seq, src_system, src_component, _ODO_LO, _ODO_HI,
+                     time_usec, x, y, z, q[0], q[1], q[2], q[3], vx, vy, vz, rollspeed, pitchspeed, yawspeed)  # fmt: skip
+    tail = _ODO_TAIL(*pose_covariance[:21], *velocity_covariance[:21], frame_id, child_frame_id, reset_counter, estimator_type, quality)
+    return framed(head + tail, _ODO_EXTRA)
+
+
+class TickRecords:
+    """The per-tick messages of one vehicle, encoded: the simulator's state (ATTITUDE,
+    LOCAL_POSITION_NED, HIGHRES_IMU, ODOMETRY: what the simulator process sends and the FC logs)
+    and the FC's answer and record (HIL_ACTUATOR_CONTROLS, the ``SMC`` DEBUG_FLOAT_ARRAY). The one
+    writer of these records: the simulator process sends them, the FC process answers and logs
+    with them, the in-process runner writes its log with them (a compiled flight's rows through
+    the layouts themselves, :attr:`att` ...). The same bytes as the ``encode_*`` functions and
+    pymavlink (tested)."""
+
+    def __init__(self, sysid: int) -> None:
+        self.sysid = sysid
+        self.att = ATTITUDE_LAYOUT
+        self.lpn = LOCAL_POSITION_NED_LAYOUT
+        self.imu = HIGHRES_IMU_LAYOUT
+        self.odo = ODOMETRY_LAYOUT
+        self.act = HIL_ACTUATOR_CONTROLS_LAYOUT
+        self.dfa = DEBUG_FLOAT_ARRAY_LAYOUT
+        #: the SMC record's 31 leading values: the rest are zeros, which MAVLink 2 trims anyway.
+        self.smc31 = layout(_DEBUG_FLOAT_ARRAY, "<QH10s31f")
+        #: ODOMETRY's constant tail in the truth: the covariances (unknown), frames, reset counter, estimator, quality.
+        self.odo_tail = _ODO_TAIL(*COV_UNKNOWN, *COV_UNKNOWN, TRUTH_FRAME, TRUTH_FRAME, 0, TRUTH_ESTIMATOR_TYPE, TRUTH_QUALITY)
+
+    def attitude(self, seq: int, t_ms: int, roll: float, pitch: float, yaw: float, p: float, q: float, r: float) -> bytes:
+        """Attitude (rad, FRD in NED) and body rates (rad/s, FRD)."""
+        return framed(_ATT_PACK(0xFD, 0, 0, 0, seq, self.sysid, SIM_COMPONENT_ID, _ATT_LO, _ATT_HI, t_ms, roll, pitch, yaw, p, q, r),
+                      _ATTITUDE_EXTRA)  # fmt: skip
+
+    def local_position_ned(self, seq: int, t_ms: int, x: float, y: float, z: float, vx: float, vy: float, vz: float) -> bytes:
+        """Position (m) and velocity (m/s), NED."""
+        return framed(_LPN_PACK(0xFD, 0, 0, 0, seq, self.sysid, SIM_COMPONENT_ID, _LPN_LO, _LPN_HI, t_ms, x, y, z, vx, vy, vz),
+                      _LOCAL_POSITION_NED_EXTRA)  # fmt: skip
+
+    def highres_imu(self, seq: int, t_us: int, fx: float, fy: float, fz: float, p: float, q: float, r: float) -> bytes:
+        """Specific force (m/s^2) and rates (rad/s), body FRD; the accelerometer and the gyro updated."""
+        return framed(_IMU_PACK(0xFD, 0, 0, 0, seq, self.sysid, SIM_COMPONENT_ID, _IMU_LO, _IMU_HI, t_us, fx, fy, fz, p, q, r,
+                                0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, IMU_FIELDS_UPDATED, 0), _IMU_EXTRA)  # fmt: skip
+
+    def odometry(self, seq: int, t_us: int, x: float, y: float, z: float, qw: float, qx: float, qy: float, qz: float,
+                 vx: float, vy: float, vz: float, p: float, q: float, r: float) -> bytes:  # fmt: skip
+        """The true state: position and velocity NED (m, m/s), the attitude quaternion (FRD body in
+        NED), body rates FRD (rad/s)."""
+        head = _ODO_PACK(0xFD, 0, 0, 0, seq, self.sysid, SIM_COMPONENT_ID, _ODO_LO, _ODO_HI, t_us, x, y, z, qw, qx, qy, qz, vx, vy, vz, p, q, r)
+        return framed(head + self.odo_tail, _ODO_EXTRA)
+
+    def actuators(self, seq: int, t_us: int, m: Sequence[float], mode: int, flags: int = ACTUATOR_FLAG_LOCKSTEP) -> bytes:
+        """The FC's motor commands (rotors 1..4 in [0, 1]) and mode flags."""
+        return framed(_HIL_PACK(0xFD, 0, 0, 0, seq, self.sysid, FC_COMPONENT_ID, _HIL_LO, _HIL_HI, t_us, flags, m[0], m[1], m[2], m[3],
+                                0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, mode), _HIL_EXTRA)  # fmt: skip
+
+    def smc(self, seq: int, t_us: int, data: Sequence[float]) -> bytes:
+        """The FC's ``SMC`` record of a tick (58 floats)."""
+        return framed(_DFA_PACK(0xFD, 0, 0, 0, seq, self.sysid, FC_COMPONENT_ID, _DFA_LO, _DFA_HI, t_us, SMC_ARRAY_ID, SMC_NAME, *data),
+                      _DFA_EXTRA)  # fmt: skip
+
+
+#: the ``SMC`` record's name as the payload carries it.
+SMC_NAME = SMC_ARRAY_NAME.encode("ascii") if isinstance(SMC_ARRAY_NAME, str) else SMC_ARRAY_NAME
 
 
 def _pack_highres_imu(m: mavlink.MAVLink_message, seq: int, src_system: int, src_component: int) -> bytes:
@@ -275,13 +383,11 @@ def _pack_debug_float_array(m: mavlink.MAVLink_message, seq: int, src_system: in
 
 
 def _pack_attitude(m: mavlink.MAVLink_message, seq: int, src_system: int, src_component: int) -> bytes:
-    payload = _ATTITUDE_PAYLOAD.pack(m.time_boot_ms, m.roll, m.pitch, m.yaw, m.rollspeed, m.pitchspeed, m.yawspeed)
-    return _frame(payload, seq, src_system, src_component, ID_ATTITUDE, _ATTITUDE_EXTRA)
+    return encode_attitude(seq, src_system, src_component, m.time_boot_ms, m.roll, m.pitch, m.yaw, m.rollspeed, m.pitchspeed, m.yawspeed)
 
 
 def _pack_local_position_ned(m: mavlink.MAVLink_message, seq: int, src_system: int, src_component: int) -> bytes:
-    payload = _LOCAL_POSITION_NED_PAYLOAD.pack(m.time_boot_ms, m.x, m.y, m.z, m.vx, m.vy, m.vz)
-    return _frame(payload, seq, src_system, src_component, ID_LOCAL_POSITION_NED, _LOCAL_POSITION_NED_EXTRA)
+    return encode_local_position_ned(seq, src_system, src_component, m.time_boot_ms, m.x, m.y, m.z, m.vx, m.vy, m.vz)
 
 
 def _pack_hil_actuator_controls(m: mavlink.MAVLink_message, seq: int, src_system: int, src_component: int) -> bytes:

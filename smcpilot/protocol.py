@@ -93,6 +93,8 @@ IMU_FIELDS_UPDATED = IMU_ACCEL_BITS | IMU_GYRO_BITS
 TRUTH_FRAME = 1
 TRUTH_ESTIMATOR_TYPE = 6
 TRUTH_QUALITY = 100
+#: ODOMETRY's covariances in the truth: unknown (NaN in the first element, as MAVLink says).
+COV_UNKNOWN = (float("nan"),) + (0.0,) * 20
 
 # -- controllers -----------------------------------------------------------------------------------
 #: The built-in control laws the flight controller flies (FC_CONTROLLER values 0..5; plug-ins follow,

@@ -22,13 +22,14 @@ from fc.params import config_for, options_for
 from ground.logs import load_log, summarize
 from lab.fast.flight import FastRecord
 from lab.metrics import MetricsRecorder
-from lab.run import _COV_UNKNOWN, _Packets, fly, fly_in_process
+from lab.run import fly, fly_in_process
 from lab.runner import simulate
 from sim_bridge.build import plant_for
 from smcpilot import fastcodec
+from smcpilot.fastcodec import TickRecords
 from smcpilot.faults import FaultSpec
 from smcpilot.plan import PlanStep
-from smcpilot.protocol import IMU_FIELDS_UPDATED, SMC_ARRAY_ID, SMC_ARRAY_NAME, TRUTH_ESTIMATOR_TYPE, TRUTH_FRAME, TRUTH_QUALITY
+from smcpilot.protocol import COV_UNKNOWN, IMU_FIELDS_UPDATED, SMC_ARRAY_ID, SMC_ARRAY_NAME, TRUTH_ESTIMATOR_TYPE, TRUTH_FRAME, TRUTH_QUALITY
 from smcpilot.scenario import EnvironmentSpec, Scenario
 from smcpilot.tlog import read_tlog
 
@@ -101,7 +102,7 @@ def test_log_summary_scores_the_truth_of_an_in_process_flight_as_compare_does(tm
 
 def test_the_recorders_framing_is_the_projects_mavlink_encoding() -> None:
     """Random values, zeros (trimmed), NaN, all-zero payloads: the same packets as smcpilot.fastcodec."""
-    enc = _Packets(3)
+    enc = TickRecords(3)
     r = random.Random(7)
     for k in range(2000):
         v = [r.choice((0.0, -0.0, math.nan, 1e-40, r.uniform(-50, 50))) if k % 3 == 0 else r.uniform(-50, 50) for _ in range(13)]
@@ -118,7 +119,7 @@ def test_the_recorders_framing_is_the_projects_mavlink_encoding() -> None:
         assert enc.local_position_ned(seq, t_ms, *v[:6]) == fastcodec.encode_local_position_ned(seq, 3, 200, t_ms, *v[:6]), k
         assert enc.highres_imu(seq, t_us, *v[:6]) == fastcodec.encode_highres_imu(seq, 3, 200, t_us, *v[:6], IMU_FIELDS_UPDATED), k
         assert enc.odometry(seq, t_us, *v) == fastcodec.encode_odometry(
-            seq, 3, 200, t_us, TRUTH_FRAME, TRUTH_FRAME, *v[:3], v[3:7], *v[7:], _COV_UNKNOWN, _COV_UNKNOWN, 0,
+            seq, 3, 200, t_us, TRUTH_FRAME, TRUTH_FRAME, *v[:3], v[3:7], *v[7:], COV_UNKNOWN, COV_UNKNOWN, 0,
             TRUTH_ESTIMATOR_TYPE, TRUTH_QUALITY), k  # fmt: skip
         assert enc.actuators(seq, t_us, v[:4], mode) == fastcodec.encode_hil_actuator_controls(seq, 3, 1, t_us, v[:4] + [0.0] * 12, mode, 1), k
         assert enc.smc(seq, t_us, data) == fastcodec.encode_debug_float_array(seq, 3, 1, t_us, SMC_ARRAY_NAME, SMC_ARRAY_ID, data), k
