@@ -193,6 +193,7 @@ def bench_sitl(args: argparse.Namespace) -> int:
     print(f"smcpilot bench sitl — Python {platform.python_version()}, {args.controller}, 1 kHz physics, 500 Hz control,"
           f" rigid-body plant, demo plan ({args.duration:g} s)")  # fmt: skip
     _bench_codec()
+    _bench_physics()
 
     cfg = FcConfig(controller=args.controller)
     plant = RigidBodyPlant(DEFAULT_VEHICLE)
@@ -279,6 +280,41 @@ def bench_sitl(args: argparse.Namespace) -> int:
 
 def _us(v: float | None) -> str:
     return "n/a" if v is None else f"{v * 1e6:.0f} µs"
+
+
+def _bench_physics(repeat: int = 5) -> None:
+    """The simulator's physics for one control period (two 1 ms steps) of 1 and 16 vehicles: the
+    plants' Python steps against the compiled span (:mod:`sim_bridge.plants.compiled_physics`),
+    alternating in this process."""
+    from sim_bridge.plants import compiled_physics
+    from sim_bridge.plants.rigid_body import RigidBodyPlant
+    from smcpilot.vehicle import DEFAULT_VEHICLE
+
+    print("\nthe simulator's physics per control period (2 × 1 ms steps, hovering rotors), µs:")
+    cmd = (0.6, 0.6, 0.6, 0.6)
+    for k in (1, 16):
+        py = [RigidBodyPlant(DEFAULT_VEHICLE) for _ in range(k)]
+        co = [RigidBodyPlant(DEFAULT_VEHICLE) for _ in range(k)]
+        phys, why = compiled_physics.load(co, compile_new=True)
+        if phys is None:
+            print(f"  (compiled physics not available: {why})")
+            return
+        cmds, armed = [cmd] * k, [True] * k
+
+        def python_period(py: list = py) -> None:
+            for step in range(2):
+                for p in py:
+                    p.step(step * 1e-3, 1e-3, cmd, True)
+
+        def compiled_period(co: list = co, cmds: list = cmds, armed: list = armed, fly: Any = phys.fly) -> None:
+            fly(co, cmds, armed, 0, 1000, 1e-3, 2)
+
+        n = 2000 if k == 1 else 200
+        t_py = t_co = math.inf
+        for _ in range(repeat):
+            t_py = min(t_py, _best_us(python_period, n, 1))
+            t_co = min(t_co, _best_us(compiled_period, n, 1))
+        print(f"  {k:>2} vehicle{'s' if k > 1 else ' '}  Python {t_py:7.1f}   compiled {t_co:6.1f}   ({t_py / t_co:.1f}×)")
 
 
 def _bench_codec() -> None:
