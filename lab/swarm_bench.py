@@ -82,7 +82,8 @@ def _fly(k: int, duration_s: float, lockstep: bool, log_dir: Path) -> dict:
         "cpu_per_vehicle": sum(float(s.get("cpu_s", 0.0)) - float(s.get("cpu_start_s", 0.0)) for s in fcs) / k / duration_s,
         "sys_share": sum(float(s.get("cpu_sys_s", 0.0)) for s in fcs) / max(1e-9, sum(float(s.get("cpu_s", 0.0)) for s in fcs)),
         "skew_s": max(sim_times) - min(sim_times) if sim_times else float("nan"),
-        "sim_cpu": float((sitl.sim_summary or {}).get("cpu_s", float("nan"))) / duration_s,
+        "sim_cpu": (float((sitl.sim_summary or {}).get("cpu_s", float("nan"))) - float((sitl.sim_summary or {}).get("cpu_start_s", 0.0))) / duration_s,
+        "sim_physics": "compiled" if ((sitl.sim_summary or {}).get("physics") or {}).get("compiled") else "Python",
         "missed": overruns / ticks if ticks else float("nan"),
         "p99_ms": 1e3 * max(p99) if p99 else float("nan"),
         "fanout_p99_ms": 1e3 * float(((sitl.sim_summary or {}).get("fanout_skew_s") or {}).get("p99", float("nan"))),
@@ -95,7 +96,8 @@ def bench_swarm(args: argparse.Namespace) -> int:
         raise ConfigError(f"--duration must be > 0 simulated seconds, got {args.duration:g}")
     print(f"bench swarm: {platform.python_implementation()} {platform.python_version()}, {os.cpu_count()} CPUs; lockstep,"
           f" {args.duration:g} simulated s of take-off and hover per run, no ground link")  # fmt: skip
-    print(f"{'K':>4} {'start s':>8} {'wall s':>8} {'veh-s/s':>9} {'vs K=1':>7} {'ticks/s':>9} {'CPU/veh':>8} {'kernel':>7} {'sim CPU':>8} {'skew s':>7}")
+    print(f"{'K':>4} {'start s':>8} {'wall s':>8} {'veh-s/s':>9} {'vs K=1':>7} {'ticks/s':>9} {'CPU/veh':>8} {'kernel':>7} {'sim CPU':>8}"
+          f" {'physics':>9} {'skew s':>7}")  # fmt: skip
     base: float | None = None
     with tempfile.TemporaryDirectory(prefix="smcpilot-bench-swarm-") as tmp:
         for k in counts:
@@ -104,7 +106,7 @@ def bench_swarm(args: argparse.Namespace) -> int:
                 base = r["vehicle_s_per_s"] if k == 1 else base
             ratio = r["vehicle_s_per_s"] / base if base else float("nan")
             print(f"{k:>4} {r['start_s']:>8.2f} {r['wall_s']:>8.2f} {r['vehicle_s_per_s']:>9.2f} {ratio:>6.2f}x {r['ticks_per_s']:>9.0f}"
-                  f" {r['cpu_per_vehicle']:>8.3f} {100 * r['sys_share']:>6.0f}% {r['sim_cpu']:>8.3f} {r['skew_s']:>7.3f}")  # fmt: skip
+                  f" {r['cpu_per_vehicle']:>8.3f} {100 * r['sys_share']:>6.0f}% {r['sim_cpu']:>8.3f} {r['sim_physics']:>9} {r['skew_s']:>7.3f}")  # fmt: skip
         if args.realtime_s > 0:
             print(f"real time, {args.realtime_s:g} s per K at the scenario's 500 Hz:")
             print(f"{'K':>4} {'missed':>8} {'p99 ms':>7} {'skew p99 ms':>12}")
@@ -115,6 +117,8 @@ def bench_swarm(args: argparse.Namespace) -> int:
     print("veh-s/s: simulated vehicle-seconds per wall second (K x simulated s / wall s); vs K=1: the same, over this run's K = 1;"
           " CPU/veh: FC CPU seconds per vehicle per simulated second of flight, start-up left out (kernel: the operating system's share of it: system calls,"
           " wake-ups); skew p99 (real time): wall time from the first to the last"
-          " vehicle's copy of a state; sim CPU: the simulator's CPU seconds per simulated second"
+          " vehicle's copy of a state; sim CPU: the simulator's CPU seconds per simulated second, start-up left out; physics: the"
+          " simulator's physics compiled or stepped in Python (sim --jit auto: compiled when cached and the run has"
+          " 60 vehicle-seconds or more)"
           "; skew: spread of the FCs' final simulated times")  # fmt: skip
     return 0
