@@ -64,7 +64,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the physics compiled with numba (the same states bit for bit; spans with gusts or a timed fault due"
                         " are stepped in Python): auto (when cached, in real time and in lockstep flights of"
                         f" {AUTO_MIN_LOCKSTEP_S:g} vehicle-seconds or more or open-ended; not cached: Python, compiling it in the background"
-                        " for the next runs), wait (always; compile it first if need be: about 10 s once), off (Python);"
+                        " for the next runs), wait (always; compile it first if need be: a few seconds once), off (Python);"
                         " SMCPILOT_JIT=0 also turns it off (default auto)")  # fmt: skip
     p.add_argument("--sysid", type=int, default=1, metavar="N", help="MAVLink system id of the vehicle (default 1)")
     return p

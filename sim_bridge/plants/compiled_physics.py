@@ -18,7 +18,7 @@ non-finite is handed back with the step and vehicle that failed; the caller rais
 would have (``tests/test_compiled_physics.py``).
 
 The compiled code is cached on disk (numba's cache, named after a hash of every source it was
-compiled from): :func:`load` uses it when it is cached or compiles it first (about 10 s once)
+compiled from): :func:`load` uses it when it is cached or compiles it first (a few seconds once)
 when asked to; ``python -m sim_bridge.plants.compiled_physics`` compiles it ahead.
 """
 
@@ -281,7 +281,7 @@ def is_cached() -> bool:
 
 def load(plants: Sequence[Any], *, compile_new: bool) -> tuple[CompiledPhysics | None, str | None]:
     """The compiled physics for ``plants`` (None and why not): from the cache, or compiled first
-    when ``compile_new`` (about 10 s once, said on stderr)."""
+    when ``compile_new`` (a few seconds once, said on stderr)."""
     why = jit_unavailable_reason()
     if why is not None:
         return None, why
