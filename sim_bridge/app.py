@@ -48,6 +48,7 @@ this component are answered with ``PARAM_VALUE`` too.
 
 from __future__ import annotations
 
+import gc
 import json
 import math
 import os
@@ -333,6 +334,7 @@ class SimBridgeApp:
         proximity: Proximity | None = None,
         lost: str = "stop",
         jit: str = "off",
+        freeze_gc: bool = False,
         out: TextIO = sys.stdout,
         monotonic: Callable[[], float] = time.monotonic,
         sleep: Callable[[float], None] = time.sleep,
@@ -340,7 +342,10 @@ class SimBridgeApp:
         """One vehicle (``plant``, ``fc_url``, ``system_id``) or many (``vehicles``: (plant, FC
         URL, system id, spawn offset north/east m) each, with ``proximity`` checking their separation).
         ``jit``: the physics compiled (:mod:`sim_bridge.plants.compiled_physics`) as ``--jit`` says
-        (:data:`smcpilot.jit.JIT_POLICIES`; ``off``, the default here: stepped in Python)."""
+        (:data:`smcpilot.jit.JIT_POLICIES`; ``off``, the default here: stepped in Python).
+        ``freeze_gc``: once started, move every object made so far out of the garbage collector's
+        sight (``gc.freeze``; the process's entry point does: the collector then need not scan
+        numba's and pymavlink's objects again and again during the flight)."""
         self.timing = timing
         self.out = out
         self._mono = monotonic
@@ -375,6 +380,7 @@ class SimBridgeApp:
         self._exit = EXIT_OK
         self._wall_start = 0.0
         self.jit = jit
+        self._freeze_gc = freeze_gc
         #: the compiled physics once loaded (:meth:`_attach_physics`), why not, and the physics steps
         #: it handed back to Python (something drawn or timed acted on the physics).
         self.physics: CompiledPhysics | None = None
@@ -499,6 +505,9 @@ class SimBridgeApp:
         local = " ".join("local={}:{}".format(*v.link.local_address) for v in self.vehicles)
         count = f" vehicles={len(self.vehicles)}" if len(self.vehicles) > 1 else ""
         self._attach_physics()
+        if self._freeze_gc:
+            gc.collect()
+            gc.freeze()
         self.say(f"SIM_READY {fcs} {local} lockstep={tm.lockstep} physics_hz={tm.physics_hz:g} rate_hz={tm.rate_hz:g}{count}"
                  f" pid={os.getpid()}")  # fmt: skip
         self._wall_start = self._mono()

@@ -84,7 +84,7 @@ def build_plant(args: argparse.Namespace, vehicle: VehicleParams):
     return make_plant(args.plant, vehicle, env, args.seed)
 
 
-def swarm_app(scenario: Scenario, fc_urls: Sequence[str], timing: BridgeTiming, *, jit: str = "off") -> SimBridgeApp:
+def swarm_app(scenario: Scenario, fc_urls: Sequence[str], timing: BridgeTiming, *, jit: str = "off", freeze_gc: bool = False) -> SimBridgeApp:
     """The bridge of a swarm scenario: every vehicle's plant (its own seed, faults, spawn) on one clock."""
     fleet = scenario.fleet()
     if len(fc_urls) != len(fleet):
@@ -98,6 +98,7 @@ def swarm_app(scenario: Scenario, fc_urls: Sequence[str], timing: BridgeTiming, 
         proximity=Proximity(len(fleet), swarm.separation_m, contact),
         lost=swarm.lost,
         jit=jit,
+        freeze_gc=freeze_gc,
     )
 
 
@@ -133,12 +134,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         fc_urls = args.fc or ["udp:127.0.0.1:14560"]
         if scenario is not None and scenario.swarm is not None:
-            app = swarm_app(scenario, fc_urls, timing, jit=args.jit)
+            app = swarm_app(scenario, fc_urls, timing, jit=args.jit, freeze_gc=True)
         else:
             if len(fc_urls) != 1:
                 raise ConfigError(f"{len(fc_urls)} --fc links for one vehicle (a swarm scenario takes one per vehicle)")
             plant = plant_for(scenario) if scenario is not None else build_plant(args, vehicle)
-            app = SimBridgeApp(plant, fc_url=fc_urls[0], timing=timing, system_id=args.sysid, jit=args.jit)
+            app = SimBridgeApp(plant, fc_url=fc_urls[0], timing=timing, system_id=args.sysid, jit=args.jit, freeze_gc=True)
     except (SmcpilotError, OSError) as exc:
         print(f"sim_bridge: error: {exc}", file=sys.stderr)
         return EXIT_CONFIG
