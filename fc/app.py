@@ -74,7 +74,7 @@ from fc.streams import StreamScheduler
 from smcpilot.clock import SimClock, WallClock
 from smcpilot.complaints import Complaints
 from smcpilot.errors import LinkError, RateMismatchError, TlogError, WatchdogError
-from smcpilot.fastcodec import TickRecords
+from smcpilot.fastcodec import TickRecords, decode_state_datagram
 from smcpilot.faults import SIM_PARAM_INDEX
 from smcpilot.geo import Home
 from smcpilot.impair import LinkImpairment
@@ -232,16 +232,21 @@ class FcStats:
 
 
 def state_from_mavlink(att: mavlink.MAVLink_attitude_message, pos: mavlink.MAVLink_local_position_ned_message):
-    """(VehicleState in the paper frame, body rates FLU, missing) from the two wire messages.
+    """:func:`state_from_wire` of the two wire messages."""
+    return state_from_wire((att.roll, att.pitch, att.yaw, att.rollspeed, att.pitchspeed, att.yawspeed,
+                            pos.x, pos.y, pos.z, pos.vx, pos.vy, pos.vz))  # fmt: skip
+
+
+def state_from_wire(vals: tuple[float, ...]):  # type: ignore[no-untyped-def]
+    """(VehicleState in the paper frame, body rates FLU, missing) from the 12 wire values
+    (:data:`smcpilot.wire.WIRE_FIELDS`: ATTITUDE's angles and rates, LOCAL_POSITION_NED's position
+    and velocity).
 
     A field the simulator did not measure is NaN on the wire (a sensor dropout: gyro -> the
     rates, attitude -> the angles, position -> x/y/z, velocity -> vx/vy/vz) and stays NaN here,
     for the flight core's estimate (:mod:`fc.estimate`) to handle; an infinite value (garbage)
     becomes NaN too. ``missing`` is 0 when every field is finite, 1 if some are NaN, 2 if some
     were infinite."""
-    vals: tuple[float, ...] = (
-        att.roll, att.pitch, att.yaw, att.rollspeed, att.pitchspeed, att.yawspeed, pos.x, pos.y, pos.z, pos.vx, pos.vy, pos.vz
-    )  # fmt: skip
     missing = 0
     for v in vals:
         if not _isfinite(v):
@@ -323,8 +328,13 @@ class FlightControllerApp:
             raise
         # Log-only messages have their own sequence numbers: the links' numbering stays gap-free.
         self._logmav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=FC_COMPONENT)
-        #: the tick's answer and log record, encoded (the in-process runner writes the same records)
+        #: the tick's log record and its answer to the simulator (the simulator's system id), encoded
+        #: (the in-process runner writes the same records)
         self._records = TickRecords(sysid)
+        self._sim_records = TickRecords(sim_sysid)
+        #: decode the simulator's per-tick datagram straight to values (else every datagram goes
+        #: through the link's full parse into message objects; the same result, slower)
+        self._fast_states = self.sim.signing is None
         gcs = self.gcs
         #: the flight core: the one control tick (plan, modes, failsafes, pipeline, events).
         self.core = FlightCore(
@@ -714,82 +724,120 @@ class FlightControllerApp:
         stamp not newer than the last one (stale) or implausibly far ahead (future)."""
         got = False
         sim = self.sim
-        messages: list[tuple[mavlink.MAVLink_message, Address]] = []
+        fast = self._fast_states
         for data, addr in sim.recv_datagrams():
-            if self._sim_peer is not None and addr != self._sim_peer:
-                # not the simulator: parsed (and counted) as ground work, least important
-                self.intake.put(OTHER, (sim, data, addr), self._period_no)
-            else:
-                messages.extend(sim.parse(data, addr))
-        for msg, addr in messages:
             peer = self._sim_peer
             if peer is not None and addr != peer:
-                if type(msg) is _IMU_MSG or msg.id == _TRUTH_ID:
-                    self.stats.foreign_imu += 1
-                elif msg.id == _LPN_ID:  # one per state (ATTITUDE + LOCAL_POSITION_NED)
-                    self.stats.foreign_states += 1
+                # not the simulator: parsed (and counted) as ground work, least important
+                self.intake.put(OTHER, (sim, data, addr), self._period_no)
                 continue
-            if type(msg) is _IMU_MSG:
-                self._imu = (msg, addr)
-                continue
-            mid = msg.id
-            if mid == _ATTITUDE_ID:
-                self._att = msg
-            elif mid == _TRUTH_ID:
-                self._truth = (msg, addr)
-            elif mid == _LPN_ID:
-                att = self._att
-                imu, truth = self._imu, self._truth
-                self._imu = self._truth = None
-                if att is None or att.time_boot_ms != msg.time_boot_ms:
+            if fast and peer is not None:
+                # the simulator's per-tick datagram, decoded straight to values (anything else:
+                # the link's full parse below, which counts and checks it the same way)
+                d = decode_state_datagram(data, self._sim_sysid)
+                if d is not None and d[0][0] == d[3][0]:  # (stamps that differ: the full parse says so)
+                    sim.heard(addr, 4)
+                    att, imu, odo, lpn, (p_att, p_imu, p_odo, p_lpn) = d
+                    self._att = None
+                    self._imu = self._truth = None
+                    if self._take_state(
+                        lpn[0], (*att[1:7], *lpn[1:7]), (imu[0], imu[14], imu[1], imu[2], imu[3], p_imu, addr), (odo[0], p_odo, addr),
+                        p_att, p_lpn, addr,
+                    ):  # fmt: skip
+                        got = True
                     continue
-                self._att = None
-                if peer is None:
-                    self._sim_peer = addr
-                t_ms = msg.time_boot_ms
-                if not self._stamp_ok(t_ms):
-                    continue
-                got = True
-                state, rates, missing = state_from_mavlink(att, msg)
-                if missing:
-                    self.stats.states_missing_fields += 1
-                    if missing == 2:
-                        self.stats.rx_invalid_state += 1
-                self.accel_frd, extra = self._take_imu_truth(imu, truth, addr, t_ms)
-                if self.tlog is not None:  # stamped as the link stamped it: before the clock moves
-                    self.tlog.write_many(self.clock.now_us(), (att.get_msgbuf(), msg.get_msgbuf(), *extra))
-                self.state = state
-                if not missing or (_isfinite(rates[0]) and _isfinite(rates[1]) and _isfinite(rates[2])):
-                    self.body_rates = rates
-                self._state_ms = t_ms
-                self._state_wall_s = self._mono()
-                if self.lockstep:
-                    self.clock.set_us(t_ms * 1000)  # type: ignore[union-attr]
-                    self._tick(t_ms * 1000, stale=False)
-                    if self.duration_s is not None and t_ms * 1e-3 >= self.duration_s:
-                        self._stop = True
-            elif type(msg) is _STATUSTEXT:  # its field "id" (the chunk id) hides the message id
-                self._log_sim(msg)
-                self._relay_sim_text(msg)
-            elif mid == mavlink.MAVLINK_MSG_ID_PARAM_VALUE:
-                self._log_sim(msg)
-                self._sim_param_value(msg)
-            elif mid == _HEARTBEAT_ID and msg.system_status == _POWEROFF and not self._stop:
-                # The simulator's clean end (not logged: in lockstep it may come after the last tick or not).
-                self.say("fc: the simulator has ended; stopping")
-                self._stop = True
+            for msg, src in sim.parse(data, addr):
+                if self._on_sim_message(msg, src):
+                    got = True
         if sim.peer_refused and not self._stop:
             silent_s = max(0.0, self._mono() - self._state_wall_s) if self._state_wall_s > -math.inf else 0.0
             raise WatchdogError(f"simulator has been silent for {silent_s:.1f} s and its port is closed"
                                 " (the simulator process has died); stopping")  # fmt: skip
         return got
 
-    def _take_imu_truth(
-        self, imu: tuple[mavlink.MAVLink_message, Address] | None, truth: tuple[mavlink.MAVLink_message, Address] | None,
-        addr: Address, t_ms: int,
-    ) -> tuple[tuple[float, float, float] | None, tuple[bytes, ...]]:  # fmt: skip
-        """The IMU and the truth that came with the state stamped ``t_ms`` from ``addr``: (the
-        accelerometer's specific force for the law, or None; the messages to log with the state).
+    def _on_sim_message(self, msg: mavlink.MAVLink_message, addr: Address) -> bool:
+        """One message of the simulator's traffic (parsed by the link); True if a state was
+        flown (lockstep) or taken (real time)."""
+        peer = self._sim_peer
+        if peer is not None and addr != peer:
+            if type(msg) is _IMU_MSG or msg.id == _TRUTH_ID:
+                self.stats.foreign_imu += 1
+            elif msg.id == _LPN_ID:  # one per state (ATTITUDE + LOCAL_POSITION_NED)
+                self.stats.foreign_states += 1
+            return False
+        if type(msg) is _IMU_MSG:
+            self._imu = (msg, addr)
+            return False
+        mid = msg.id
+        if mid == _ATTITUDE_ID:
+            self._att = msg
+        elif mid == _TRUTH_ID:
+            self._truth = (msg, addr)
+        elif mid == _LPN_ID:
+            att = self._att
+            imu, truth = self._imu, self._truth
+            self._imu = self._truth = None
+            if att is None or att.time_boot_ms != msg.time_boot_ms:
+                return False
+            self._att = None
+            if imu is not None:
+                m, src = imu
+                imu_v = (m.time_usec, m.fields_updated, m.xacc, m.yacc, m.zacc, m.get_msgbuf(), src)
+            if truth is not None:
+                m, src = truth
+                truth_v = (m.time_usec, m.get_msgbuf(), src)
+            return self._take_state(
+                msg.time_boot_ms, (att.roll, att.pitch, att.yaw, att.rollspeed, att.pitchspeed, att.yawspeed,
+                                   msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz),
+                imu_v if imu is not None else None, truth_v if truth is not None else None, att.get_msgbuf(), msg.get_msgbuf(), addr,
+            )  # fmt: skip
+        elif type(msg) is _STATUSTEXT:  # its field "id" (the chunk id) hides the message id
+            self._log_sim(msg)
+            self._relay_sim_text(msg)
+        elif mid == mavlink.MAVLINK_MSG_ID_PARAM_VALUE:
+            self._log_sim(msg)
+            self._sim_param_value(msg)
+        elif mid == _HEARTBEAT_ID and msg.system_status == _POWEROFF and not self._stop:
+            # The simulator's clean end (not logged: in lockstep it may come after the last tick or not).
+            self.say("fc: the simulator has ended; stopping")
+            self._stop = True
+        return False
+
+    def _take_state(self, t_ms: int, wire: tuple[float, ...], imu: tuple | None, truth: tuple | None,
+                    att_packet: bytes, lpn_packet: bytes, addr: Address) -> bool:  # fmt: skip
+        """A state from the simulator (``wire``: the 12 wire values stamped ``t_ms``, with the IMU
+        and the truth that came with it and the two packets, logged as they came); flies the
+        tick in lockstep. False when its stamp is not the next one's (counted)."""
+        if self._sim_peer is None:
+            self._sim_peer = addr
+        if not self._stamp_ok(t_ms):
+            return False
+        state, rates, missing = state_from_wire(wire)
+        if missing:
+            self.stats.states_missing_fields += 1
+            if missing == 2:
+                self.stats.rx_invalid_state += 1
+        self.accel_frd, extra = self._take_imu_truth(imu, truth, addr, t_ms)
+        if self.tlog is not None:  # stamped as the link stamped it: before the clock moves
+            self.tlog.write_many(self.clock.now_us(), (att_packet, lpn_packet, *extra))
+        self.state = state
+        if not missing or (_isfinite(rates[0]) and _isfinite(rates[1]) and _isfinite(rates[2])):
+            self.body_rates = rates
+        self._state_ms = t_ms
+        self._state_wall_s = self._mono()
+        if self.lockstep:
+            self.clock.set_us(t_ms * 1000)  # type: ignore[union-attr]
+            self._tick(t_ms * 1000, stale=False)
+            if self.duration_s is not None and t_ms * 1e-3 >= self.duration_s:
+                self._stop = True
+        return True
+
+    def _take_imu_truth(self, imu: tuple | None, truth: tuple | None, addr: Address, t_ms: int,
+                        ) -> tuple[tuple[float, float, float] | None, tuple[bytes, ...]]:  # fmt: skip
+        """The IMU ((time_usec, fields_updated, xacc, yacc, zacc, packet, sender) of HIGHRES_IMU)
+        and the truth ((time_usec, packet, sender) of ODOMETRY) that came with the state stamped
+        ``t_ms`` from ``addr``: (the accelerometer's specific force for the law, or None; the
+        packets to log with the state).
         Only the state's own (same address, same stamp) are taken; a bad one is counted and
         dropped with a rate-limited message. The truth is logged, never flown on."""
         stats = self.stats
@@ -799,34 +847,34 @@ class FlightControllerApp:
         if imu is None:
             stats.states_without_imu += 1
         else:
-            m, src = imu
+            time_usec, fields_updated, xacc, yacc, zacc, packet, src = imu
             if src != addr:
                 stats.foreign_imu += 1
                 stats.states_without_imu += 1
-            elif m.time_usec // 1000 != t_ms:
+            elif time_usec // 1000 != t_ms:
                 stats.states_without_imu += 1
-                bad("imu_stamp", f"HIGHRES_IMU stamped {m.time_usec * 1e-6:.6f} s with the state of {t_ms * 1e-3:.3f} s (stale or garbled)")
-            elif m.fields_updated & IMU_ACCEL_BITS != IMU_ACCEL_BITS:
+                bad("imu_stamp", f"HIGHRES_IMU stamped {time_usec * 1e-6:.6f} s with the state of {t_ms * 1e-3:.3f} s (stale or garbled)")
+            elif fields_updated & IMU_ACCEL_BITS != IMU_ACCEL_BITS:
                 stats.states_without_imu += 1
-                bad("imu_no_accel", f"HIGHRES_IMU without the accelerometer (fields_updated 0x{m.fields_updated:x})")
+                bad("imu_no_accel", f"HIGHRES_IMU without the accelerometer (fields_updated 0x{fields_updated:x})")
             else:
-                a = (m.xacc, m.yacc, m.zacc)
+                a = (xacc, yacc, zacc)
                 if _isfinite(a[0]) and _isfinite(a[1]) and _isfinite(a[2]):
                     accel = a
                 else:  # NaN: the accelerometer dropped out; infinite: garbage, said; both "not measured"
                     stats.imu_accel_missing += 1
                     if any(v == v for v in a if not _isfinite(v)):
                         bad("imu_nonfinite", f"HIGHRES_IMU with an infinite accelerometer value {a} (taken as not measured)")
-                logged.append(m.get_msgbuf())  # as it came, like a state with NaN fields
+                logged.append(packet)  # as it came, like a state with NaN fields
                 stats.imu_msgs += 1
         if truth is not None:
-            m, src = truth
+            time_usec, packet, src = truth
             if src != addr:
                 stats.foreign_imu += 1
-            elif m.time_usec // 1000 != t_ms:
-                bad("truth_stamp", f"ODOMETRY stamped {m.time_usec * 1e-6:.6f} s with the state of {t_ms * 1e-3:.3f} s (stale or garbled)")
+            elif time_usec // 1000 != t_ms:
+                bad("truth_stamp", f"ODOMETRY stamped {time_usec * 1e-6:.6f} s with the state of {t_ms * 1e-3:.3f} s (stale or garbled)")
             else:
-                logged.append(m.get_msgbuf())
+                logged.append(packet)
                 stats.truth_msgs += 1
         return accel, tuple(logged)
 
@@ -1025,7 +1073,7 @@ class FlightControllerApp:
 
     def _actuator_packet(self, t_us: int, out: TickOutput) -> bytes:
         """The tick's answer to the simulator: HIL_ACTUATOR_CONTROLS, controls[0..3] our rotors 1..4."""
-        return self._records.actuators(self.sim.take_seq(), t_us, out.motors, _ARMED if out.armed else 0,
+        return self._sim_records.actuators(self.sim.take_seq(), t_us, out.motors, _ARMED if out.armed else 0,
                                        ACTUATOR_FLAG_LOCKSTEP if self.lockstep else 0)  # fmt: skip
 
     def _item_reached(self, seq: int) -> None:

@@ -61,6 +61,7 @@ __all__ = [
     "layout",
     "framed",
     "TickRecords",
+    "decode_state_datagram",
 ]
 
 _crc16 = mavlink.mcrf4xx
@@ -513,3 +514,49 @@ def decode_packet(packet: bytes) -> mavlink.MAVLink_message | None:
     """
     msg_id = packet[7] | (packet[8] << 8) | (packet[9] << 16)
     return _DECODERS[msg_id](packet)
+
+
+# -- the simulator's per-tick datagram, decoded straight to values ---------------------------------
+#: (message id, CRC_EXTRA, payload unpack_from, full payload length) of the simulator's per-tick
+#: datagram, in the order the simulator sends them: ATTITUDE, HIGHRES_IMU, ODOMETRY, LOCAL_POSITION_NED.
+_STATE_LAYOUT = (
+    (ID_ATTITUDE, _ATTITUDE_EXTRA, _ATTITUDE_PAYLOAD.unpack_from, _ATTITUDE_PAYLOAD.size),
+    (ID_HIGHRES_IMU, _IMU_EXTRA, _IMU_PAYLOAD.unpack_from, _IMU_PAYLOAD.size),
+    (ID_ODOMETRY, _ODO_EXTRA, _ODO_PAYLOAD.unpack_from, _ODO_PAYLOAD.size),
+    (ID_LOCAL_POSITION_NED, _LOCAL_POSITION_NED_EXTRA, _LOCAL_POSITION_NED_PAYLOAD.unpack_from, _LOCAL_POSITION_NED_PAYLOAD.size),
+)
+_ZERO_PAD = bytes(256)
+
+
+def decode_state_datagram(data: bytes, system: int) -> tuple[tuple, tuple, tuple, tuple, tuple[bytes, bytes, bytes, bytes]] | None:
+    """The simulator's per-tick datagram (ATTITUDE, HIGHRES_IMU, ODOMETRY, LOCAL_POSITION_NED from
+    ``system``'s simulator component, unsigned MAVLink 2, as :class:`TickRecords` writes them),
+    decoded straight to values: (ATTITUDE's fields, HIGHRES_IMU's, ODOMETRY's (in wire order), LOCAL_POSITION_NED's,
+    the four packets' bytes), each field tuple in pymavlink's wire order and with its values (the
+    same floats: float32 widened). None for anything else (another layout, a signed or foreign
+    packet, a bad CRC, trailing bytes): the link's full parse then handles it, counts and all."""
+    out = []
+    packets = []
+    i = 0
+    size = len(data)
+    for msg_id, extra, unpack_from, full in _STATE_LAYOUT:
+        if i + 12 > size or data[i] != 0xFD or data[i + 2] or data[i + 3]:
+            return None
+        n = data[i + 1]
+        end = i + 12 + n
+        if (end > size or data[i + 5] != system or data[i + 6] != SIM_COMPONENT_ID
+                or (data[i + 7] | (data[i + 8] << 8) | (data[i + 9] << 16)) != msg_id):  # fmt: skip
+            return None
+        body_end = end - 2
+        if _crc16(extra, _crc16(data[i + 1 : body_end])) != data[body_end] | (data[body_end + 1] << 8):
+            return None
+        payload = data[i + 10 : body_end]
+        if n < full:
+            payload += _ZERO_PAD[: full - n]
+        out.append(unpack_from(payload))
+        packets.append(data[i:end])
+        i = end
+    if i != size:
+        return None
+    return out[0], out[1], out[2], out[3], (packets[0], packets[1], packets[2], packets[3])
+

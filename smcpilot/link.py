@@ -690,6 +690,14 @@ class MavlinkUdp:
             self._heard(addr, self._monotonic_s())
         return received
 
+    def heard(self, addr: Address, messages: int) -> None:
+        """A datagram from :meth:`recv_datagrams` that its owner decoded itself (an unsigned one:
+        on a link with signing on, use :meth:`parse`): count its ``messages`` good messages and
+        refresh the sender's peer entry, as :meth:`parse` would have."""
+        self.counters.rx_messages += messages
+        self._rx_signed = False
+        self._heard(addr, self._monotonic_s())
+
     def _take_datagrams(self, max_datagrams: int) -> list[tuple[bytes, Address]]:
         """Up to ``max_datagrams`` datagrams off the socket (counted), without waiting."""
         recvfrom = self._sock.recvfrom

@@ -190,3 +190,64 @@ def test_odometry_matches_pymavlink(
     assert got == expected
     assert fastcodec.pack_message(msg, seq, system, component) == expected
     assert_round_trip(expected)
+
+
+# -- the simulator's per-tick datagram, decoded straight to values ---------------------------------
+_F32 = st.one_of(st.floats(width=32), st.sampled_from([0.0, -0.0, math.nan, math.inf, -math.inf]))
+
+
+def _same(a: object, b: object) -> bool:
+    """Equal, NaN equal to NaN (and the sign of a zero counted)."""
+    if isinstance(a, float) and isinstance(b, float):
+        return struct.pack("<d", a) == struct.pack("<d", b) or (a != a and b != b)
+    return a == b
+
+
+def _state_datagram(sysid: int, seq: int, t_us: int, v: list[float]) -> bytes:
+    rec = fastcodec.TickRecords(sysid)
+    t_ms = (t_us // 1000) & 0xFFFFFFFF
+    return b"".join((
+        rec.attitude(seq, t_ms, *v[0:6]),
+        rec.highres_imu((seq + 1) & 0xFF, t_us, *v[6:12]),
+        rec.odometry((seq + 2) & 0xFF, t_us, *v[12:25]),
+        rec.local_position_ned((seq + 3) & 0xFF, t_ms, *v[25:31]),
+    ))  # fmt: skip
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(1, 255), st.integers(0, 255), st.integers(0, 2**42), st.lists(_F32, min_size=31, max_size=31))
+@example(1, 0, 0, [0.0] * 31)  # every payload trimmed to one byte
+def test_the_simulators_datagram_decodes_to_pymavlinks_values(sysid: int, seq: int, t_us: int, v: list[float]) -> None:
+    data = _state_datagram(sysid, seq, t_us, v)
+    d = fastcodec.decode_state_datagram(data, sysid)
+    assert d is not None
+    msgs = mavlink.MAVLink(None).parse_buffer(data)
+    assert [m.get_type() for m in msgs] == ["ATTITUDE", "HIGHRES_IMU", "ODOMETRY", "LOCAL_POSITION_NED"]
+    for values, m, packet in zip(d[:4], msgs, d[4]):
+        cls = type(m)
+        assert bytes(packet) == bytes(m.get_msgbuf())
+        # the payload's fields in wire order, as pymavlink decoded them (arrays flattened)
+        wire: list[object] = []
+        for name in cls.ordered_fieldnames:
+            f = getattr(m, name)
+            wire.extend(f if isinstance(f, list) else [f])
+        assert len(values) == len(wire) and all(_same(a, b) for a, b in zip(values, wire)), cls.__name__
+
+
+def test_anything_but_the_simulators_datagram_goes_to_the_full_parse() -> None:
+    v = [0.1 * i for i in range(31)]
+    good = _state_datagram(3, 7, 123_456_789, v)
+    assert fastcodec.decode_state_datagram(good, 3) is not None
+    att_len = 12 + good[1]
+    cases = {
+        "another system": fastcodec.decode_state_datagram(good, 4),
+        "a corrupted byte": fastcodec.decode_state_datagram(good[:20] + bytes([good[20] ^ 1]) + good[21:], 3),
+        "cut short": fastcodec.decode_state_datagram(good[:-1], 3),
+        "a byte more": fastcodec.decode_state_datagram(good + b"\x00", 3),
+        "three messages": fastcodec.decode_state_datagram(good[att_len:], 3),
+        "reordered": fastcodec.decode_state_datagram(good[att_len:] + good[:att_len], 3),
+        "a signed packet": fastcodec.decode_state_datagram(good[:2] + b"\x01" + good[3:], 3),
+        "a STATUSTEXT after": fastcodec.decode_state_datagram(
+            good + mavlink.MAVLink(None, srcSystem=3, srcComponent=200).statustext_encode(4, b"SIM: hello").pack(mavlink.MAVLink(None, 3, 200)), 3),
+    }  # fmt: skip
+    assert all(d is None for d in cases.values()), [k for k, d in cases.items() if d is not None]
