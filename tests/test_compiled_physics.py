@@ -178,3 +178,26 @@ def test_the_simulator_process_flies_the_same_compiled_and_in_python(tmp_path) -
             assert not phys["compiled"] and phys["why_not"] == "--jit off", phys
         logs[jit] = (tmp_path / jit / f"{jit}.tlog").read_bytes()
     assert len(logs["off"]) > 100_000 and logs["wait"] == logs["off"]
+
+
+@needs_jit
+def test_a_live_change_between_spans_reaches_the_compiled_rows() -> None:
+    """A SIM_* parameter set between two states (a force, a motor's efficiency, the paper's
+    disturbances) acts from the next span on, compiled as in Python; so does a reset."""
+    a, b, phys = _pair(Scenario())
+    cmd = (0.65, 0.65, 0.65, 0.65)
+    t_us = 0
+    changes = {50: ("SIM_DIST_FN", 0.8), 120: ("SIM_ENGINE_FAIL", 2.0), 121: ("SIM_ENGINE_MUL", 0.7), 200: ("SIM_PAPER_DIST", 1.0),
+               260: ("SIM_DIST_FN", 0.0)}  # fmt: skip
+    for tick in range(400):
+        if tick in changes:
+            for p in (a, b):
+                p.faults.set_param(*changes[tick], t_us * 1e-6)  # type: ignore[union-attr]
+        if tick == 300:
+            for p in (a, b):
+                p.reset(position_m=(1.0, 2.0, 3.0), yaw_rad=0.5, t_s=t_us * 1e-6)
+        _python_steps([a], [cmd], [True], t_us, 2)
+        assert phys.fly([b], [cmd], [True], t_us, DT_US, DT_S, 2) is None, tick
+        t_us += 2 * DT_US
+        assert _fields(a) == _fields(b), tick
+    assert phys.steps == 800

@@ -37,23 +37,23 @@ from smcpilot.errors import DivergenceError
 from smcpilot.jit import cache_index, compile_pure, jit_unavailable_reason, say_once
 
 #: a vehicle's row of the ``io`` array: the 17 states (in and out), the motor commands (4, in [0, 1]),
-#: armed (0/1), the force (world NWU, N) and torque (body FLU, N m) held over the span, the rotor
-#: efficiencies (4), the paper's disturbances (0/1), the heading's whole turns and its value at the
-#: start (rad; both in and out), the last step's acceleration (world, m/s^2; out), the sub-steps a
-#: physics step and their length (s), and active (0: not stepped).
+#: armed (0/1), active (0: not stepped), the force (world NWU, N) and torque (body FLU, N m) held
+#: over the span, the rotor efficiencies (4), the paper's disturbances (0/1), the heading's whole
+#: turns and its value at the start (rad; both in and out), the last step's acceleration (world,
+#: m/s^2; out), the sub-steps a physics step and their length (s).
 IO_STATE = 0
 IO_CMD = 17
 IO_ARMED = 21
-IO_FORCE = 22
-IO_TORQUE = 25
-IO_EFF = 28
-IO_PAPER = 32
-IO_TURNS = 33
-IO_PSI = 34
-IO_ACCEL = 35
-IO_NSUB = 38
-IO_H = 39
-IO_ACTIVE = 40
+IO_ACTIVE = 22
+IO_FORCE = 23
+IO_TORQUE = 26
+IO_EFF = 29
+IO_PAPER = 33
+IO_TURNS = 34
+IO_PSI = 35
+IO_ACCEL = 36
+IO_NSUB = 39
+IO_H = 40
 IO_SIZE = 41
 #: a vehicle's row of the constants: :class:`RigidBodyParams` with ground contact as 0/1 and its
 #: ``deriv`` tuple (12 floats) after the first 13 fields.
@@ -181,6 +181,10 @@ class CompiledPhysics:
         self.pp = np.zeros((n, PP_SIZE))
         self.out = np.zeros(OUT_SIZE)
         self._rows = {id(p): i for i, p in enumerate(self.plants)}
+        #: per row: (state, step input, force, torque, dt) as the last span left them (None: reload
+        #: the row from the plant); the rows flown last time.
+        self._known: list[tuple | None] = [None] * n
+        self._active: list[int] = []
         for i, p in enumerate(self.plants):
             if isinstance(p, RigidBodyPlant):
                 self.pp[i] = params_row(p.params)
@@ -201,31 +205,47 @@ class CompiledPhysics:
                 return why
         io = self.io
         rows = self._rows
-        io[:, IO_ACTIVE] = 0.0
+        known = self._known
         inputs = []
+        active = []
         for p, cmd, on in zip(plants, commands, armed):
             i = rows[id(p)]
             u, force, torque = _span_input(p)
-            n = math.ceil(dt_s / p.max_step_s - 1e-9)
-            if n < 1:
-                n = 1
-            io[i, :IO_SIZE] = (*p._s, cmd[0], cmd[1], cmd[2], cmd[3], 1.0 if on else 0.0, *force, *torque, *u.motor_eff,
-                               1.0 if u.paper_disturbance else 0.0, u.psi_turns, p._psi, *p._accel, n, dt_s / n, 1.0)  # fmt: skip
-            inputs.append((i, p, u))
+            k = known[i]
+            if k is not None and k[0] is p._s and k[1] == u and k[2] == force and k[3] == torque and k[4] == dt_s:
+                # the row holds this plant's state as the last span left it: only the commands change
+                io[i, IO_CMD : IO_ACTIVE + 1] = (cmd[0], cmd[1], cmd[2], cmd[3], 1.0 if on else 0.0, 1.0)
+            else:
+                n = math.ceil(dt_s / p.max_step_s - 1e-9)
+                if n < 1:
+                    n = 1
+                io[i, :IO_SIZE] = (*p._s, cmd[0], cmd[1], cmd[2], cmd[3], 1.0 if on else 0.0, 1.0, *force, *torque, *u.motor_eff,
+                                   1.0 if u.paper_disturbance else 0.0, u.psi_turns, p._psi, *p._accel, n, dt_s / n)  # fmt: skip
+            inputs.append((i, p, u, force, torque))
+            active.append(i)
+        if active != self._active:  # the rows flown last time that are not flown now
+            for i in self._active:
+                if i not in active:
+                    io[i, IO_ACTIVE] = 0.0
+            self._active = active
         done = self._entry(io, self.pp, t_us0, dt_us, dt_s, n_steps, self.out)
         self.steps += done
         failed = int(self.out[0]) if done < n_steps else -1
-        for i, p, u in inputs:
-            row = io[i]
+        for i, p, u, force, torque in inputs:
             # the steps this vehicle completed: in the failing step, those before the failing one flew it
             flown = n_steps if failed < 0 else done + 1 if i < failed else done
             if flown == 0 and i != failed:
                 continue
-            p._s = tuple(row[:17].tolist())
-            p._accel = tuple(row[IO_ACCEL : IO_ACCEL + 3].tolist())
-            p._input = StepInput(u.motor_eff, u.paper_disturbance, float(row[IO_TURNS]))
+            row = io[i].tolist()
+            p._s = s = tuple(row[:17])
+            p._accel = (row[IO_ACCEL], row[IO_ACCEL + 1], row[IO_ACCEL + 2])
+            turns = row[IO_TURNS]
+            if turns != u.psi_turns:
+                u = StepInput(u.motor_eff, u.paper_disturbance, turns)
+            p._input = u
+            known[i] = (s, u, force, torque, dt_s) if failed < 0 else None
             if flown > 0:
-                p._psi = float(row[IO_PSI])
+                p._psi = row[IO_PSI]
                 p._t_s = (t_us0 + (flown - 1) * dt_us) * 1e-6 + dt_s
                 p._obs_cache = None
         if failed >= 0:
