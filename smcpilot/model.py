@@ -20,8 +20,9 @@ the truth and adds disturbances d. Both build a :class:`PaperModel` from the sam
 :class:`~smcpilot.vehicle.VehicleParams`, so the equations exist once.
 
 All methods take and return plain floats (they sit in the hot path). The equations the control
-law needs (:func:`unmix`, :func:`omega_bar`, :func:`drift`, :func:`drift_rates`, :func:`tilt_cos`)
-are module-level pure functions of :meth:`PaperModel.consts`, a :class:`ModelConsts` NamedTuple of
+law and the paper's plant need (:func:`unmix`, :func:`mix`, :func:`actuation`, :func:`omega_bar`,
+:func:`drift`, :func:`accelerations`, :func:`drift_rates`, :func:`horizontal_accelerations`,
+:func:`tilt_cos`) are module-level pure functions of :meth:`PaperModel.consts`, a :class:`ModelConsts` NamedTuple of
 floats and bools (what a compiled hot path takes); the methods of the same names call them, so the
 equations exist once.
 """
@@ -112,6 +113,53 @@ def drift(m, phi_dot: float, theta_dot: float, psi_dot: float, z_dot: float, ome
         a4 * phi_dot * psi_dot + a5 * theta_dot * theta_dot + a6 * omega_bar * phi_dot,
         a7 * phi_dot * theta_dot + a8 * psi_dot * psi_dot,
         fz - gravity,
+    )
+
+
+def mix(m, w1_sq: float, w2_sq: float, w3_sq: float, w4_sq: float) -> tuple[float, float, float, float]:
+    """Eq. (11): rotor speeds squared [(rad/s)^2] -> inputs (u_phi, u_theta, u_psi, u_z) = (u2, u3, u4, u1)."""
+    kp = m[2]  # thrust_coeff_n_s2
+    return (
+        kp * (w3_sq - w1_sq),
+        kp * (w4_sq - w2_sq),
+        m[3] * (w1_sq - w2_sq + w3_sq - w4_sq),  # drag_coeff_n_m_s2
+        kp * (w1_sq + w2_sq + w3_sq + w4_sq),
+    )
+
+
+def actuation(m, pitch_moment_typo: bool, w1_sq: float, w2_sq: float, w3_sq: float, w4_sq: float) -> tuple[float, float, float, float]:
+    """Inputs that rotor speeds really produce: eq. (11), or with ``pitch_moment_typo`` eq. (7)'s
+    printed pitch moment Kp (w4^2 - w1^2)."""
+    u_phi, u_theta, u_psi, u_z = mix(m, w1_sq, w2_sq, w3_sq, w4_sq)
+    if pitch_moment_typo:
+        u_theta = m[2] * (w4_sq - w1_sq)
+    return u_phi, u_theta, u_psi, u_z
+
+
+def accelerations(
+    m, phi: float, phi_dot: float, theta: float, theta_dot: float, psi_dot: float, z_dot: float,
+    u_phi: float, u_theta: float, u_psi: float, u_z: float, omega_bar: float,
+) -> tuple[float, float, float, float]:
+    """Nominal accelerations f + g u (no disturbance): (phi'', theta'', psi'' [rad/s^2], z'' [m/s^2])."""
+    f0, f1, f2, f3 = drift(m, phi_dot, theta_dot, psi_dot, z_dot, omega_bar)
+    return (
+        f0 + m[13] * u_phi,  # b1
+        f1 + m[14] * u_theta,  # b2
+        f2 + m[15] * u_psi,  # b3
+        f3 + _cos(phi) * _cos(theta) / m[0] * u_z,  # mass_kg
+    )  # fmt: skip
+
+
+def horizontal_accelerations(
+    mass: float, drag_x: float, drag_y: float, phi: float, theta: float, psi: float, x_dot: float, y_dot: float, u_z: float
+) -> tuple[float, float]:
+    """(x'', y'') [m/s^2] of eq. (10), z-up inertial frame (linear drags in N s/m)."""
+    sp, cp = _sin(phi), _cos(phi)
+    st = _sin(theta)
+    ss, cs = _sin(psi), _cos(psi)
+    return (
+        (-drag_x * x_dot + (cp * st * cs + sp * ss) * u_z) / mass,
+        (-drag_y * y_dot + (cp * st * ss - sp * cs) * u_z) / mass,
     )
 
 
@@ -235,13 +283,7 @@ class PaperModel:
     # -- eq. (11): mixer --------------------------------------------------------------------------
     def mix(self, w1_sq: float, w2_sq: float, w3_sq: float, w4_sq: float) -> tuple[float, float, float, float]:
         """Rotor speeds squared [(rad/s)^2] -> inputs (u_phi, u_theta, u_psi, u_z) = (u2, u3, u4, u1)."""
-        kp = self.thrust_coeff_n_s2
-        return (
-            kp * (w3_sq - w1_sq),
-            kp * (w4_sq - w2_sq),
-            self.drag_coeff_n_m_s2 * (w1_sq - w2_sq + w3_sq - w4_sq),
-            kp * (w1_sq + w2_sq + w3_sq + w4_sq),
-        )
+        return mix(self._k, w1_sq, w2_sq, w3_sq, w4_sq)
 
     def unmix(self, u_phi: float, u_theta: float, u_psi: float, u_z: float) -> tuple[float, float, float, float]:
         """Inverse of :meth:`mix`: inputs -> (w1^2, w2^2, w3^2, w4^2), (rad/s)^2 (:func:`unmix`).
@@ -287,14 +329,9 @@ class PaperModel:
         u_z: float,
         omega_bar: float,
     ) -> tuple[float, float, float, float]:
-        """Nominal accelerations f + g u (no disturbance): (phi'', theta'', psi'' [rad/s^2], z'' [m/s^2])."""
-        f0, f1, f2, f3 = drift(self._k, phi_dot, theta_dot, psi_dot, z_dot, omega_bar)
-        return (
-            f0 + self.b1 * u_phi,
-            f1 + self.b2 * u_theta,
-            f2 + self.b3 * u_psi,
-            f3 + _cos(phi) * _cos(theta) / self.mass_kg * u_z,
-        )
+        """Nominal accelerations f + g u (no disturbance): (phi'', theta'', psi'' [rad/s^2], z'' [m/s^2])
+        (:func:`accelerations`)."""
+        return accelerations(self._k, phi, phi_dot, theta, theta_dot, psi_dot, z_dot, u_phi, u_theta, u_psi, u_z, omega_bar)
 
     # -- time derivatives of f and g (spec §2; the paper's (20)/(27) drop half of each product) ---
     def drift_rates(
@@ -323,23 +360,13 @@ class PaperModel:
         With the ``pitch-moment`` typo the pitch input is Kp (w4^2 - w1^2) instead of
         Kp (w4^2 - w2^2); otherwise this equals :meth:`mix`.
         """
-        u_phi, u_theta, u_psi, u_z = self.mix(w1_sq, w2_sq, w3_sq, w4_sq)
-        if "pitch-moment" in self.typos:
-            u_theta = self.thrust_coeff_n_s2 * (w4_sq - w1_sq)
-        return u_phi, u_theta, u_psi, u_z
+        return actuation(self._k, "pitch-moment" in self.typos, w1_sq, w2_sq, w3_sq, w4_sq)
 
     def horizontal_accelerations(
         self, phi: float, theta: float, psi: float, x_dot: float, y_dot: float, u_z: float
     ) -> tuple[float, float]:
-        """(x'', y'') [m/s^2] of eq. (10), z-up inertial frame."""
-        sp, cp = _sin(phi), _cos(phi)
-        st = _sin(theta)
-        ss, cs = _sin(psi), _cos(psi)
-        m = self.mass_kg
-        return (
-            (-self.lin_drag_x_n_s_m * x_dot + (cp * st * cs + sp * ss) * u_z) / m,
-            (-self.lin_drag_y_n_s_m * y_dot + (cp * st * ss - sp * cs) * u_z) / m,
-        )
+        """(x'', y'') [m/s^2] of eq. (10), z-up inertial frame (:func:`horizontal_accelerations`)."""
+        return horizontal_accelerations(self.mass_kg, self.lin_drag_x_n_s_m, self.lin_drag_y_n_s_m, phi, theta, psi, x_dot, y_dot, u_z)
 
     def hover_inputs(self, phi: float = 0.0, theta: float = 0.0) -> tuple[float, float, float, float]:
         """Hover trim (0, 0, 0, m g / (cos phi cos theta)) in channel order."""

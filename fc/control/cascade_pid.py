@@ -147,8 +147,8 @@ class CascadePid(IntegratingBaseline):
         self.consts = cascade_pid_consts(model, params)
 
     def initial_state(self, meas: Sequence[float]) -> tuple[float, ...]:
-        """Integrators and D terms zero, the gyro low-passes at the measured rates."""
-        return (0.0, 0.0, 0.0, 0.0, float(meas[1]), float(meas[3]), float(meas[5]), 0.0, 0.0, 0.0)
+        """Integrators and D terms zero, the gyro low-passes at the measured rates (:func:`cascade_pid_initial_state`)."""
+        return cascade_pid_initial_state((float(meas[0]), float(meas[1]), float(meas[2]), float(meas[3]), float(meas[4]), float(meas[5])))
 
     def _output(self, meas: Sequence[float], ref: Sequence[float], state: Sequence[float]) -> tuple[Vec4, tuple[float, ...], Diagnostics]:
         """Continuous form: (u, the state's time derivative, diagnostics).
@@ -171,6 +171,11 @@ class CascadePid(IntegratingBaseline):
     ) -> tuple[float, ...]:
         """Integrators of limited channels keep their previous values; the filters run on."""
         return cascade_pid_anti_windup(prev, new, limited)
+
+
+def cascade_pid_initial_state(meas: Sequence[float]) -> tuple[float, float, float, float, float, float, float, float, float, float]:
+    """The state at t = 0 (pure): integrators and D terms zero, the gyro low-passes at the measured rates."""
+    return (0.0, 0.0, 0.0, 0.0, meas[1], meas[3], meas[5], 0.0, 0.0, 0.0)
 
 
 def _cascade_channel(

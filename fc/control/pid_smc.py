@@ -285,31 +285,19 @@ class PidSmc:
         return pid_smc_initial_state(meas, self.consts)
 
     def command(self, meas: Sequence[float], ref: Sequence[float], state: Sequence[float]) -> Vec4:
-        """u is a controller state: the command is simply its current value."""
-        return (state[4], state[5], state[6], state[7])
+        """u is a controller state: the command is simply its current value (:func:`pid_smc_command`)."""
+        return pid_smc_command(state)
 
     # -- continuous-time form ---------------------------------------------------------------------
     def derivatives(
         self, meas: Sequence[float], ref: Sequence[float], state: Sequence[float], accel: Sequence[float] | None = None
     ) -> tuple[tuple[float, ...], Diagnostics]:
-        p = self.consts
+        """The state's time derivative and the diagnostics (:func:`pid_smc_derivatives`)."""
         if accel is not None and self._oracle:
-            s, sg, chi, ud, rate = pid_smc_law(meas, ref, state, p, accel, True)
+            d, s, sg, chi, ud = pid_smc_derivatives(meas, ref, state, self.consts, accel, True)
         else:
-            s, sg, chi, ud, rate = pid_smc_law(meas, ref, state, p, _ZERO4, False)
-        if self._has_limits:
-            # Anti-windup in continuous time: no motion further into an input limit, and int S and
-            # chi_hat freeze on that channel (as in the sampled form).
-            lo, hi = p.u_lo, p.u_hi
-            at = [(state[4 + i] >= hi[i] and ud[i] > 0.0) or (state[4 + i] <= lo[i] and ud[i] < 0.0) for i in range(4)]
-            if any(at):
-                ud = tuple(0.0 if at[i] else ud[i] for i in range(4))  # type: ignore[assignment]
-                ds = tuple(0.0 if at[i] else s[i] for i in range(4))  # type: ignore[assignment]
-                rate = tuple(0.0 if at[i] else rate[i] for i in range(4))  # type: ignore[assignment]
-                u = (state[4], state[5], state[6], state[7])
-                return ds + ud + rate, Diagnostics(s, sg, chi, u, ud)
-        u = (state[4], state[5], state[6], state[7])
-        return s + ud + rate, Diagnostics(s, sg, chi, u, ud)
+            d, s, sg, chi, ud = pid_smc_derivatives(meas, ref, state, self.consts, _ZERO4, False)
+        return d, Diagnostics(s, sg, chi, (state[4], state[5], state[6], state[7]), ud)
 
     # -- sampled-data form ------------------------------------------------------------------------
     def step(
@@ -357,6 +345,47 @@ def pid_smc_initial_state(meas: Sequence[float], p: PidSmcConsts) -> tuple[float
         u3 = m[0] * m[1] / tilt_cos(meas[0], meas[2], p.tilt_min)  # mass_kg * gravity_mps2
     c0, c1, c2, c3 = p.chi0
     return (0.0, 0.0, 0.0, 0.0, u0, u1, u2, u3, c0, c1, c2, c3)
+
+
+def pid_smc_command(state: Sequence[float]) -> Vec4:
+    """Continuous form: the input in effect, u (a controller state)."""
+    return (state[4], state[5], state[6], state[7])
+
+
+def _held(at_limit: bool, v: float) -> float:
+    return 0.0 if at_limit else v
+
+
+def pid_smc_derivatives(
+    meas: Sequence[float],
+    ref: Sequence[float],
+    state: Sequence[float],
+    p: PidSmcConsts,
+    accel: Sequence[float],
+    use_accel: bool,
+) -> tuple[tuple[float, float, float, float, float, float, float, float, float, float, float, float], Vec4, Vec4, Vec4, Vec4]:
+    """Continuous form: (the state's time derivative (d int S, u', chi_hat'), S, sigma, chi_hat in
+    use, u' as it acts) for every channel; ``accel`` as :func:`pid_smc_law` takes it.
+
+    Anti-windup in continuous time: no motion further into an input limit, and int S and chi_hat
+    freeze on that channel (as in the sampled form).
+    """
+    s, sg, chi, ud, rate = pid_smc_law(meas, ref, state, p, accel, use_accel, _ZERO4)
+    if p.has_limits:
+        lo = p.u_lo
+        hi = p.u_hi
+        at0 = (state[4] >= hi[0] and ud[0] > 0.0) or (state[4] <= lo[0] and ud[0] < 0.0)
+        at1 = (state[5] >= hi[1] and ud[1] > 0.0) or (state[5] <= lo[1] and ud[1] < 0.0)
+        at2 = (state[6] >= hi[2] and ud[2] > 0.0) or (state[6] <= lo[2] and ud[2] < 0.0)
+        at3 = (state[7] >= hi[3] and ud[3] > 0.0) or (state[7] <= lo[3] and ud[3] < 0.0)
+        if at0 or at1 or at2 or at3:
+            ud = (_held(at0, ud[0]), _held(at1, ud[1]), _held(at2, ud[2]), _held(at3, ud[3]))
+            return (
+                _held(at0, s[0]), _held(at1, s[1]), _held(at2, s[2]), _held(at3, s[3]),
+                ud[0], ud[1], ud[2], ud[3],
+                _held(at0, rate[0]), _held(at1, rate[1]), _held(at2, rate[2]), _held(at3, rate[3]),
+            ), s, sg, chi, ud  # fmt: skip
+    return (s[0], s[1], s[2], s[3], ud[0], ud[1], ud[2], ud[3], rate[0], rate[1], rate[2], rate[3]), s, sg, chi, ud
 
 
 def pid_smc_law(
