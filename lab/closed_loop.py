@@ -10,6 +10,11 @@ Two forms, matching the controller's two forms (:mod:`fc.control.base`):
 
 Samples are recorded every ``dt_s`` (1 kHz by default), at the start of each step. A run that
 produces non-finite or absurd values stops and is reported as diverged, with the time.
+
+By default the loop flies compiled (:mod:`lab.fast.paper`: the same pure functions the classes
+call, the whole loop in one numba call, the same trajectory bit for bit) when it can: the paper's
+plant, a built-in controller, a constant reference, the compiled paths on; otherwise (said once
+why) and with ``compiled=False`` it flies the CPython loop below.
 """
 
 from __future__ import annotations
