@@ -601,3 +601,144 @@ def test_kernel_drops_count_what_a_full_receive_buffer_lost() -> None:
                 flood.sendto(b"\xfe" * 1000, link.local_address)
         drops = link.kernel_drops()
         assert drops is not None and drops > 300, drops
+
+
+# ---------------------------------------------------------------------------------- the parts, the one send path
+
+
+class _RecordingSocket:
+    """Stands in for a link's socket: records each datagram sent and whether the one send path
+    was running (``inside[0]``) when it was, then sends it for real."""
+
+    def __init__(self, real: socket.socket, inside: list[bool]) -> None:
+        self.real, self.inside = real, inside
+        self.sent: list[tuple[bytes, tuple[str, int], bool]] = []
+
+    def sendto(self, datagram: bytes, addr: tuple[str, int]) -> int:
+        self.sent.append((bytes(datagram), addr, self.inside[0]))
+        return self.real.sendto(datagram, addr)
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self.real, name)
+
+
+def _split_packets(datagram: bytes) -> list[bytes]:
+    """The MAVLink 2 packets of a datagram, by their length fields."""
+    out, i = [], 0
+    while i < len(datagram):
+        end = i + 12 + datagram[i + 1] + (13 if datagram[i + 2] & 1 else 0)
+        out.append(datagram[i:end])
+        i = end
+    return out
+
+
+def _send_every_way(tx: MavlinkUdp, to: tuple[str, int]) -> None:
+    """One call of each send entry point: 10 messages in 8 datagrams."""
+    from smcpilot import fastcodec
+
+    sysid, comp = tx.source
+    tx.send(heartbeat(tx.mav))
+    tx.send_many([attitude(tx.mav, 2), heartbeat(tx.mav)])
+    tx.send_many([attitude(tx.mav, 3)], others_limit=0)
+    tx.send_to(attitude(tx.mav, 4), to)
+    tx.send_many_to([attitude(tx.mav, 5), heartbeat(tx.mav)], to)
+    tx.send_packets([fastcodec.encode_attitude(tx.take_seq(), sysid, comp, 6, 0.1, 0.2, 0.3, 0.0, 0.0, 0.0)])
+    tx.send_packets_to([fastcodec.encode_attitude(tx.take_seq(), sysid, comp, 7, 0.1, 0.2, 0.3, 0.0, 0.0, 0.0)], to)
+    tx.mav.heartbeat_send(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+
+
+def test_every_send_entry_point_goes_through_the_one_send_path_once(tmp_path) -> None:
+    """send, send_many (limited or not), send_to, send_many_to, send_packets(_to) and mav.*_send
+    each call MavlinkUdp._transmit once; no datagram leaves outside it; it logs and counts all."""
+    path = tmp_path / "paths.tlog"
+    with TlogWriter(path) as tlog, listener() as rx, MavlinkUdp(url_of(rx), source_system=2, source_component=1, tlog=tlog, clock_us=lambda: 7) as tx:
+        inside = [False]
+        calls: list[tuple[int, object]] = []
+        one_path = tx._transmit
+
+        def spy(packets, dests=None):  # type: ignore[no-untyped-def]
+            calls.append((len(packets), None if dests is None else list(dests)))
+            inside[0] = True
+            try:
+                one_path(packets, dests)
+            finally:
+                inside[0] = False
+
+        tx._transmit = spy  # type: ignore[method-assign]
+        sock = tx._udp.sock = _RecordingSocket(tx._udp.sock, inside)  # type: ignore[assignment]
+        to = rx.local_address
+        _send_every_way(tx, to)
+        got = recv_messages(rx, 10)
+        assert [n for n, _ in calls] == [1, 2, 1, 1, 2, 1, 1, 1]
+        assert [d for _, d in calls] == [None, None, [to], [to], [to], None, [to], None]  # others_limit: a list
+        assert len(sock.sent) == 8 and all(was_inside for _, _, was_inside in sock.sent)
+        assert [m.get_seq() for m, _ in got] == list(range(10))
+        assert tx.counters.tx_messages == 10 and tx.counters.tx_datagrams == 8 and tx.counters.tx_errors == 0
+    assert [t for t, _ in read_tlog(path)] == [7] * 10
+
+
+def test_every_send_entry_point_signs_and_logs_setup_signing_without_its_key(tmp_path) -> None:
+    """Signing and the tlog's redaction are applied by the one send path, so every entry point
+    signs, and a SETUP_SIGNING reaches the tlog with its key zeroed however it was sent."""
+    from smcpilot.signing import Signing
+
+    key = bytes(range(1, 33))
+    path = tmp_path / "signed.tlog"
+    with raw_socket() as rx, TlogWriter(path) as tlog:
+        url = f"udpout:{LOOPBACK}:{rx.getsockname()[1]}"
+        with MavlinkUdp(url, source_system=2, source_component=1, signing=Signing(key), link_id=5, tlog=tlog) as tx:
+            to = rx.getsockname()
+            _send_every_way(tx, to)
+            packets = [p for _ in range(8) for p in _split_packets(rx.recv(65535))]
+            setup = tx.mav.setup_signing_encode(1, 1, list(key), 99)
+            tx.send_many([setup])
+            tx.send_packets([setup.pack(mavlink.MAVLink(None, srcSystem=2, srcComponent=1))])
+            sent_setups = [p for _ in range(2) for p in _split_packets(rx.recv(65535))]
+    assert len(packets) == 10 and all(p[2] & 1 and p[-13] == 5 for p in packets)  # signed, link id 5
+    assert all(key in p for p in sent_setups)  # the wire has the key ...
+    logged = [m for _, m in read_tlog(path) if m.get_type() == "SETUP_SIGNING"]
+    assert len(logged) == 2 and all(bytes(m.secret_key) == bytes(32) for m in logged)  # ... the tlog never
+
+
+def test_the_parts_alone() -> None:
+    """The parts MavlinkUdp composes work on their own."""
+    from smcpilot.impair import LinkImpairment
+    from smcpilot.link import LinkCounters, pack_datagrams
+    from smcpilot.udplink.impairment import LinkImpairer
+    from smcpilot.udplink.peers import PeerTable
+    from smcpilot.udplink.udpsocket import UdpSocket
+
+    assert pack_datagrams([b"a" * 200, b"b" * 200, b"c" * 200], 400) == [b"a" * 200 + b"b" * 200, b"c" * 200]
+    assert pack_datagrams([b"x" * 500], 400) == [b"x" * 500]
+
+    counters = LinkCounters()
+    now_s = [0.0]
+    initial = ("127.0.0.1", 1)
+    table = PeerTable(initial, timeout_s=10.0, max_peers=4, monotonic_s=lambda: now_s[0], counters=counters)
+    others = [("127.0.0.1", p) for p in (2, 3, 4)]
+    for addr in others:
+        table.heard(addr, now_s[0])
+    table.heard(others[2], now_s[0], signed=True)
+    assert table.current() == (initial, *others) and table.pinned == {others[2]}
+    assert table.limited(1) == ([initial, others[2], others[0]], 1)
+    assert table.limited(1) == ([initial, others[2], others[1]], 1)  # the others take turns
+    now_s[0] = 11.0
+    assert table.current() == (initial,) and not table.pinned  # silent for 11 s: forgotten
+
+    with UdpSocket(parse_endpoint(f"udpin:{LOOPBACK}:0"), counters) as a, raw_socket() as b:
+        a.sendto(b"hi", b.getsockname())
+        assert b.recvfrom(100)[0] == b"hi" and counters.tx_datagrams == 1
+        b.sendto(b"there", a.local_address)
+        assert a.wait_readable(ARRIVAL_TIMEOUT_S) and a.take(8) == [(b"there", b.getsockname())]
+        assert counters.rx_datagrams == 1
+    assert a.closed
+
+    sent: list[tuple[bytes, tuple[str, int]]] = []
+    assert LinkImpairer.for_link(LinkImpairment(), 0, monotonic_s=lambda: 0.0, sendto=lambda d, a: None) is None
+    lossy = LinkImpairer.for_link(LinkImpairment(delay_ms=5.0), 0, monotonic_s=lambda: now_s[0], sendto=lambda d, a: sent.append((d, a)))
+    assert lossy is not None
+    lossy.send(b"late", initial)
+    assert sent == [] and lossy.wait_s() == pytest.approx(0.005)
+    now_s[0] += 0.005
+    lossy.pump()
+    assert sent == [(b"late", initial)] and lossy.counters["tx"]["released"] == 1
