@@ -57,8 +57,10 @@ not, :meth:`~MavlinkUdp.send_to`, :meth:`~MavlinkUdp.send_many_to`,
 encodes what it has into packets, if they are messages, picks its destinations, and hands both to
 ``MavlinkUdp._transmit``: the one function that signs the packets, packs them into datagrams of
 at most ``max_datagram_bytes``, sends each datagram to each destination (through the impairment,
-if any; counted by the socket) and copies the packets to the tlog. Signing, packing, impairment,
-sending counters and logging of sent traffic happen there and nowhere else.
+if any) and copies the packets to the tlog. Signing, packing, the impairment of what is sent and
+the tlog's copy of it are applied there and nowhere else. (``tx_messages`` counts sequence numbers
+as the encoder hands them out; ``tx_datagrams`` and ``tx_errors`` are counted by the socket, which
+also sends the held datagrams the impairer releases later, on :meth:`~MavlinkUdp.pump`.)
 
 A link is not thread-safe: one thread owns it.
 """
