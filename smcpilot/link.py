@@ -214,6 +214,10 @@ class MavlinkUdp:
             counters=counters,
         )  # fmt: skip
         self._impair = LinkImpairer.for_link(impairment, impair_seed, monotonic_s=monotonic_s, sendto=udp.sendto)
+        # Bound once, for the send path: a message's encoding, and a datagram's way out (straight
+        # to the socket, or through the impairer).
+        self._encode = self._encoder.encode
+        self._send_datagram = udp.sendto if self._impair is None else self._impair.send
         #: the raw socket (for code that sets socket options on it).
         self._sock: socket.socket = udp.sock
         #: the parser's :meth:`~smcpilot.udplink.parser.DatagramParser.parse_into`.
@@ -291,7 +295,7 @@ class MavlinkUdp:
         """Encode ``msg`` (next sequence number) and send it to every peer; log it once."""
         if self._closed:
             raise self._closed_error()
-        self._transmit((self._encoder.encode(msg),))
+        self._transmit((self._encode(msg),))
 
     def send_many(self, msgs: Iterable[mavlink.MAVLink_message], *, others_limit: int | None = None) -> int:
         """Encode several messages and send them in as few datagrams as fit
@@ -315,7 +319,7 @@ class MavlinkUdp:
         """Encode ``msg`` and send it to ``addr`` only (e.g. a COMMAND_ACK to the requester)."""
         if self._closed:
             raise self._closed_error()
-        self._transmit((self._encoder.encode(msg),), (addr,))
+        self._transmit((self._encode(msg),), (addr,))
 
     def send_many_to(self, msgs: Iterable[mavlink.MAVLink_message], addr: Address) -> None:
         """Like :meth:`send_many`, to ``addr`` only (e.g. a parameter list to the station that asked)."""
@@ -350,7 +354,7 @@ class MavlinkUdp:
 
     def _encode_all(self, msgs: Iterable[mavlink.MAVLink_message]) -> list[bytes]:
         """Each message encoded (a sequence number each), unsigned; raises on a closed link."""
-        encode = self._encoder.encode
+        encode = self._encode
         packets = []
         for msg in msgs:
             if self._closed:
@@ -371,8 +375,7 @@ class MavlinkUdp:
             if peers.next_prune_s <= self._monotonic_s():
                 peers.prune()
             dests = peers.destinations
-        impair = self._impair
-        send = self._udp.sendto if impair is None else impair.send
+        send = self._send_datagram
         if len(packets) == 1:
             datagram = packets[0]
             for addr in dests:
