@@ -334,7 +334,7 @@ class FlightControllerApp:
         self._sim_records = TickRecords(sim_sysid)
         #: decode the simulator's per-tick datagram straight to values (else every datagram goes
         #: through the link's full parse into message objects; the same result, slower)
-        self._fast_states = self.sim.signing is None
+        self._fast_states = isinstance(self.sim, MavlinkUdp) and self.sim.signing is None
         gcs = self.gcs
         #: the flight core: the one control tick (plan, modes, failsafes, pipeline, events).
         self.core = FlightCore(
