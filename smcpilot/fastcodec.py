@@ -525,7 +525,6 @@ _STATE_LAYOUT = (
     (ID_ODOMETRY, _ODO_EXTRA, _ODO_PAYLOAD.unpack_from, _ODO_PAYLOAD.size),
     (ID_LOCAL_POSITION_NED, _LOCAL_POSITION_NED_EXTRA, _LOCAL_POSITION_NED_PAYLOAD.unpack_from, _LOCAL_POSITION_NED_PAYLOAD.size),
 )
-_ZERO_PAD = bytes(256)
 
 
 def decode_state_datagram(data: bytes, system: int) -> tuple[tuple, tuple, tuple, tuple, tuple[bytes, bytes, bytes, bytes]] | None:
@@ -547,14 +546,12 @@ def decode_state_datagram(data: bytes, system: int) -> tuple[tuple, tuple, tuple
         if (end > size or data[i + 5] != system or data[i + 6] != SIM_COMPONENT_ID
                 or (data[i + 7] | (data[i + 8] << 8) | (data[i + 9] << 16)) != msg_id):  # fmt: skip
             return None
-        body_end = end - 2
-        if _crc16(extra, _crc16(data[i + 1 : body_end])) != data[body_end] | (data[body_end + 1] << 8):
+        packet = data[i:end]
+        checked = _checked_payload(packet, extra, full)
+        if checked is None:
             return None
-        payload = data[i + 10 : body_end]
-        if n < full:
-            payload += _ZERO_PAD[: full - n]
-        out.append(unpack_from(payload))
-        packets.append(data[i:end])
+        out.append(unpack_from(checked[0]))
+        packets.append(packet)
         i = end
     if i != size:
         return None

@@ -210,7 +210,7 @@ class CompiledPhysics:
         active = []
         for p, cmd, on in zip(plants, commands, armed):
             i = rows[id(p)]
-            u, force, torque = _span_input(p)
+            u, force, torque = p.held_input(p._input)
             k = known[i]
             if k is not None and k[0] is p._s and k[1] == u and k[2] == force and k[3] == torque and k[4] == dt_s:
                 # the row holds this plant's state as the last span left it: only the commands change
@@ -254,29 +254,6 @@ class CompiledPhysics:
             exc.vehicle = failed  # type: ignore[attr-defined]
             raise exc
         return None
-
-
-def _span_input(p: RigidBodyPlant) -> tuple[StepInput, tuple[float, float, float], tuple[float, float, float]]:
-    """What :meth:`RigidBodyPlant.step` holds over a steady span: the step input, force, torque."""
-    env = p.env
-    faults = p.faults
-    force = env.force_world_n
-    torque = env.torque_body_n_m
-    env_paper = env.paper_disturbance
-    u = p._input
-    if faults is not None:
-        if faults.physics_on:
-            if faults.forces_on:
-                ff = faults.force_world_n
-                ft = faults.torque_body_n_m
-                force = (force[0] + ff[0], force[1] + ff[1], force[2] + ff[2])
-                torque = (torque[0] + ft[0], torque[1] + ft[1], torque[2] + ft[2])
-            paper = env_paper or faults.paper_disturbance
-            if faults.motor_eff is not u.motor_eff or paper != u.paper_disturbance:
-                u = StepInput(faults.motor_eff, paper, u.psi_turns)
-        elif u.motor_eff is not rb._ONES4 or u.paper_disturbance != env_paper:
-            u = StepInput(rb._ONES4, env_paper, u.psi_turns)
-    return u, force, torque
 
 
 def _sig() -> tuple:

@@ -515,28 +515,15 @@ class RigidBodyPlant(PlantBase):
         targets = rigid_body_targets(motor_commands, armed, p)
         env = self.env
         faults = self.faults
-        env_paper = env.paper_disturbance
         s = self._s
         u = self._input
         psi0 = self._psi
         for i in range(n):
             t = t_s + i * h
             env.advance(h)
-            force = env.force_world_n
-            torque = env.torque_body_n_m
             if faults is not None:
                 faults.advance(t, h)
-                if faults.physics_on:
-                    if faults.forces_on:
-                        ff = faults.force_world_n
-                        ft = faults.torque_body_n_m
-                        force = (force[0] + ff[0], force[1] + ff[1], force[2] + ff[2])
-                        torque = (torque[0] + ft[0], torque[1] + ft[1], torque[2] + ft[2])
-                    paper = env_paper or faults.paper_disturbance
-                    if faults.motor_eff is not u.motor_eff or paper != u.paper_disturbance:
-                        u = StepInput(faults.motor_eff, paper, u.psi_turns)
-                elif u.motor_eff is not _ONES4 or u.paper_disturbance != env_paper:
-                    u = StepInput(_ONES4, env_paper, u.psi_turns)
+            u, force, torque = self.held_input(u)
             s, accel, ok = rigid_body_substep(s, targets, force, torque, t, h, p, u)
             if not ok:
                 self._s = s
@@ -556,6 +543,29 @@ class RigidBodyPlant(PlantBase):
         self._input = u
         self._t_s = t_s + dt_s
         self._obs_cache = None
+
+    def held_input(self, u: StepInput) -> tuple[StepInput, tuple[float, float, float], tuple[float, float, float]]:
+        """What an integration step holds, from the environment and the faults as they stand (both
+        advanced to the step): (the step input, ``u`` itself when nothing in it changed; the force,
+        world NWU, N; the torque, body FLU, N m)."""
+        env = self.env
+        faults = self.faults
+        force = env.force_world_n
+        torque = env.torque_body_n_m
+        if faults is not None:
+            env_paper = env.paper_disturbance
+            if faults.physics_on:
+                if faults.forces_on:
+                    ff = faults.force_world_n
+                    ft = faults.torque_body_n_m
+                    force = (force[0] + ff[0], force[1] + ff[1], force[2] + ff[2])
+                    torque = (torque[0] + ft[0], torque[1] + ft[1], torque[2] + ft[2])
+                paper = env_paper or faults.paper_disturbance
+                if faults.motor_eff is not u.motor_eff or paper != u.paper_disturbance:
+                    u = StepInput(faults.motor_eff, paper, u.psi_turns)
+            elif u.motor_eff is not _ONES4 or u.paper_disturbance != env_paper:
+                u = StepInput(_ONES4, env_paper, u.psi_turns)
+        return u, force, torque
 
     # -- observation --------------------------------------------------------------------------------
     def truth(self) -> VehicleObservation:
