@@ -393,6 +393,9 @@ class FlightControllerApp:
         self._stop = False
         self._exit_code = EXIT_OK
         self._cpu_at_first_tick_s = 0.0
+        #: lockstep: when the last state was flown and the last probe sent (wall s), states flown.
+        self._ls_last_rx = self._ls_last_probe = 0.0
+        self._ls_states = 0
 
     def _open_sim(
         self, url: str, sysid: int, clock_us: Callable[[], int], impairment: LinkImpairment | None, impair_seed: int
@@ -450,8 +453,11 @@ class FlightControllerApp:
             self.tlog.close()
         self.params.close()  # the last parameter change on disk before we exit
 
-    #: ``--jit auto`` loads the compiled pipeline for lockstep flights at least this long (or open-ended).
+    #: ``--jit auto`` loads the compiled pipeline for lockstep flights at least this long (or open-ended),
+    #: counted over every flight of the process (:mod:`fc.group`: they share the one load).
     JIT_AUTO_MIN_LOCKSTEP_S = AUTO_MIN_LOCKSTEP_S
+    #: flight controllers flying in this process (:mod:`fc.group` sets it before :meth:`start`).
+    flights_per_process = 1
 
     def _attach_compiled(self) -> None:
         """The pipeline compiled (:mod:`fc.compiled_pipeline`) as ``--jit`` says; one line says
@@ -459,8 +465,10 @@ class FlightControllerApp:
         if self.jit == "off":
             self.jit_why = "--jit off"
             return
-        if self.jit == "auto" and self.lockstep and self.duration_s is not None and self.duration_s < self.JIT_AUTO_MIN_LOCKSTEP_S:
-            self.jit_why = f"--jit auto: a lockstep flight shorter than {self.JIT_AUTO_MIN_LOCKSTEP_S:g} s (loading costs more than it saves)"
+        flown_s = None if self.duration_s is None else self.duration_s * self.flights_per_process
+        if self.jit == "auto" and self.lockstep and flown_s is not None and flown_s < self.JIT_AUTO_MIN_LOCKSTEP_S:
+            what = "a lockstep flight" if self.flights_per_process == 1 else f"{self.flights_per_process} lockstep flights in one process"
+            self.jit_why = f"--jit auto: {what} shorter than {self.JIT_AUTO_MIN_LOCKSTEP_S:g} s (loading costs more than it saves)"
             return
         from fc.compiled_pipeline import attach_compiled, compile_in_background
 
@@ -475,73 +483,90 @@ class FlightControllerApp:
         self.say(note)
 
     def run(self) -> int:
-        sim_addr = "{}:{}".format(*self.sim.local_address)
-        gcs_addr = "{}:{}".format(*self.gcs.local_address) if self.gcs else "-"
-        self._attach_compiled()
-        # Start-up made every object the loop will ever need (numba alone brings ~10^5): the
-        # collector need not scan them again and again during the flight.
-        gc.collect()
-        gc.freeze()
-        self.say(f"FC_LISTENING sim={sim_addr} gcs={gcs_addr} pid={os.getpid()}")
-        if self.tlog is not None:  # the configuration this flight flies, for the log's readers
-            lm = self._logmav
-            self.tlog.write_many(self.clock.now_us(), [m.pack(lm) for m in param_messages(lm, self.cfg, self.params.options)])
+        """Fly until the end (the duration, a stop, the simulator's goodbye or a watchdog); the
+        exit code. :mod:`fc.group` flies several apps in one loop through the same parts:
+        :meth:`start`, the loop's steps, :meth:`finish`."""
+        self.start()
         try:
             if self.lockstep:
                 self._run_lockstep()
             else:
                 self._run_realtime()
-        except WatchdogError as exc:
-            self.say(f"fc: error: {exc}")
-            self._exit_code = EXIT_WATCHDOG
-        except RateMismatchError as exc:
-            self.say(f"fc: error: {exc}")
-            self._exit_code = EXIT_CONFIG
-        finally:
-            summary = self.stats.summary()
-            summary["ticks"] = self.core.ticks
-            summary["failsafe_events"] = self.core.failsafe_events
-            summary["sim_time_s"] = self.clock.now_s()
-            sim_drops = getattr(self.sim, "kernel_drops", lambda: None)()  # (a TCP simulator link has none)
-            summary["links"] = {"sim": {**self.sim.counters.as_dict(), "kernel_drops": sim_drops},
-                                "gcs": {**self.gcs.counters.as_dict(), "kernel_drops": self.gcs.kernel_drops()} if self.gcs else None}
-            summary["impairment"] = {"sim": self.sim.impair_counters, "gcs": self.gcs.impair_counters if self.gcs else None}
-            summary["gcs_rejected"] = dict(self.gcs_handler.rejected)
-            summary["gcs_budget"] = {**self.intake.counters.as_dict(), "left": len(self.intake), **self.stats.budget_summary(),
-                                                      "telemetry_peers_skipped": self.gcs_handler.telemetry_peers_skipped,
-                                     "telemetry_deferred": self.gcs_handler.telemetry_deferred}  # fmt: skip
-            summary["cpu_s"] = round(time.process_time(), 3)
-            #: CPU seconds before the first tick (imports, start-up): cpu_s minus it is the flight's.
-            summary["cpu_start_s"] = round(self._cpu_at_first_tick_s, 3)
-            t = os.times()  # the kernel's share (system calls, wake-ups) beside our own code's
-            summary["cpu_user_s"], summary["cpu_sys_s"] = round(t.user, 3), round(t.system, 3)
-            summary["rx_rejected"] = self.rejected_summary()
-            flight = self.core.flight
-            summary["pipeline"] = {"compiled": flight.compiled, "compiled_ticks": flight.compiled_ticks, "why_not": self.jit_why}
-            summary["sim_bad"] = dict(self.sim_complaints.counts)
-            summary["tlog"] = str(self.tlog.path) if self.tlog is not None else None
-            summary.update(self._summary_extra())
-            if self.tlog is not None and not self.tlog.closed:  # the run's own overrun count, for the log's readers
-                lm, now_us = self._logmav, self.clock.now_us()
-                count = lm.named_value_int_encode((now_us // 1000) & 0xFFFFFFFF, OVERRUN_NAME.encode(), self.stats.overruns)
-                try:
-                    self.tlog.write(now_us, count.pack(lm))
-                except TlogError as exc:  # the log must still be closed below
-                    self.say(f"fc: warning: {exc}")
-            if self.tlog is not None:  # the final counters, for `smcpilot log summary` (with or without a GCS)
-                lm = self._logmav
-                try:
-                    final = telemetry.build(mavlink.MAVLINK_MSG_ID_SYS_STATUS, self.telemetry_snapshot(), lm)
-                    self.tlog.write_many(self.clock.now_us(), [m.pack(lm) for m in final])
-                except Exception as exc:  # never hide the error that ended the run, never lose the log
-                    self.say(f"fc: warning: final SYS_STATUS not logged: {type(exc).__name__}: {exc}")
-            self.close()  # flushes the parameter writer: its figures are final below
-            w = self.params.writer
-            summary["param_file"] = None if self.params.path is None else {
-                "path": str(self.params.path), "changes": w.submissions if w else 0, "writes": w.writes if w else 0,
-                "write_errors": w.errors if w else 0,
-            }  # fmt: skip
-            self.say("FC_SUMMARY " + json.dumps(summary, sort_keys=True))
+        except (WatchdogError, RateMismatchError) as exc:
+            self.ended_by(exc)
+        finally:  # whatever ended the loop: the log closed, the summary said
+            self.finish()
+        return self._exit_code
+
+    def start(self, *, freeze_gc: bool = True) -> None:
+        """Before the first state: the compiled pipeline (as ``--jit`` says), ``FC_LISTENING``,
+        the configuration into the log."""
+        sim_addr = "{}:{}".format(*self.sim.local_address)
+        gcs_addr = "{}:{}".format(*self.gcs.local_address) if self.gcs else "-"
+        self._attach_compiled()
+        if freeze_gc:
+            # Start-up made every object the loop will ever need (numba alone brings ~10^5): the
+            # collector need not scan them again and again during the flight.
+            gc.collect()
+            gc.freeze()
+        self.say(f"FC_LISTENING sim={sim_addr} gcs={gcs_addr} pid={os.getpid()}")
+        if self.tlog is not None:  # the configuration this flight flies, for the log's readers
+            lm = self._logmav
+            self.tlog.write_many(self.clock.now_us(), [m.pack(lm) for m in param_messages(lm, self.cfg, self.params.options)])
+
+    def ended_by(self, exc: WatchdogError | RateMismatchError) -> None:
+        """The flight ends on ``exc`` (a watchdog: exit 3; a rate mismatch: exit 2), said in one line."""
+        self.say(f"fc: error: {exc}")
+        self._exit_code = EXIT_WATCHDOG if isinstance(exc, WatchdogError) else EXIT_CONFIG
+        self._stop = True
+
+    def finish(self) -> int:
+        """After the loop: the last records into the log, the log and links closed, ``FC_SUMMARY``;
+        the exit code."""
+        summary = self.stats.summary()
+        summary["ticks"] = self.core.ticks
+        summary["failsafe_events"] = self.core.failsafe_events
+        summary["sim_time_s"] = self.clock.now_s()
+        sim_drops = getattr(self.sim, "kernel_drops", lambda: None)()  # (a TCP simulator link has none)
+        summary["links"] = {"sim": {**self.sim.counters.as_dict(), "kernel_drops": sim_drops},
+                            "gcs": {**self.gcs.counters.as_dict(), "kernel_drops": self.gcs.kernel_drops()} if self.gcs else None}
+        summary["impairment"] = {"sim": self.sim.impair_counters, "gcs": self.gcs.impair_counters if self.gcs else None}
+        summary["gcs_rejected"] = dict(self.gcs_handler.rejected)
+        summary["gcs_budget"] = {**self.intake.counters.as_dict(), "left": len(self.intake), **self.stats.budget_summary(),
+                                                  "telemetry_peers_skipped": self.gcs_handler.telemetry_peers_skipped,
+                                 "telemetry_deferred": self.gcs_handler.telemetry_deferred}  # fmt: skip
+        summary["cpu_s"] = round(time.process_time(), 3)
+        #: CPU seconds before the first tick (imports, start-up): cpu_s minus it is the flight's.
+        summary["cpu_start_s"] = round(self._cpu_at_first_tick_s, 3)
+        t = os.times()  # the kernel's share (system calls, wake-ups) beside our own code's
+        summary["cpu_user_s"], summary["cpu_sys_s"] = round(t.user, 3), round(t.system, 3)
+        summary["rx_rejected"] = self.rejected_summary()
+        flight = self.core.flight
+        summary["pipeline"] = {"compiled": flight.compiled, "compiled_ticks": flight.compiled_ticks, "why_not": self.jit_why}
+        summary["sim_bad"] = dict(self.sim_complaints.counts)
+        summary["tlog"] = str(self.tlog.path) if self.tlog is not None else None
+        summary.update(self._summary_extra())
+        if self.tlog is not None and not self.tlog.closed:  # the run's own overrun count, for the log's readers
+            lm, now_us = self._logmav, self.clock.now_us()
+            count = lm.named_value_int_encode((now_us // 1000) & 0xFFFFFFFF, OVERRUN_NAME.encode(), self.stats.overruns)
+            try:
+                self.tlog.write(now_us, count.pack(lm))
+            except TlogError as exc:  # the log must still be closed below
+                self.say(f"fc: warning: {exc}")
+        if self.tlog is not None:  # the final counters, for `smcpilot log summary` (with or without a GCS)
+            lm = self._logmav
+            try:
+                final = telemetry.build(mavlink.MAVLINK_MSG_ID_SYS_STATUS, self.telemetry_snapshot(), lm)
+                self.tlog.write_many(self.clock.now_us(), [m.pack(lm) for m in final])
+            except Exception as exc:  # never hide the error that ended the run, never lose the log
+                self.say(f"fc: warning: final SYS_STATUS not logged: {type(exc).__name__}: {exc}")
+        self.close()  # flushes the parameter writer: its figures are final below
+        w = self.params.writer
+        summary["param_file"] = None if self.params.path is None else {
+            "path": str(self.params.path), "changes": w.submissions if w else 0, "writes": w.writes if w else 0,
+            "write_errors": w.errors if w else 0,
+        }  # fmt: skip
+        self.say("FC_SUMMARY " + json.dumps(summary, sort_keys=True))
         return self._exit_code
 
     def _summary_extra(self) -> dict[str, Any]:
@@ -579,51 +604,74 @@ class FlightControllerApp:
 
         The simulator's next state comes a few tens of microseconds after our answer; waking a
         blocked process costs about as much again, so the loop busy-polls for ``spin_s`` after
-        each tick before it falls back to a blocking ``select``.
+        each tick before it falls back to a blocking ``select``. The steps (:meth:`lockstep_begin`,
+        :meth:`lockstep_take`, :meth:`lockstep_between`) are the ones :mod:`fc.group` calls for
+        several apps in one loop.
         """
         fds = self._fds()
         mono = self._mono
-        poll_sim = self._poll_sim
-        poll_gcs = self._poll_ground
         spin_s = self.spin_s
-        last_rx = last_probe = mono()
-        spin_until = last_rx + spin_s
-        n = 0
-        sim = self.sim
-        gcs = self.gcs
+        self.lockstep_begin()
+        take = self.lockstep_take
+        spin_until = self._ls_last_rx + spin_s
         while not self._stop:
-            if poll_sim():
-                last_rx = mono()
-                spin_until = last_rx + spin_s
-                n += 1
-                if n % 8 == 0:
-                    poll_gcs()
+            if take():
+                spin_until = self._ls_last_rx + spin_s
                 continue
-            now = mono()
-            if now < spin_until:
+            if mono() < spin_until:
                 _yield()  # let the simulator have this core if the machine is oversubscribed
                 continue
-            timeout = 0.1
-            if self._impaired:
-                timeout = min(timeout, sim.impair_wait_s(), gcs.impair_wait_s() if gcs is not None else 0.1)
-            readable, _, _ = select.select(fds, (), (), timeout)
-            if readable:
-                poll_gcs()
-            if gcs is not None:
-                self.gcs_handler.send_durable_acks()  # between ticks too (before the first state)
-                self.gcs_handler.send_param_lists(all_now=True)  # the simulator is silent: no deadline waits
-            if not readable:
-                now = mono()
-                if self._last_actuator is not None and now - max(last_rx, last_probe) > LOCKSTEP_PROBE_S:
-                    last_probe = now
-                    self._answer_sim((self._last_actuator,))  # not logged (the sim link logs nothing)
-                    self._poll_sim()  # a closed port (dead simulator) is reported here
-                if self._sim_pending:
-                    self._check_sim_answers(now)
-                limit = self.cfg.watchdog_s if self.core.ticks else self.startup_timeout_s
-                if now - last_rx > limit:
-                    what = "sent nothing" if not self.core.ticks else f"has been silent for {now - last_rx:.1f} s"
-                    raise WatchdogError(f"simulator {what} (lockstep watchdog {limit:g} s); stopping")
+            readable, _, _ = select.select(fds, (), (), self.lockstep_wait_s())
+            self.lockstep_between(bool(readable))
+
+    def lockstep_begin(self) -> None:
+        """Lockstep: the watchdog and the probe count from now."""
+        self._ls_last_rx = self._ls_last_probe = self._mono()
+        self._ls_states = 0
+
+    def lockstep_take(self) -> bool:
+        """Lockstep: fly what waits on the simulator link (True: a state was flown); the ground
+        link is looked at every 8 states."""
+        if not self._poll_sim():
+            return False
+        self._ls_last_rx = self._mono()
+        self._ls_states += 1
+        if self._ls_states % 8 == 0:
+            self._poll_ground()
+        return True
+
+    def lockstep_wait_s(self) -> float:
+        """Lockstep: how long to block at most before :meth:`lockstep_between` is due again."""
+        if self._impaired:
+            gcs = self.gcs
+            return min(0.1, self.sim.impair_wait_s(), gcs.impair_wait_s() if gcs is not None else 0.1)
+        return 0.1
+
+    def lockstep_between(self, readable: bool) -> None:
+        """Lockstep, between states: the ground link (``readable``: a socket of this app has
+        something), acknowledgements and parameter lists; with nothing readable, the probe of a
+        silent simulator (our last answer again), unanswered simulator parameters and the
+        watchdog (raises :class:`WatchdogError`)."""
+        gcs = self.gcs
+        if readable:
+            self._poll_ground()
+        if gcs is not None:
+            self.gcs_handler.send_durable_acks()  # between ticks too (before the first state)
+            self.gcs_handler.send_param_lists(all_now=True)  # the simulator is silent: no deadline waits
+        if readable:
+            return
+        now = self._mono()
+        last_rx = self._ls_last_rx
+        if self._last_actuator is not None and now - max(last_rx, self._ls_last_probe) > LOCKSTEP_PROBE_S:
+            self._ls_last_probe = now
+            self._answer_sim((self._last_actuator,))  # not logged (the sim link logs nothing)
+            self._poll_sim()  # a closed port (dead simulator) is reported here
+        if self._sim_pending:
+            self._check_sim_answers(now)
+        limit = self.cfg.watchdog_s if self.core.ticks else self.startup_timeout_s
+        if now - last_rx > limit:
+            what = "sent nothing" if not self.core.ticks else f"has been silent for {now - last_rx:.1f} s"
+            raise WatchdogError(f"simulator {what} (lockstep watchdog {limit:g} s); stopping")
 
     def _run_realtime(self) -> None:
         fds = self._fds()

@@ -9,7 +9,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 from fc.app import EXIT_CONFIG, FlightControllerApp, install_signal_handlers
 from fc.config import FcConfig
@@ -118,6 +118,17 @@ def param_file_line(path: Path, *, kept: bool, loaded: bool, from_file: int, dif
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    app = build_app(argv)
+    if isinstance(app, int):
+        return app
+    install_signal_handlers(app)
+    return app.run()
+
+
+def build_app(argv: Sequence[str] | None = None, *, out: TextIO | None = None) -> FlightControllerApp | int:
+    """The flight controller ``python -m fc ARGV`` flies, built and ready to :meth:`~FlightControllerApp.run`
+    (its parameter writer started), or the exit code when it cannot be built (the error said in one
+    line). ``out``: where the app's own lines go (default stdout)."""
     args = build_parser().parse_args(argv)
     try:
         tlog = args.tlog
@@ -222,6 +233,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             gcs_impairment=parse_impairment(args.gcs_link, "--gcs-link") if args.gcs_link is not None
             else (scenario.gcs_link if scenario is not None else None),
             impair_seed=scenario.seed if scenario is not None else 0,
+            out=out if out is not None else sys.stdout,
             **extra,
         )
         if not kept:
@@ -235,5 +247,4 @@ def main(argv: Sequence[str] | None = None) -> int:
     if style:  # said once: it flies, but no compiler will take it (docs/your-own-law.md §1)
         print(f"fc: law {params.config.controller} is not in the pure style ({style[0]}): it flies in CPython only", flush=True)
     params.start_writer()
-    install_signal_handlers(app)
-    return app.run()
+    return app

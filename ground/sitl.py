@@ -31,7 +31,7 @@ from smcpilot.impair import parse_impairment
 from smcpilot.plan import load_plan
 from smcpilot.protocol import DEFAULT_GCS_URL, FC_GROUND_PORT
 from smcpilot.scenario import Scenario
-from smcpilot.swarm import fc_ground_port
+from smcpilot.swarm import fc_ground_port, fc_groups
 from smcpilot.vehicle import VehicleParams
 
 #: at the end of a run, how long the launcher waits for the other process to exit by itself (s);
@@ -80,6 +80,9 @@ class SitlOptions:
     #: another simulator the FC connects to (``px4[:tcp:HOST[:PORT]]``, PX4's simulator API; the
     #: FC's ``--sim``): no simulator of ours is started, and the run is lockstep on its clock.
     sim_url: str | None = None
+    #: a lockstep swarm's flight controllers in this many processes (``python -m fc.group``: several
+    #: FCs in one loop, each the same FC and the same log); None: one process per vehicle.
+    fc_processes: int | None = None
 
     @classmethod
     def of(cls, **kw: Any) -> SitlOptions:
@@ -179,6 +182,8 @@ class Child:
     tail: list[str] = field(default_factory=list)
     summary: dict | None = None
     thread: threading.Thread | None = None
+    #: a group of flight controllers in one process (:mod:`fc.group`): one child each, sharing ``proc``.
+    members: list[Child] = field(default_factory=list)
 
 
 class Sitl:
@@ -206,7 +211,9 @@ class Sitl:
         self.started_wall = 0.0
 
     # -- start -----------------------------------------------------------------------------------
-    def _spawn(self, name: str, args: list[str]) -> Child:
+    def _spawn(self, name: str, args: list[str], *, members: tuple[str, ...] = ()) -> Child:
+        """``python -m ARGS`` with its output read by a thread. ``members``: the process is a group
+        of flight controllers (:mod:`fc.group`), each with a child of its own (``Child.members``)."""
         env = dict(os.environ)
         env["PYTHONUNBUFFERED"] = "1"
         proc = subprocess.Popen(
@@ -219,12 +226,22 @@ class Sitl:
             env=env,
             preexec_fn=_pdeathsig if sys.platform.startswith("linux") else None,
         )
-        child = Child(name, proc)
+        group = Child(name, proc)
+        group.members = [Child(member, proc) for member in members]
+        route = bool(members)
 
         def pump() -> None:
             assert proc.stdout is not None
             for raw in proc.stdout:
                 line = raw.rstrip("\n")
+                child, name = group, group.name
+                if route:  # a group of FCs: "@I LINE" is member I's
+                    head, _, rest = line.partition(" ")
+                    if head[:1] == "@" and head[1:].isdigit() and int(head[1:]) < len(group.members):
+                        child = group.members[int(head[1:])]
+                        line, name = rest, child.name
+                    elif group.members:
+                        child = group.members[0]
                 child.tail.append(line)
                 del child.tail[:-40]
                 if line.startswith(("FC_SUMMARY ", "SIM_SUMMARY ", "ROUTER_SUMMARY ")):
@@ -237,9 +254,21 @@ class Sitl:
                 if not line.startswith(("FC_LISTENING", "SIM_READY", "FC_READY", "ROUTER_READY")):
                     self.echo(f"[{name}] {line}")
 
-        child.thread = threading.Thread(target=pump, name=f"{name}-output", daemon=True)
-        child.thread.start()
-        return child
+        group.thread = threading.Thread(target=pump, name=f"{name}-output", daemon=True)
+        for member in group.members:
+            member.thread = group.thread
+        group.thread.start()
+        return group
+
+    def _grouped(self) -> bool:
+        """The swarm's flight controllers fly in groups (:mod:`fc.group`): lockstep, fewer processes than vehicles."""
+        o = self.options
+        return o.lockstep and o.scenario.swarm is not None and o.fc_processes is not None and o.fc_processes < o.scenario.count
+
+    def _spawn_group(self, name: str, group_file: Path, members: list[str]) -> list[Child]:
+        """``python -m fc.group FILE``: one process, a :class:`Child` per flight controller in it
+        (its lines are the ones the group prints as ``@I LINE``; the group's own lines go to the first)."""
+        return self._spawn(name, ["fc.group", str(group_file)], members=tuple(members)).members
 
     def _await_line(self, child: Child, prefix: str, timeout_s: float) -> str:
         deadline = time.monotonic() + timeout_s
@@ -308,9 +337,11 @@ class Sitl:
         if sysid is not None:
             fc_args += ["--sysid", str(sysid)]
         if o.scenario.swarm is not None:  # more processes than cores: nobody busy-polls (a spinning FC takes its simulator's core)
-            # and the pipelines fly in CPython: loading the compiled one costs each FC about a second of
-            # CPU at start-up, more than it saves a swarm in flights of a few minutes (fc_args may say --jit auto)
-            fc_args += ["--spin-s", "0", "--jit", "off"]
+            fc_args += ["--spin-s", "0"]
+            if not self._grouped():  # and the pipelines fly in CPython: loading the compiled one costs each FC about a
+                # second of CPU at start-up, more than it saves a swarm in flights of a few minutes (fc_args may say
+                # --jit auto); a group loads it once for all its FCs, and --jit auto counts their flights together
+                fc_args += ["--jit", "off"]
         if o.lockstep:
             fc_args.append("--lockstep")
         if param_file is not None:  # else the FC starts from defaults with a file of its own (NAME.parm)
@@ -356,15 +387,24 @@ class Sitl:
             fields = dict(part.split("=", 1) for part in ready.split()[1:] if "=" in part)
             fc_gcs = f"udp:{fields['vehicles']}"
             self.gcs_address = fields["ground"]
+        every_args = []
         for v in fleet:
             vlog = tlog.with_name(f"{tlog.stem}-v{v.sysid}.tlog")
             vfile = v.scenario.save(vlog.with_name(vlog.stem + ".scenario.toml"))
             param_file = None if o.param_file is None else o.param_file.with_name(f"{o.param_file.stem}-v{v.sysid}{o.param_file.suffix}")
             gcs_port = (fc_ground_port(v.index) if default_ground else 0) if o.gcs else None
-            args = self._fc_args(vfile, vlog, fc_gcs, gcs_port, param_file, tlog.parent / f"signing-timestamp-v{v.sysid}", v.sysid)
-            self.fcs.append(self._spawn(f"fc{v.sysid}", args))
+            every_args.append(self._fc_args(vfile, vlog, fc_gcs, gcs_port, param_file, tlog.parent / f"signing-timestamp-v{v.sysid}", v.sysid))
             self.sysids.append(v.sysid)
             self.tlogs.append(vlog)
+        if self._grouped():
+            assert o.fc_processes is not None
+            for g, members in enumerate(fc_groups(len(fleet), o.fc_processes)):
+                group_file = tlog.with_name(f"{tlog.stem}-fc-group{g + 1}.json")
+                group_file.write_text(json.dumps([every_args[i][1:] for i in members], indent=1))  # (without "fc": the module)
+                self.fcs += self._spawn_group(f"fc-group{g + 1}", group_file, [f"fc{self.sysids[i]}" for i in members])
+        else:
+            for sysid, args in zip(self.sysids, every_args):
+                self.fcs.append(self._spawn(f"fc{sysid}", args))
         self.fc = self.fcs[0]
         ports = []
         for child in self.fcs:

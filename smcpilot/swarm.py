@@ -79,6 +79,21 @@ def fc_ground_port(index: int, base: int = FC_GROUND_PORT) -> int:
     return base + PORT_STEP * (index + 1)
 
 
+def fc_groups(count: int, processes: int) -> list[list[int]]:
+    """Vehicles ``0..count-1`` in ``processes`` groups of consecutive vehicles, as even as can be
+    (the first groups one larger): which flight controllers share a process (:mod:`fc.group`)."""
+    if isinstance(processes, bool) or not isinstance(processes, int) or processes < 1:
+        raise SwarmError(f"the number of flight-controller processes must be a whole number >= 1, got {processes!r}")
+    n = min(processes, count)
+    size, extra = divmod(count, n)
+    groups, start = [], 0
+    for g in range(n):
+        end = start + size + (1 if g < extra else 0)
+        groups.append(list(range(start, end)))
+        start = end
+    return groups
+
+
 def check_count(count: int, *, base_port: int = FC_GROUND_PORT) -> None:
     """Raise :class:`SwarmError` unless ``count`` vehicles fit (the maximum and the port range)."""
     if isinstance(count, bool) or not isinstance(count, int) or count < 1:

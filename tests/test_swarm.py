@@ -24,7 +24,7 @@ from ground.sitl import Sitl, SitlError, SitlOptions
 from ground.vehicle import Swarm
 from smcpilot.errors import ScenarioError
 from smcpilot.scenario import Scenario
-from smcpilot.swarm import MAX_VEHICLES, SwarmError, SwarmSpec, check_count, fc_ground_port, grid_offset
+from smcpilot.swarm import MAX_VEHICLES, SwarmError, SwarmSpec, check_count, fc_ground_port, fc_groups, grid_offset
 from smcpilot.tlog import read_tlog
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -159,6 +159,8 @@ def smcpilot(*args: str | Path, cwd: Path) -> subprocess.CompletedProcess[str]:
         (("--count", "2", "--sysid", "255"), "1..255"),
         (("--count", "2", "--sysid", "300"), "1..255"),
         (("--count", "2", "--sim", "px4"), "leave out --sim or --count"),
+        (("--count", "2", "--fc-processes", "0"), "--fc-processes must be a whole number in 1.."),
+        (("--fc-processes", "2"), "lockstep swarm"),
     ],
 )
 def test_sitl_count_errors_are_one_line_exit_2(tmp_path: Path, args: tuple[str, ...], needle: str) -> None:
@@ -323,6 +325,50 @@ def test_each_vehicle_of_a_lockstep_swarm_flies_as_it_flies_alone(tmp_path: Path
     assert {m.get_srcSystem() for _, m in read_tlog(swarm.tlogs[2]) if m.get_type() == "ATTITUDE"} == {3}
 
 
+def test_flight_controllers_flown_in_groups_write_the_same_logs(tmp_path: Path) -> None:
+    """python -m fc.group: several FCs in one process and one loop are the same FCs: each log is
+    byte for byte the one its own process writes (noise and gusts on, a fault, 3 vehicles in 2 groups)."""
+    extra = '[environment]\nnoise = true\ngust_std_n = 0.5\n[[fault]]\nkind = "motor"\nstart_s = 1.0\nmotor = 1\nefficiency = 0.7\n'
+    sc = swarm_scenario(tmp_path, count=3, duration=2.0, extra=extra)
+    own = fly(sc, tmp_path / "own", "run")
+    grouped = fly(sc, tmp_path / "grouped", "run", fc_processes=2)
+    assert [c.name for c in grouped.fcs] == ["fc1", "fc2", "fc3"]
+    assert len({c.proc.pid for c in grouped.fcs}) == 2 and grouped.fcs[0].proc is grouped.fcs[1].proc
+    assert [p.read_bytes() for p in grouped.tlogs] == [p.read_bytes() for p in own.tlogs]
+    for s in grouped.fc_summaries:  # each FC's own summary, routed from the group's output
+        assert s is not None and s["ticks"] == 1001 and s["sim_time_s"] == pytest.approx(2.0)
+    assert {s["tlog"] for s in grouped.fc_summaries if s} == {str(p) for p in grouped.tlogs}
+
+
+def test_fc_groups_split_the_vehicles_evenly() -> None:
+    assert fc_groups(16, 2) == [list(range(8)), list(range(8, 16))]
+    assert fc_groups(5, 2) == [[0, 1, 2], [3, 4]]
+    assert fc_groups(2, 4) == [[0], [1]]
+    for k in range(1, 20):
+        for n in range(1, 6):
+            groups = fc_groups(k, n)
+            assert sum(groups, []) == list(range(k)) and max(map(len, groups)) - min(map(len, groups)) <= 1
+    with pytest.raises(SwarmError, match="whole number >= 1"):
+        fc_groups(3, 0)
+
+
+@pytest.mark.parametrize(
+    ("content", "needle"),
+    [
+        ("not json", "Expecting value"),
+        ("[]", "non-empty JSON list"),
+        ('[["--sim", "udpin:127.0.0.1:0"]]', "not lockstep"),
+    ],
+)
+def test_fc_group_refuses_a_bad_file_in_one_line(tmp_path: Path, content: str, needle: str) -> None:
+    f = tmp_path / "group.json"
+    f.write_text(content)
+    r = subprocess.run([sys.executable, "-m", "fc.group", str(f)], capture_output=True, text=True, timeout=60, check=False)
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    lines = r.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("fc.group: error: ") and needle in lines[0], r.stderr
+
+
 @pytest.mark.slow
 def test_a_lockstep_swarm_is_deterministic(tmp_path: Path) -> None:
     sc = swarm_scenario(tmp_path, count=3, duration=2.0, extra="[environment]\nnoise = true\ngust_std_n = 0.5\n")
@@ -385,11 +431,12 @@ def test_a_dead_vehicle_in_real_time_leaves_the_others_flying(tmp_path: Path, lo
 
 
 @pytest.mark.slow
-def test_a_station_on_one_ground_address_flies_one_vehicle_of_the_swarm(tmp_path: Path) -> None:
+@pytest.mark.parametrize("fc_processes", [None, 1], ids=["own-processes", "one-group"])
+def test_a_station_on_one_ground_address_flies_one_vehicle_of_the_swarm(tmp_path: Path, fc_processes: int | None) -> None:
     sc = swarm_scenario(tmp_path, count=2, duration=600.0).with_changes(plan=())
     ground_port = _free_port()
     opts = SitlOptions(scenario=sc, timed=False, lockstep=True, speed=3.0, gcs=f"udp:127.0.0.1:{ground_port}",
-                       tlog=tmp_path / "gs.tlog", log_dir=tmp_path, watchdog_s=10.0)  # fmt: skip
+                       tlog=tmp_path / "gs.tlog", log_dir=tmp_path, watchdog_s=10.0, fc_processes=fc_processes)  # fmt: skip
     with Sitl(opts) as sitl:
         assert sitl.router is not None and sitl.gcs_address is not None
         with Swarm(f"udpout:{sitl.gcs_address}", [1, 2], connect_timeout_s=20) as swarm:

@@ -1,0 +1,182 @@
+"""``python -m fc.group FILE``: several lockstep flight controllers in one process, one loop.
+
+A lockstep swarm of K vehicles on a machine of a few cores (``smcpilot sitl --count K
+--fc-processes N``) spends most of its time waking processes: the simulator sends K states a
+step, each wakes its own FC process, which runs a few tens of microseconds and sleeps again, and
+K interpreters take turns in the cores' caches. Here N processes fly the K flight controllers
+instead, each process several of them in one ``select`` loop. Each flight controller is exactly
+the one ``python -m fc ARGS`` would fly, built from the same arguments: its own simulator and
+ground sockets, system id, parameters and parameter file, ``.tlog``, signing and watchdog. In
+lockstep a flight controller's log depends only on what its simulator sends it, so each log is
+the same, byte for byte, as its process of its own would write (tested); they share the
+interpreter, the compiled pipeline (loaded once for all: ``--jit auto`` counts their flights
+together) and the process's fate (a killed group is every one of its vehicles lost).
+
+FILE is JSON: a list of ``python -m fc`` argument lists (each with ``--lockstep``). Each flight
+controller's lines (``FC_LISTENING``, ``FC_READY``, errors, ``FC_SUMMARY``) are printed as
+``@I LINE``, I its index in FILE; lines of the process itself have no prefix. The exit code is
+the first non-zero one of the flight controllers (in the order they ended), else 0; a file that
+cannot be read or names no lockstep flight controller: one line, exit 2, nothing started.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import gc
+import json
+import select
+import signal
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TextIO
+
+from fc.app import EXIT_CONFIG, EXIT_OK, FlightControllerApp
+from fc.cli import build_app
+from smcpilot.errors import RateMismatchError, WatchdogError
+
+#: the ground link's acknowledgements, parameter lists, probes and watchdogs of every flight
+#: controller are seen to at least this often (wall s) while states keep coming.
+BETWEEN_S = 0.01
+
+
+class Prefixed:
+    """A text stream that writes each line to ``stream`` as ``PREFIX LINE`` (one flight
+    controller's output within the group's)."""
+
+    def __init__(self, stream: TextIO, prefix: str) -> None:
+        self.stream = stream
+        self.prefix = prefix
+        self._partial = ""
+
+    def write(self, text: str) -> int:
+        lines = (self._partial + text).split("\n")
+        self._partial = lines.pop()
+        for line in lines:
+            self.stream.write(f"{self.prefix}{line}\n")
+        return len(text)
+
+    def flush(self) -> None:
+        if self._partial:
+            self.stream.write(f"{self.prefix}{self._partial}\n")
+            self._partial = ""
+        self.stream.flush()
+
+
+def _argument_lists(path: Path) -> list[list[str]]:
+    """FILE's argument lists (raises ValueError or OSError saying what is wrong)."""
+    data = json.loads(path.read_text())
+    if not isinstance(data, list) or not data or not all(isinstance(a, list) and all(isinstance(v, str) for v in a) for a in data):
+        raise ValueError("expected a non-empty JSON list of argument lists (lists of strings)")
+    for i, a in enumerate(data):
+        if "--lockstep" not in a:
+            raise ValueError(f"flight controller {i} is not lockstep (a group flies lockstep flight controllers only)")
+    return data
+
+
+def fly(apps: Sequence[FlightControllerApp]) -> int:
+    """Fly ``apps`` (built, lockstep) in one loop until each has ended; the exit code."""
+    mono = time.monotonic
+    for app in apps:
+        app.flights_per_process = len(apps)
+    started: list[FlightControllerApp] = []
+    finished: list[FlightControllerApp] = []
+    codes: list[int] = []
+    try:
+        for app in apps:
+            app.start(freeze_gc=False)
+            started.append(app)
+        gc.collect()  # (as one app's start does: the loop's objects are all made)
+        gc.freeze()
+        for app in apps:
+            app.lockstep_begin()
+        live = list(apps)
+        owners: dict[int, tuple[FlightControllerApp, bool]] = {}
+        last_between = mono()
+        wait_s = 0.1
+        while live:
+            if not owners:
+                owners = {a.sim.fileno(): (a, True) for a in live}
+                owners.update({a.gcs.fileno(): (a, False) for a in live if a.gcs is not None})
+                wait_s = min(a.lockstep_wait_s() for a in live)
+            readable, _, _ = select.select(list(owners), (), (), wait_s)
+            ended = []
+            for fd in readable:
+                app, is_sim = owners[fd]
+                if app._stop:
+                    continue
+                try:
+                    if is_sim:
+                        app.lockstep_take()
+                    else:
+                        app.lockstep_between(True)
+                except (WatchdogError, RateMismatchError) as exc:
+                    app.ended_by(exc)
+                if app._stop:
+                    ended.append(app)
+            now = mono()
+            if not readable or now - last_between >= BETWEEN_S:
+                last_between = now
+                for app in live:
+                    if not app._stop:
+                        try:
+                            app.lockstep_between(False)
+                        except (WatchdogError, RateMismatchError) as exc:
+                            app.ended_by(exc)
+                ended = [a for a in live if a._stop]  # (a signal's stop too)
+            for app in ended:
+                if app in live:
+                    live.remove(app)
+                    finished.append(app)
+                    codes.append(app.finish())
+                    owners = {}
+    finally:  # whatever ended the loop: every log closed, every summary said
+        for app in apps:
+            if app in finished:
+                continue
+            with contextlib.suppress(Exception):
+                if app in started:
+                    codes.append(app.finish())
+                else:
+                    app.close()
+    return next((c for c in codes if c != EXIT_OK), EXIT_OK)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(
+        prog="python -m fc.group",
+        description="Several lockstep flight controllers in one process and one loop (a lockstep swarm on few cores):"
+        " each is the one `python -m fc ARGS` flies, its lines printed as '@I LINE'.",
+    )
+    p.add_argument("file", type=Path, metavar="FILE", help="JSON: a list of `python -m fc` argument lists, each with --lockstep")
+    args = p.parse_args(argv)
+    try:
+        argvs = _argument_lists(args.file)
+    except (OSError, ValueError) as exc:
+        print(f"fc.group: error: {args.file}: {exc}", file=sys.stderr)
+        return EXIT_CONFIG
+    apps: list[FlightControllerApp] = []
+    for i, a in enumerate(argvs):
+        out = Prefixed(sys.stdout, f"@{i} ")
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):  # type: ignore[type-var]
+            app = build_app(a, out=out)  # type: ignore[arg-type]
+            out.flush()
+        if isinstance(app, int):
+            for built in apps:
+                built.close()
+            return app
+        apps.append(app)
+
+    def stop_all(*_: object) -> None:
+        for app in apps:
+            app.request_stop()
+
+    signal.signal(signal.SIGTERM, stop_all)
+    signal.signal(signal.SIGINT, stop_all)
+    return fly(apps)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
