@@ -126,8 +126,8 @@ def bench_swarm(args: argparse.Namespace) -> int:
                 r = _fly(k, args.duration, True, Path(tmp), n)
                 if k == 1 and base is None:
                     base = r["vehicle_s_per_s"]
-                ratio = r["vehicle_s_per_s"] / base if base else float("nan")
-                print(f"{k:>4} {r['processes']:>8} {r['start_s']:>8.2f} {r['wall_s']:>8.2f} {r['vehicle_s_per_s']:>9.2f} {ratio:>6.2f}x"
+                ratio = f"{r['vehicle_s_per_s'] / base:.2f}x" if base else "-"
+                print(f"{k:>4} {r['processes']:>8} {r['start_s']:>8.2f} {r['wall_s']:>8.2f} {r['vehicle_s_per_s']:>9.2f} {ratio:>7}"
                       f" {r['vehicle_s_per_s'] / k:>6.2f}x {r['ticks_per_s']:>9.0f} {r['cpu_per_vehicle']:>8.3f} {100 * r['sys_share']:>6.0f}%"
                       f" {r['compiled']:>4}/{k:<3} {r['sim_cpu']:>8.3f} {r['sim_physics']:>9} {r['skew_s']:>7.3f}", flush=True)  # fmt: skip
         if args.realtime_s > 0:

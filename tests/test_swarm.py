@@ -729,3 +729,13 @@ def test_mavproxy_flies_one_vehicle_of_three_with_vehicle_n(tmp_path: Path) -> N
     logs = {sid: load_log(t) for sid, t in zip(sitl.sysids, sitl.tlogs)}
     assert float(logs[2].alt_m.max()) > 1.5  # vehicle 2 climbed
     assert float(logs[1].alt_m.max()) < 0.1 and float(logs[3].alt_m.max()) < 0.1  # the others never left the ground
+
+
+def test_bench_swarm_flies_both_layouts(tmp_path: Path) -> None:
+    r = smcpilot("bench", "swarm", "--counts", "2", "--duration", "0.5", "--fc-processes", "0,1", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    rows = [ln.split() for ln in r.stdout.splitlines() if ln.split()[:1] == ["2"]]
+    assert [row[1] for row in rows] == ["2", "1"], r.stdout  # FC processes: one each, then one group
+    assert all(row[-1] == "0.000" for row in rows)  # zero skew in lockstep
+    bad = smcpilot("bench", "swarm", "--fc-processes", "x", cwd=tmp_path)
+    assert bad.returncode == 2 and "--fc-processes must be whole numbers" in bad.stderr
