@@ -484,9 +484,14 @@ class FlightControllerApp:
 
     def run(self) -> int:
         """Fly until the end (the duration, a stop, the simulator's goodbye or a watchdog); the
-        exit code. :mod:`fc.group` flies several apps in one loop through the same parts:
-        :meth:`start`, the loop's steps, :meth:`finish`."""
+        exit code: :meth:`start`, then :meth:`fly`. :mod:`fc.group` flies several apps in one process
+        through the same parts (in lockstep one loop calling the loop's steps, then :meth:`finish`)."""
         self.start()
+        return self.fly()
+
+    def fly(self) -> int:
+        """After :meth:`start`: the loop (lockstep or real time) until the end, then :meth:`finish`;
+        the exit code."""
         try:
             if self.lockstep:
                 self._run_lockstep()

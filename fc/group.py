@@ -1,22 +1,26 @@
-"""``python -m fc.group FILE``: several lockstep flight controllers in one process, one loop.
+"""``python -m fc.group FILE``: several flight controllers in one process.
 
-A lockstep swarm of K vehicles on a machine of a few cores (``smcpilot sitl --count K
---fc-processes N``) spends most of its time waking processes: the simulator sends K states a
-step, each wakes its own FC process, which runs a few tens of microseconds and sleeps again, and
-K interpreters take turns in the cores' caches. Here N processes fly the K flight controllers
-instead, each process several of them in one ``select`` loop. Each flight controller is exactly
-the one ``python -m fc ARGS`` would fly, built from the same arguments: its own simulator and
-ground sockets, system id, parameters and parameter file, ``.tlog``, signing and watchdog. In
-lockstep a flight controller's log depends only on what its simulator sends it, so each log is
-the same, byte for byte, as its process of its own would write (tested); they share the
-interpreter, the compiled pipeline (loaded once for all: ``--jit auto`` counts their flights
-together) and the process's fate (a killed group is every one of its vehicles lost).
+A swarm of K vehicles on a machine of a few cores (``smcpilot sitl --count K --fc-processes N``)
+spends most of its time waking processes: the simulator sends K states a step, each wakes its own
+FC process, which runs a few tens of microseconds and sleeps again, and K interpreters take turns
+in the cores' caches. Here N processes fly the K flight controllers instead. Each flight controller
+is exactly the one ``python -m fc ARGS`` would fly, built from the same arguments: its own simulator
+and ground sockets, system id, parameters and parameter file, ``.tlog``, signing and watchdog. They
+share the interpreter, the compiled pipeline (loaded once for all: ``--jit auto`` counts their
+flights together) and the process's fate (a killed group is every one of its vehicles lost).
 
-FILE is JSON: a list of ``python -m fc`` argument lists (each with ``--lockstep``). Each flight
-controller's lines (``FC_LISTENING``, ``FC_READY``, errors, ``FC_SUMMARY``) are printed as
-``@I LINE``, I its index in FILE; lines of the process itself have no prefix. The exit code is
-the first non-zero one of the flight controllers (in the order they ended), else 0; a file that
-cannot be read or names no lockstep flight controller: one line, exit 2, nothing started.
+- **Lockstep** (:func:`fly`): one ``select`` loop calls each flight controller's lockstep steps as
+  its sockets have something. A lockstep flight controller's log depends only on what its
+  simulator sends it, so each log is the same, byte for byte, as its own process would write (tested).
+- **Real time** (:func:`fly_realtime`): each flight controller runs its own real-time loop, on its
+  own wall clock, in a thread of its own; their ticks take turns on the interpreter (a tick holds it
+  some tens of microseconds, then its loop sleeps in ``select`` until the next deadline).
+
+FILE is JSON: a list of ``python -m fc`` argument lists (all lockstep or all real time). Each flight
+controller's lines (``FC_LISTENING``, ``FC_READY``, errors, ``FC_SUMMARY``) are printed as ``@I LINE``,
+I its index in FILE; lines of the process itself have no prefix. The exit code is the first non-zero
+one of the flight controllers, else 0; a file that cannot be read, or mixes lockstep and real-time
+flight controllers: one line, exit 2, nothing started.
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ import json
 import select
 import signal
 import sys
+import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -70,9 +75,8 @@ def _argument_lists(path: Path) -> list[list[str]]:
     data = json.loads(path.read_text())
     if not isinstance(data, list) or not data or not all(isinstance(a, list) and all(isinstance(v, str) for v in a) for a in data):
         raise ValueError("expected a non-empty JSON list of argument lists (lists of strings)")
-    for i, a in enumerate(data):
-        if "--lockstep" not in a:
-            raise ValueError(f"flight controller {i} is not lockstep (a group flies lockstep flight controllers only)")
+    if len({"--lockstep" in a for a in data}) > 1:
+        raise ValueError("some flight controllers are lockstep and some real time: a group flies one kind")
     return data
 
 
@@ -144,6 +148,38 @@ def fly(apps: Sequence[FlightControllerApp]) -> int:
     return next((c for c in codes if c != EXIT_OK), EXIT_OK)
 
 
+def fly_realtime(apps: Sequence[FlightControllerApp]) -> int:
+    """Fly ``apps`` (built, real time) until each has ended, each on its own wall clock in a thread
+    of its own (their ticks take turns on the interpreter); the exit code."""
+    for app in apps:
+        app.flights_per_process = len(apps)
+    started: list[FlightControllerApp] = []
+    try:
+        for app in apps:
+            app.start(freeze_gc=False)
+            started.append(app)
+    except BaseException:
+        for app in apps:
+            with contextlib.suppress(Exception):
+                app.finish() if app in started else app.close()
+        raise
+    gc.collect()
+    gc.freeze()
+    codes: dict[int, int] = {}
+
+    def fly_one(i: int, app: FlightControllerApp) -> None:
+        codes[i] = 1  # (an exception in the loop: printed by the thread, the log closed by fly's finally)
+        codes[i] = app.fly()
+
+    threads = [threading.Thread(target=fly_one, args=(i, app), name=f"fc-{i}", daemon=True) for i, app in enumerate(apps)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        while t.is_alive():
+            t.join(0.2)  # (the main thread stays free for the signal handler)
+    return next((codes[i] for i in range(len(apps)) if codes.get(i, 1) != EXIT_OK), EXIT_OK)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m fc.group",
@@ -175,7 +211,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     signal.signal(signal.SIGTERM, stop_all)
     signal.signal(signal.SIGINT, stop_all)
-    return fly(apps)
+    return fly(apps) if apps[0].lockstep else fly_realtime(apps)
 
 
 if __name__ == "__main__":

@@ -80,8 +80,8 @@ class SitlOptions:
     #: another simulator the FC connects to (``px4[:tcp:HOST[:PORT]]``, PX4's simulator API; the
     #: FC's ``--sim``): no simulator of ours is started, and the run is lockstep on its clock.
     sim_url: str | None = None
-    #: a lockstep swarm's flight controllers in this many processes (``python -m fc.group``: several
-    #: FCs in one loop, each the same FC and the same log); None: one process per vehicle.
+    #: a swarm's flight controllers in this many processes (``python -m fc.group``: several FCs in
+    #: one process, each the same FC; in lockstep the same log); None: one process per vehicle.
     fc_processes: int | None = None
 
     @classmethod
@@ -261,9 +261,9 @@ class Sitl:
         return group
 
     def _grouped(self) -> bool:
-        """The swarm's flight controllers fly in groups (:mod:`fc.group`): lockstep, fewer processes than vehicles."""
+        """The swarm's flight controllers fly in groups (:mod:`fc.group`): fewer processes than vehicles."""
         o = self.options
-        return o.lockstep and o.scenario.swarm is not None and o.fc_processes is not None and o.fc_processes < o.scenario.count
+        return o.scenario.swarm is not None and o.fc_processes is not None and o.fc_processes < o.scenario.count
 
     def _spawn_group(self, name: str, group_file: Path, members: list[str]) -> list[Child]:
         """``python -m fc.group FILE``: one process, a :class:`Child` per flight controller in it

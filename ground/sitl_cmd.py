@@ -93,9 +93,9 @@ def add_sitl_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sysid", type=int, metavar="N",
                    help="system id of the (first) vehicle; the others count up from it (default 1)")
     p.add_argument("--fc-processes", type=int, metavar="N",
-                   help="lockstep swarm: fly the K flight controllers in N processes, several in one loop each (the same"
-                   " FCs, the same logs; far fewer wake-ups on a machine of few cores: N = its cores is fastest); default:"
-                   " one process per vehicle")  # fmt: skip
+                   help="swarm: fly the K flight controllers in N processes, several in each (the same FCs; in lockstep"
+                   " one loop and the same logs byte for byte; far fewer wake-ups on a machine of few cores: N = its cores"
+                   " is fastest); default: one process per vehicle")  # fmt: skip
 
 
 def _options(args: argparse.Namespace, **extra: Any) -> SitlOptions:
@@ -277,9 +277,8 @@ def sitl_main(args: argparse.Namespace) -> int:
     if args.fc_processes is not None:
         if not 1 <= args.fc_processes <= MAX_VEHICLES:
             raise ConfigError(f"--fc-processes must be a whole number in 1..{MAX_VEHICLES}, got {args.fc_processes}")
-        if not args.lockstep or opts.scenario.count == 1:
-            raise ConfigError("--fc-processes groups the flight controllers of a lockstep swarm (--lockstep with --count K > 1);"
-                              " in real time each vehicle's FC keeps a process of its own")  # fmt: skip
+        if opts.scenario.count == 1:
+            raise ConfigError("--fc-processes groups the flight controllers of a swarm: give --count K > 1 (or a scenario's [swarm])")
         opts = replace(opts, fc_processes=args.fc_processes)
     if args.sim is not None:
         if not (args.sim == "px4" or args.sim.startswith("px4:")):

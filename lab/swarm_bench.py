@@ -3,7 +3,7 @@
 For each K of ``--counts`` a lockstep SITL swarm of K vehicles (one simulator, no ground link) flies
 ``--duration`` simulated seconds of the take-off-and-hover plan, in each layout of
 ``--fc-processes``: the K flight controllers in K processes, or in N processes of several FCs each
-(:mod:`fc.group`); printed per K and layout:
+(:mod:`fc.group`; real time flies the same layouts); printed per K and layout:
 start-up wall time (launch to every FC's first tick), aggregate vehicle-seconds per wall second,
 that as a ratio of K = 1's (measured in the same run), vehicle-ticks per wall second, CPU seconds
 per vehicle per simulated second (the FCs' own, from their first tick on, and the operating
@@ -73,7 +73,7 @@ def _fly(k: int, duration_s: float, lockstep: bool, log_dir: Path, fc_processes:
                         swarm=SwarmSpec(count=k) if k > 1 else None)  # fmt: skip
     opts = SitlOptions(scenario=scenario, timed=True, lockstep=lockstep, gcs=None, log_dir=log_dir,
                        tlog=log_dir / f"swarm-{k}-{'ls' if lockstep else 'rt'}-{fc_processes}.tlog", watchdog_s=30.0,
-                       fc_processes=fc_processes if lockstep and 0 < fc_processes < k else None)  # fmt: skip
+                       fc_processes=fc_processes if 0 < fc_processes < k else None)  # fmt: skip
     t0 = time.perf_counter()
     sitl = Sitl(opts)
     try:
@@ -132,11 +132,13 @@ def bench_swarm(args: argparse.Namespace) -> int:
                       f" {r['compiled']:>4}/{k:<3} {r['sim_cpu']:>8.3f} {r['sim_physics']:>9} {r['skew_s']:>7.3f}", flush=True)  # fmt: skip
         if args.realtime_s > 0:
             print(f"real time, {args.realtime_s:g} s per K at the scenario's 500 Hz:")
-            print(f"{'K':>4} {'missed':>8} {'p99 ms':>7} {'skew p99 ms':>12}")
+            print(f"{'K':>4} {'FC procs':>8} {'missed':>8} {'p99 ms':>7} {'skew p99 ms':>12} {'CPU/veh':>8} {'compiled':>8} {'sim CPU':>8}")
             for k in counts:
-                r = _fly(k, args.realtime_s, False, Path(tmp))
-                skew = "-" if math.isnan(r["fanout_p99_ms"]) else f"{r['fanout_p99_ms']:.3f}"
-                print(f"{k:>4} {100 * r['missed']:>7.3f}% {r['p99_ms']:>7.2f} {skew:>12}")
+                for n in [n for n in layouts if n < k] or [0]:
+                    r = _fly(k, args.realtime_s, False, Path(tmp), n)
+                    skew = "-" if math.isnan(r["fanout_p99_ms"]) else f"{r['fanout_p99_ms']:.3f}"
+                    print(f"{k:>4} {r['processes']:>8} {100 * r['missed']:>7.3f}% {r['p99_ms']:>7.2f} {skew:>12} {r['cpu_per_vehicle']:>8.3f}"
+                          f" {r['compiled']:>4}/{k:<3} {r['sim_cpu']:>8.3f}", flush=True)  # fmt: skip
     print("FC procs: the flight controllers' processes (K: one each; fewer: several FCs in one loop, python -m fc.group);"
           " veh-s/s: simulated vehicle-seconds per wall second (K x simulated s / wall s); vs K=1: the same, over this run's K = 1;"
           " x real: simulated seconds per wall second; compiled: FCs flying the compiled pipeline (--jit auto: a group loads it"

@@ -160,7 +160,7 @@ def smcpilot(*args: str | Path, cwd: Path) -> subprocess.CompletedProcess[str]:
         (("--count", "2", "--sysid", "300"), "1..255"),
         (("--count", "2", "--sim", "px4"), "leave out --sim or --count"),
         (("--count", "2", "--fc-processes", "0"), "--fc-processes must be a whole number in 1.."),
-        (("--fc-processes", "2"), "lockstep swarm"),
+        (("--fc-processes", "2"), "give --count K > 1"),
     ],
 )
 def test_sitl_count_errors_are_one_line_exit_2(tmp_path: Path, args: tuple[str, ...], needle: str) -> None:
@@ -340,6 +340,22 @@ def test_flight_controllers_flown_in_groups_write_the_same_logs(tmp_path: Path) 
     assert {s["tlog"] for s in grouped.fc_summaries if s} == {str(p) for p in grouped.tlogs}
 
 
+def test_flight_controllers_in_a_group_fly_a_real_time_swarm(tmp_path: Path) -> None:
+    """In real time a group's FCs each run their own wall-clock loop (a thread each), every one to the end."""
+    sc = swarm_scenario(tmp_path, count=3, duration=2.0)
+    opts = SitlOptions(scenario=sc, timed=True, lockstep=False, gcs=None, tlog=tmp_path / "rt.tlog", log_dir=tmp_path,
+                       watchdog_s=10.0, fc_processes=1)  # fmt: skip
+    with Sitl(opts) as sitl:
+        assert len({c.proc.pid for c in sitl.fcs}) == 1
+        sitl.wait(timeout_s=60.0)
+    for s in sitl.fc_summaries:
+        assert s is not None and s["pipeline"]["why_not"] != "--jit off", s  # (a group may load the compiled pipeline)
+        assert s["ticks"] >= 0.8 * 2.0 * 500 and s["sim_time_s"] >= 1.9, s  # each FC ticked on its own clock to the end
+        assert s["rx_rejected"]["total"] == 0
+    for tlog, sysid in zip(sitl.tlogs, (1, 2, 3)):  # each log its own vehicle's
+        assert {m.get_srcSystem() for _, m in read_tlog(tlog) if m.get_type() == "ATTITUDE"} == {sysid}
+
+
 def test_fc_groups_split_the_vehicles_evenly() -> None:
     assert fc_groups(16, 2) == [list(range(8)), list(range(8, 16))]
     assert fc_groups(5, 2) == [[0, 1, 2], [3, 4]]
@@ -357,7 +373,7 @@ def test_fc_groups_split_the_vehicles_evenly() -> None:
     [
         ("not json", "Expecting value"),
         ("[]", "non-empty JSON list"),
-        ('[["--sim", "udpin:127.0.0.1:0"]]', "not lockstep"),
+        ('[["--lockstep"], ["--sim", "udpin:127.0.0.1:0"]]', "some flight controllers are lockstep and some real time"),
     ],
 )
 def test_fc_group_refuses_a_bad_file_in_one_line(tmp_path: Path, content: str, needle: str) -> None:
