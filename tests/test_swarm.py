@@ -8,6 +8,7 @@ one; real UDP sockets and real processes throughout.
 from __future__ import annotations
 
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -425,6 +426,25 @@ def test_a_dead_vehicle_ends_a_lockstep_swarm_naming_it(tmp_path: Path) -> None:
     assert any("the flight controller of vehicle 2" in ln for ln in lines), lines[-10:]
     for tlog in (sitl.tlogs[0], sitl.tlogs[2]):  # the others' logs are whole
         assert any(m.get_type() == "SYS_STATUS" for _, m in read_tlog(tlog))
+
+
+@pytest.mark.slow
+def test_a_dead_group_ends_a_lockstep_swarm_naming_a_vehicle_of_it(tmp_path: Path) -> None:
+    """Vehicles 1-2 in one FC process, 3 in another: killing the first loses both of its vehicles;
+    the run ends naming one of them, and vehicle 3's log is whole."""
+    sc = swarm_scenario(tmp_path, count=3, duration=600.0)
+    opts = SitlOptions(scenario=sc, timed=True, lockstep=True, gcs=None, speed=2.0, tlog=tmp_path / "dead.tlog",
+                       log_dir=tmp_path, watchdog_s=10.0, fc_processes=2)  # fmt: skip
+    lines: list[str] = []
+    with Sitl(opts, echo=lines.append) as sitl:
+        assert sitl.fcs[0].proc is sitl.fcs[1].proc is not sitl.fcs[2].proc
+        os.kill(sitl.fcs[1].proc.pid, signal.SIGKILL)
+        with pytest.raises(SitlError, match="fc[12] was killed by SIGKILL"):
+            sitl.wait(timeout_s=60.0)
+    assert sitl.sim is not None and sitl.sim.proc.returncode == 3
+    assert any(re.search(r"the flight controller of vehicle [12]\b", ln) for ln in lines), lines[-10:]
+    assert any(m.get_type() == "SYS_STATUS" for _, m in read_tlog(sitl.tlogs[2]))  # the other process's log is whole
+    assert sitl.fc_summaries[2] is not None
 
 
 @pytest.mark.slow
