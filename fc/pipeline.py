@@ -29,7 +29,7 @@ from fc.config import FcConfig
 from fc.control import LAW_FUNCTIONS
 from fc.control.builtin import BUILTIN_FLIGHT_FUNCTIONS
 from fc.control.law import Law, LawContext, LawFunctions
-from fc.control.observer import observer_estimate, observer_reset, observer_update
+from fc.control.observer import observer_estimate, observer_reset, observer_update, observer_update_gz
 from fc.control.pid_smc import DISTURBANCE_ESTIMATES, DOB_INPUT, DOB_LUMPED, DOB_NONE, DOB_SIGMA
 from fc.mixer import MixerParams, mix, mixer_params
 from fc.position import PositionLoopParams, position_step
@@ -66,6 +66,11 @@ class ObserverConsts(NamedTuple):
     model: tuple[float | bool, ...]
     tilt_min: float
     inv_mass: float
+    #: the control period the rotors' lag below was computed for, s (the FC's; another period
+    #: computes its own), and that lag (:func:`observer_lag`; zeros without a lag model).
+    lag_dt: float
+    lag_a: float
+    lag_b: float
 
 
 class VehicleState(NamedTuple):
@@ -188,14 +193,20 @@ def observer_consts(config: FcConfig, vehicle: VehicleParams, model: PaperModel,
     """The observer stage of ``config`` (``DOB_*``) for ``vehicle`` in ``mode``, flattened."""
     c = config
     wa = float(c.dob_bandwidth_att_radps)
+    tau = float(vehicle.motor_time_constant_s) if c.dob_motor_lag else 0.0
+    lag_dt = c.period_s
+    lag_a, lag_b = observer_lag(tau, lag_dt)
     return ObserverConsts(
         mode=DISTURBANCE_ESTIMATES.index(mode),
         w=(wa, wa, float(c.dob_bandwidth_yaw_radps), float(c.dob_bandwidth_z_radps)),
         d_max=tuple(float(x) for x in observer_authority(vehicle)),  # type: ignore[arg-type]
-        tau=float(vehicle.motor_time_constant_s) if c.dob_motor_lag else 0.0,
+        tau=tau,
         model=tuple(model.consts()),
         tilt_min=TILT_COS_MIN,
         inv_mass=1.0 / model.mass_kg,
+        lag_dt=lag_dt,
+        lag_a=lag_a,
+        lag_b=lag_b,
     )
 
 
@@ -227,6 +238,16 @@ def pipeline_params(config: FcConfig, vehicle: VehicleParams, law: Law, law_para
 
 
 # -- the pure functions -------------------------------------------------------------------------------
+def observer_lag(tau: float, dt_s: float) -> tuple[float, float]:
+    """(lag_a, lag_b) of :func:`fc.control.observer.observer_update` for rotors of time constant
+    ``tau`` over a control period of ``dt_s``: exp(-dt/tau) and tau (1 - lag_a)/dt; zeros for no lag."""
+    lag_a = lag_b = 0.0
+    if tau > 0.0:
+        lag_a = math.exp(-dt_s / tau)
+        lag_b = tau * (1.0 - lag_a) / dt_s
+    return lag_a, lag_b
+
+
 def hover_input(phi: float, theta: float, ob: ObserverConsts) -> tuple[float, float, float, float]:
     """The input that holds the nominal vehicle at this attitude: no torques, u_z = m g / (cos phi cos theta)."""
     m = ob.model
@@ -299,12 +320,14 @@ def actuate(
     share of the realised input: what the law's next step gets as ``u_prev``)."""
     ob = p.observer
     c0 = c1 = c2 = c3 = 0.0
+    # the observer's input gain of the z channel (the compensation's and the update's)
+    gz = tilt_cos(meas[0], meas[2], ob.tilt_min) * ob.inv_mass if ob.mode != DOB_OFF else 0.0
     if ob.mode == DOB_INPUT:
         mm = ob.model
         c0 = d_hat[0] / mm[13]
         c1 = d_hat[1] / mm[14]
         c2 = d_hat[2] / mm[15]
-        c3 = d_hat[3] / (tilt_cos(meas[0], meas[2], ob.tilt_min) * ob.inv_mass)
+        c3 = d_hat[3] / gz
         u = (u[0] - c0, u[1] - c1, u[2] - c2, u[3] - c3)
     motors, realised, limited = mix(p.mixer, u[0], u[1], u[2], u[3])
     if landing and meas[6] < 3.0 * land_h:
@@ -315,12 +338,12 @@ def actuate(
     if limited[0] or limited[1] or limited[2] or limited[3]:
         new = law.anti_windup(prev, new, law_realised, limited, p.law)
     if ob.mode != DOB_OFF:
-        tau = ob.tau
-        lag_a = lag_b = 0.0
-        if tau > 0.0:
-            lag_a = math.exp(-dt_s / tau)
-            lag_b = tau * (1.0 - lag_a) / dt_s
-        dob = observer_update(dob, meas, d_hat, realised, ob.model, ob.w, ob.tilt_min, ob.inv_mass, lag_a, lag_b, dt_s)
+        if dt_s == ob.lag_dt:
+            lag_a = ob.lag_a
+            lag_b = ob.lag_b
+        else:
+            lag_a, lag_b = observer_lag(ob.tau, dt_s)
+        dob = observer_update_gz(dob, meas, d_hat, realised, ob.model, ob.w, gz, lag_a, lag_b, dt_s)
     return motors, realised, limited, new, dob, u, law_realised
 
 
@@ -498,6 +521,8 @@ PURE_FUNCTIONS = (
     observer_reset,
     observer_estimate,
     observer_update,
+    observer_update_gz,
+    observer_lag,
     *LAW_FUNCTIONS,
     *BUILTIN_FLIGHT_FUNCTIONS,
 )

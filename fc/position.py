@@ -24,7 +24,7 @@ poles -1 +- 1j and -0.5 rad/s.
 
 :func:`position_step` is pure: it reads the gains by name, from the validated
 :class:`PositionGains` or from its flattened :class:`PositionLoopParams` (NamedTuple of floats,
-what the pure flight pipeline passes).
+what the pure flight pipeline passes, with tan(tilt_max) computed once).
 """
 
 from __future__ import annotations
@@ -69,11 +69,17 @@ class PositionGains:
         if not 0.0 < self.tilt_max_rad < 1.4:
             raise ConfigError(f"tilt_max_rad must lie in (0, 1.4) rad, got {self.tilt_max_rad}")
 
+    @property
+    def tan_tilt_max(self) -> float:
+        """tan(tilt_max_rad)."""
+        return _tan(self.tilt_max_rad)
+
     def flat(self) -> PositionLoopParams:
         """The gains as a :class:`PositionLoopParams` of floats."""
         return PositionLoopParams(
             float(self.kp_1ps2), float(self.kd_1ps), float(self.ki_1ps3),
             float(self.int_limit_mps2), float(self.accel_max_mps2), float(self.tilt_max_rad),
+            float(self.tan_tilt_max),
         )  # fmt: skip
 
 
@@ -86,6 +92,8 @@ class PositionLoopParams(NamedTuple):
     int_limit_mps2: float
     accel_max_mps2: float
     tilt_max_rad: float
+    #: tan(tilt_max_rad), once (the loop's authority).
+    tan_tilt_max: float
 
 
 def position_step(
@@ -115,7 +123,7 @@ def position_step(
     norm = _sqrt(ax * ax + ay * ay)
     tmax = g.tilt_max_rad
     amax = g.accel_max_mps2
-    a_lim = gravity_mps2 * _tan(tmax)  # the vehicle's authority: the smaller of the two limits
+    a_lim = gravity_mps2 * g.tan_tilt_max  # the vehicle's authority: the smaller of the two limits
     if amax < a_lim:
         a_lim = amax
     saturated = norm > a_lim

@@ -87,6 +87,24 @@ def observer_update(
     (:class:`smcpilot.model.ModelConsts` order); ``lag_a`` = exp(-dt/tau_m), ``lag_b`` =
     tau_m (1 - lag_a)/dt (both 0 without a lag model: the input acts at once).
     """
+    gz = tilt_cos(meas[0], meas[2], tilt_min) * inv_mass
+    return observer_update_gz(obs, meas, d_hat, u_applied, model, w, gz, lag_a, lag_b, dt_s)
+
+
+def observer_update_gz(
+    obs: Sequence[float],
+    meas: Sequence[float],
+    d_hat: Sequence[float],
+    u_applied: Sequence[float],
+    model: tuple[float | bool, ...],
+    w: Sequence[float],
+    gz: float,
+    lag_a: float,
+    lag_b: float,
+    dt_s: float,
+) -> tuple[float, ...]:
+    """:func:`observer_update` with the input gain of the z channel, ``gz`` = tilt_cos(phi, theta,
+    tilt_min) * inv_mass, given (a caller that has it already)."""
     e0, e1, e2, e3 = obs[4], obs[5], obs[6], obs[7]
     r0, r1, r2, r3 = u_applied[0], u_applied[1], u_applied[2], u_applied[3]
     # the input the rotors deliver, averaged over the period, and at its end
@@ -94,10 +112,9 @@ def observer_update(
     v1 = r1 + (e1 - r1) * lag_b
     v2 = r2 + (e2 - r2) * lag_b
     v3 = r3 + (e3 - r3) * lag_b
-    phi, phi_d, th, th_d, psi_d, z_d = meas[0], meas[1], meas[2], meas[3], meas[5], meas[7]
+    phi_d, th_d, psi_d, z_d = meas[1], meas[3], meas[5], meas[7]
     wbar = omega_bar_of_inputs(model, v0, v1, v2, v3)
     f0, f1, f2, f3 = drift(model, phi_d, th_d, psi_d, z_d, wbar)
-    gz = tilt_cos(phi, th, tilt_min) * inv_mass
     a0 = f0 + model[13] * v0
     a1 = f1 + model[14] * v1
     a2 = f2 + model[15] * v2
@@ -117,4 +134,4 @@ def observer_update(
 
 
 #: the observer's pure functions (checked and compiled by ``tests/test_compilable.py``).
-OBSERVER_FUNCTIONS = (observer_reset, observer_estimate, observer_update)
+OBSERVER_FUNCTIONS = (observer_reset, observer_estimate, observer_update, observer_update_gz)

@@ -95,14 +95,14 @@ def compiled_kernel(law_functions: LawFunctions, full_stack: bool, measures_acce
             *rigid_body.PURE_FUNCTIONS, *MT_FUNCTIONS, *law_functions,
         )  # fmt: skip
         fns, _problems = pure_closure(roots)
-        rebind: dict[Any, dict[str, Any]] = {}
+        # the kernel calls the pipeline's step directly (no forwarding function in between: each
+        # level copies the pipeline's parameters and state, some hundreds of floats, a tick)
+        fly: dict[str, Any] = {}
         if measures_accel:
-            rebind[kernel_mod.fly_span] = {"_pipeline": kernel_mod._pipeline_sensed}
-            if full_stack:
-                rebind[kernel_mod._pipeline_sensed] = {"pipeline_step_sensed": pipeline_mod.pipeline_step_full_sensed}
-        elif full_stack:
-            rebind[kernel_mod._pipeline] = {"pipeline_step": pipeline_mod.pipeline_step_full}
-        twins = compile_pure(fns, rebind=rebind or None)
+            fly["_sensed"] = kernel_mod._sensed_imu
+        if full_stack:
+            fly["pipeline_step_sensed"] = pipeline_mod.pipeline_step_full_sensed
+        twins = compile_pure(fns, rebind={kernel_mod.fly_span: fly} if fly else None)
         k = _Kernel(twins[kernel_mod.fly_span], LawFunctions(*(twins[f] for f in law_functions)))
         _KERNELS[key] = k
     return k

@@ -29,9 +29,9 @@ import numpy as np
 
 from fc.estimate import EST_DEAD_RECKONING, estimate_step
 from fc.modes.base import WATCH_DIST2, WATCH_DIST3, WATCH_NONE, WATCH_TIME, WATCH_Z_NEAR
-from fc.pipeline import VehicleState, pipeline_step, pipeline_step_sensed
+from fc.pipeline import VehicleState, pipeline_step_sensed
 from lab.fast.mt import mt_gauss, mt_gauss_fill
-from sim_bridge.plants.rigid_body import rigid_body_substep, rigid_body_targets
+from sim_bridge.plants.rigid_body import rigid_body_substep_lag, rigid_body_targets, rotor_lag
 from sim_bridge.sensors import specific_force_frd
 from smcpilot.frames import euler_from_quat, wrap_pi
 from smcpilot.protocol import FLAG_ARMED, FLAG_LANDING, FLAG_POSITION_HOLD
@@ -97,16 +97,20 @@ def _noisy3(a: float, b: float, c: float, std: float, z0: float, z1: float, z2: 
     return a + (0.0 + z0 * std), b + (0.0 + z1 * std), c + (0.0 + z2 * std)
 
 
-def _pipeline(ps, st, cmd, pp, dt_s, law, sensed):  # type: ignore[no-untyped-def]
-    """The pipeline's tick for a law that takes nothing sensed beyond the state (``sensed`` unused).
-    Compiled for a whole-stack law with :func:`fc.pipeline.pipeline_step_full` in its place, and
-    for a law that measures acceleration :func:`_pipeline_sensed` takes its place."""
-    return pipeline_step(ps, st, cmd, pp, dt_s, law)
+def _sensed_none(ok: bool, f0: float, f1: float, f2: float, phi: float, theta: float, psi: float, g: float) -> tuple[()]:
+    """What a law that takes nothing sensed beyond the state gets: nothing. The kernel calls
+    :func:`fc.pipeline.pipeline_step_sensed` (for a whole-stack law
+    :func:`fc.pipeline.pipeline_step_full_sensed` takes its place) with it; for a law that measures
+    acceleration :func:`_sensed_imu` takes its place."""
+    return ()
 
 
-def _pipeline_sensed(ps, st, cmd, pp, dt_s, law, sensed):  # type: ignore[no-untyped-def]
-    """The pipeline's tick for a law that measures acceleration (``sensed``: the IMU's, paper frame)."""
-    return pipeline_step_sensed(ps, st, cmd, pp, dt_s, law, sensed)
+def _sensed_imu(ok: bool, f0: float, f1: float, f2: float, phi: float, theta: float, psi: float, g: float) -> tuple[float, float, float]:
+    """What a law that measures acceleration gets: the IMU's (paper frame) of the specific force
+    ``f`` as the wire carries it, rotated with the estimate's attitude; NaN unless ``ok``."""
+    if ok:
+        return accel_of_specific_force(f0, f1, f2, phi, theta, psi, g)
+    return (math.nan, math.nan, math.nan)
 
 
 def _watch_holds(kind: int, a: float, b: float, c: float, r: float, x: float, y: float, z: float, t_s: float) -> bool:
@@ -207,6 +211,8 @@ def fly_span(
     n_fgz = 0
     for gi in range(n_fg):
         n_fgz += (2 if fg[gi, 5] > 0.0 else 0) + (3 if fg[gi, 6] > 0.0 else 0)
+    # the rotors' lag over half a physics step (the same for every step)
+    e_half = rotor_lag(dt_phys, rbp)
     k = 0
     code = 0
     n_missing = 0
@@ -318,7 +324,6 @@ def fly_span(
                 or _f32_overflows(w[8]) or _f32_overflows(w[9]) or _f32_overflows(w[10]) or _f32_overflows(w[11])):  # fmt: skip
             code = 3
             break
-        sensed = (nan, nan, nan)
         f0 = nan
         f1 = nan
         f2 = nan
@@ -360,9 +365,9 @@ def fly_span(
             if _watch_holds(wkind, wa, wb, wc, wr, ex, ey, ez, t_s):
                 code = 1
                 break
-            if imu_on and _isfinite(f0) and _isfinite(f1) and _isfinite(f2):
-                sensed = accel_of_specific_force(f0, f1, f2, est_new[6], est_new[7], est_new[8], pp.gravity_mps2)
-            ps_new, out_new = _pipeline(ps, est_new, cmd, pp, dt_ctrl, law, sensed)
+            sensed = _sensed(imu_on and _isfinite(f0) and _isfinite(f1) and _isfinite(f2), f0, f1, f2, est_new[6], est_new[7],
+                             est_new[8], pp.gravity_mps2)  # fmt: skip
+            ps_new, out_new = pipeline_step_sensed(ps, est_new, cmd, pp, dt_ctrl, law, sensed)
             mo = out_new[0]
             ul = out_new[6]
             if out_new[9] or not (_isfinite(mo[0] + mo[1] + mo[2] + mo[3]) and _isfinite(ul[0] + ul[1] + ul[2] + ul[3])):
@@ -532,7 +537,7 @@ def fly_span(
                 tqx = tqx + fault_torque[0]
                 tqy = tqy + fault_torque[1]
                 tqz = tqz + fault_torque[2]
-            s, accel, ok = rigid_body_substep(s, targets, (fx, fy, fz), (tqx, tqy, tqz), t, dt_phys, rbp, u_in)
+            s, accel, ok = rigid_body_substep_lag(s, targets, (fx, fy, fz), (tqx, tqy, tqz), t, dt_phys, rbp, u_in, e_half)
             if not ok:
                 io_f[0] = t + dt_phys
                 t_us = t_tick  # the tick whose physics diverged (it counts as flown by the FC)
@@ -577,4 +582,7 @@ def fly_span(
 
 #: the kernel and what it calls of its own (compiled with the pipeline's, the estimate's, the
 #: plant's and the random streams' pure functions: :data:`lab.fast.flight.KERNEL_FUNCTIONS`).
-KERNEL_FUNCTIONS = (fly_span, _pipeline, _pipeline_sensed, _noisy3, _noise_draws, _watch_holds, _f32, _f32_overflows)
+KERNEL_FUNCTIONS = (fly_span, _sensed_none, _sensed_imu, _noisy3, _noise_draws, _watch_holds, _f32, _f32_overflows)
+
+#: what the kernel calls for a tick's sensed quantities (rebound for a law that measures acceleration).
+_sensed = _sensed_none

@@ -92,7 +92,8 @@ from smcpilot.vehicle import VehicleParams
 
 __all__ = [
     "RigidBodyPlant", "RigidBodyParams", "StepInput", "NOMINAL_INPUT", "VehicleObservation", "STATE_NAMES",
-    "DEFAULT_MAX_STEP_S", "rigid_body_params", "rigid_body_step", "rigid_body_substep", "rigid_body_targets",
+    "DEFAULT_MAX_STEP_S", "rigid_body_params", "rigid_body_step", "rigid_body_substep", "rigid_body_substep_lag", "rotor_lag",
+    "rigid_body_targets",
 ]  # fmt: skip
 
 STATE_NAMES: tuple[str, ...] = (
@@ -232,23 +233,10 @@ def _deriv(
     dq = aly + cy * p * r + jr_y * wbar * p - kay * q * (q if q > 0.0 else -q)
     dr = alz + cz * p * q - kaz * r * (r if r > 0.0 else -r)
     if paper_dist:
-        phi = _atan2(2.0 * (qw * qx + qy * qz), 1.0 - 2.0 * (qx * qx + qy * qy))
-        st = 2.0 * (qw * qy - qz * qx)
-        theta = _asin(1.0 if st > 1.0 else (-1.0 if st < -1.0 else st))
-        psi = _atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
-        n = turns
-        if psi - psi0 > _PI:  # crossed -pi -> +pi within the step
-            n = turns - 1.0
-        elif psi - psi0 < -_PI:
-            n = turns + 1.0
-        if n != 0.0:
-            psi = psi + _TWO_PI * n
-        d_phi, d_theta, d_psi, d_z = paper_disturbance(t, phi, theta, psi, z)
-        sp, cp = _sin(phi), _cos(phi)
-        sth, cth = _sin(theta), _cos(theta)
-        dp += d_phi - sth * d_psi
-        dq += cp * d_theta + sp * cth * d_psi
-        dr += -sp * d_theta + cp * cth * d_psi
+        e_p, e_q, e_r, d_z = _paper_accel(qw, qx, qy, qz, z, t, psi0, turns)
+        dp += e_p
+        dq += e_q
+        dr += e_r
         az += d_z
     return (
         ax, ay, az,
@@ -258,6 +246,27 @@ def _deriv(
         0.5 * (qw * r + qx * q - qy * p),
         dp, dq, dr,
     )  # fmt: skip
+
+
+def _paper_accel(qw: float, qx: float, qy: float, qz: float, z: float, t: float, psi0: float, turns: float) -> tuple[float, float, float, float]:
+    """The paper's disturbances as :func:`_deriv` adds them: (body angular accelerations p', q',
+    r' [rad/s^2], z'' [m/s^2]), with the continuous heading (see there). Its own function, so
+    that the compiled :func:`_deriv` stays small enough to be inlined into the RK4 step."""
+    phi = _atan2(2.0 * (qw * qx + qy * qz), 1.0 - 2.0 * (qx * qx + qy * qy))
+    st = 2.0 * (qw * qy - qz * qx)
+    theta = _asin(1.0 if st > 1.0 else (-1.0 if st < -1.0 else st))
+    psi = _atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+    n = turns
+    if psi - psi0 > _PI:  # crossed -pi -> +pi within the step
+        n = turns - 1.0
+    elif psi - psi0 < -_PI:
+        n = turns + 1.0
+    if n != 0.0:
+        psi = psi + _TWO_PI * n
+    d_phi, d_theta, d_psi, d_z = paper_disturbance(t, phi, theta, psi, z)
+    sp, cp = _sin(phi), _cos(phi)
+    sth, cth = _sin(theta), _cos(theta)
+    return d_phi - sth * d_psi, cp * d_theta + sp * cth * d_psi, -sp * d_theta + cp * cth * d_psi, d_z
 
 
 def rigid_body_step(
@@ -293,9 +302,30 @@ def rigid_body_substep(
     u: StepInput,
 ) -> tuple[tuple[float, ...], tuple[float, float, float], bool]:
     """:func:`rigid_body_step` with the commanded rotor speeds (:func:`rigid_body_targets`) given."""
-    (kp_m, dkp_x, dkp_y, cd_z, inv_m, inv_ix, inv_iy, inv_iz, _idle_sq, _span_sq, w_max, tau_m,
+    return rigid_body_substep_lag(s, targets, force_world_n, torque_body_n_m, t, h, p, u, rotor_lag(h, p))
+
+
+def rotor_lag(h: float, p: RigidBodyParams) -> float:
+    """exp(-h / (2 tau_m)): how much of a rotor's distance to its target speed is left after half a
+    step of ``h`` seconds (what :func:`rigid_body_substep_lag` takes; the same for every step of ``h``)."""
+    return _exp(-0.5 * h / p.tau_m)
+
+
+def rigid_body_substep_lag(
+    s: Sequence[float],
+    targets: tuple[float, float, float, float],
+    force_world_n: Sequence[float],
+    torque_body_n_m: Sequence[float],
+    t: float,
+    h: float,
+    p: RigidBodyParams,
+    u: StepInput,
+    e_half: float,
+) -> tuple[tuple[float, ...], tuple[float, float, float], bool]:
+    """:func:`rigid_body_substep` with the rotors' lag over half the step, ``rotor_lag(h, p)``,
+    given (computed once by a caller that takes many steps of ``h``)."""
+    (kp_m, dkp_x, dkp_y, cd_z, inv_m, inv_ix, inv_iy, inv_iz, _idle_sq, _span_sq, w_max, _tau_m,
      ground_contact, k) = p  # fmt: skip
-    e_half = _exp(-0.5 * h / tau_m)
     e_full = e_half * e_half
     fx, fy, fz = force_world_n[0], force_world_n[1], force_world_n[2]
     tqx, tqy, tqz = torque_body_n_m[0], torque_body_n_m[1], torque_body_n_m[2]
@@ -518,13 +548,14 @@ class RigidBodyPlant(PlantBase):
         s = self._s
         u = self._input
         psi0 = self._psi
+        e_half = rotor_lag(h, p)
         for i in range(n):
             t = t_s + i * h
             env.advance(h)
             if faults is not None:
                 faults.advance(t, h)
             u, force, torque = self.held_input(u)
-            s, accel, ok = rigid_body_substep(s, targets, force, torque, t, h, p, u)
+            s, accel, ok = rigid_body_substep_lag(s, targets, force, torque, t, h, p, u, e_half)
             if not ok:
                 self._s = s
                 self._input = u
@@ -585,4 +616,7 @@ class RigidBodyPlant(PlantBase):
 
 
 #: the pure step and everything it calls (checked and compiled by ``tests/test_compilable.py``).
-PURE_FUNCTIONS = (rigid_body_step, rigid_body_substep, rigid_body_targets, _deriv, sanitize_command, paper_disturbance)
+PURE_FUNCTIONS = (
+    rigid_body_step, rigid_body_substep, rigid_body_substep_lag, rotor_lag, rigid_body_targets, _deriv, _paper_accel,
+    sanitize_command, paper_disturbance,
+)  # fmt: skip
