@@ -99,16 +99,20 @@ def fly(apps: Sequence[FlightControllerApp]) -> int:
         live = list(apps)
         owners: dict[int, tuple[FlightControllerApp, bool]] = {}
         last_between = mono()
-        wait_s = 0.1
+        impaired: list[FlightControllerApp] = []
         while live:
             if not owners:
                 owners = {a.sim.fileno(): (a, True) for a in live}
                 owners.update({a.gcs.fileno(): (a, False) for a in live if a.gcs is not None})
-                wait_s = min(a.lockstep_wait_s() for a in live)
+                # an impaired link holds datagrams back: its app looks at it on every turn (as its own loop
+                # does), and the loop wakes when the first held one is due
+                impaired = [a for a in live if a._impaired]
+            wait_s = min(a.lockstep_wait_s() for a in impaired) if impaired else 0.1
             readable, _, _ = select.select(list(owners), (), (), wait_s)
             ended = []
-            for fd in readable:
-                app, is_sim = owners[fd]
+            turn = [owners[fd] for fd in readable]
+            turn += [(a, True) for a in impaired]
+            for app, is_sim in turn:
                 if app._stop:
                     continue
                 try:
@@ -183,10 +187,10 @@ def fly_realtime(apps: Sequence[FlightControllerApp]) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m fc.group",
-        description="Several lockstep flight controllers in one process and one loop (a lockstep swarm on few cores):"
-        " each is the one `python -m fc ARGS` flies, its lines printed as '@I LINE'.",
+        description="Several flight controllers in one process (a swarm on few cores): lockstep ones in one loop, real-time"
+        " ones a thread each; each is the one `python -m fc ARGS` flies, its lines printed as '@I LINE'.",
     )
-    p.add_argument("file", type=Path, metavar="FILE", help="JSON: a list of `python -m fc` argument lists, each with --lockstep")
+    p.add_argument("file", type=Path, metavar="FILE", help="JSON: a list of `python -m fc` argument lists, all lockstep (--lockstep) or all real time")
     args = p.parse_args(argv)
     try:
         argvs = _argument_lists(args.file)

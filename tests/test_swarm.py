@@ -341,6 +341,20 @@ def test_flight_controllers_flown_in_groups_write_the_same_logs(tmp_path: Path) 
     assert {s["tlog"] for s in grouped.fc_summaries if s} == {str(p) for p in grouped.tlogs}
 
 
+@pytest.mark.slow
+def test_a_group_of_flight_controllers_on_an_impaired_link_writes_the_same_logs(tmp_path: Path) -> None:
+    """A lossy, delayed simulator link: the group's loop releases what the link holds back on time,
+    and every state lost is re-sent until answered, so each log is still its own process's."""
+    sc = swarm_scenario(tmp_path, count=2, duration=1.0, extra="[link.sim]\nloss = 0.1\ndelay_ms = 2.0\n")
+    assert sc.sim_link.loss == 0.1
+    own = fly(sc, tmp_path / "own", "run")
+    grouped = fly(sc, tmp_path / "grouped", "run", fc_processes=1)
+    assert [p.read_bytes() for p in grouped.tlogs] == [p.read_bytes() for p in own.tlogs]
+    for s in grouped.fc_summaries:
+        assert s is not None and s["ticks"] == 501, s
+        assert sum(d["lost"] for d in s["impairment"]["sim"].values()) > 0, s["impairment"]  # (either direction)
+
+
 def test_flight_controllers_in_a_group_fly_a_real_time_swarm(tmp_path: Path) -> None:
     """In real time a group's FCs each run their own wall-clock loop (a thread each), every one to the end."""
     sc = swarm_scenario(tmp_path, count=3, duration=2.0)
