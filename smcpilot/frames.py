@@ -215,6 +215,17 @@ def euler_from_quat(q: tuple[float, float, float, float]) -> Vec3:
     )
 
 
+def euler_from_quat_heading(q: tuple[float, float, float, float], psi_rad: float) -> Vec3:
+    """:func:`euler_from_quat` of a quaternion whose squared norm is exactly 1.0 (which it then
+    does not normalise), given its heading ``atan2(2 (w z + x y), 1 - 2 (y^2 + z^2))`` computed
+    already: the same three angles, one ``atan2`` fewer."""
+    w, x, y, z = q
+    s = 2.0 * (w * y - z * x)
+    if s >= _GIMBAL_LOCK_SIN or s <= -_GIMBAL_LOCK_SIN:
+        return euler_from_quat(q)
+    return (_atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y)), _asin(s), psi_rad)
+
+
 def quat_multiply(a: tuple[float, float, float, float], b: tuple[float, float, float, float]) -> Quat:
     """Hamilton product a * b of quaternions (w, x, y, z): rotate by b, then by a."""
     aw, ax, ay, az = a

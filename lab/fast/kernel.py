@@ -31,9 +31,9 @@ from fc.estimate import EST_DEAD_RECKONING, estimate_step
 from fc.modes.base import WATCH_DIST2, WATCH_DIST3, WATCH_NONE, WATCH_TIME, WATCH_Z_NEAR
 from fc.pipeline import VehicleState, pipeline_step_sensed
 from lab.fast.mt import mt_gauss, mt_gauss_fill
-from sim_bridge.plants.rigid_body import rigid_body_substep_lag, rigid_body_targets, rotor_lag
+from sim_bridge.plants.rigid_body import heading, rigid_body_substep_lag, rigid_body_targets, rotor_lag
 from sim_bridge.sensors import specific_force_frd
-from smcpilot.frames import euler_from_quat, wrap_pi
+from smcpilot.frames import euler_from_quat, euler_from_quat_heading, wrap_pi
 from smcpilot.protocol import FLAG_ARMED, FLAG_LANDING, FLAG_POSITION_HOLD
 from smcpilot.wire import accel_of_specific_force, paper_of_wire, wire_of_paper
 
@@ -213,6 +213,9 @@ def fly_span(
         n_fgz += (2 if fg[gi, 5] > 0.0 else 0) + (3 if fg[gi, 6] > 0.0 else 0)
     # the rotors' lag over half a physics step (the same for every step)
     e_half = rotor_lag(dt_phys, rbp)
+    # the heading of the plant's state (its quaternion's, not normalised): each physics step
+    # computes it for the next (the euler angles and the paper's disturbances read it)
+    psi_s = heading(plant_s)
     k = 0
     code = 0
     n_missing = 0
@@ -225,7 +228,10 @@ def fly_span(
             plant_s[8], plant_s[9], plant_s[10], plant_s[11], plant_s[12], plant_s[13], plant_s[14], plant_s[15],
             plant_s[16],
         )  # fmt: skip
-        phi_t, theta_t, psi_t = euler_from_quat((qw, qx, qy, qz))
+        if qw * qw + qx * qx + qy * qy + qz * qz == 1.0:
+            phi_t, theta_t, psi_t = euler_from_quat_heading((qw, qx, qy, qz), psi_s)
+        else:
+            phi_t, theta_t, psi_t = euler_from_quat((qw, qx, qy, qz))
         phi_t = wrap_pi(phi_t)
         psi_t = wrap_pi(psi_t)
         o_phi, o_theta, o_psi = phi_t, theta_t, psi_t
@@ -537,13 +543,14 @@ def fly_span(
                 tqx = tqx + fault_torque[0]
                 tqy = tqy + fault_torque[1]
                 tqz = tqz + fault_torque[2]
-            s, accel, ok = rigid_body_substep_lag(s, targets, (fx, fy, fz), (tqx, tqy, tqz), t, dt_phys, rbp, u_in, e_half)
+            s, accel, ok = rigid_body_substep_lag(s, targets, (fx, fy, fz), (tqx, tqy, tqz), t, dt_phys, rbp, u_in, e_half, psi_s)
             if not ok:
                 io_f[0] = t + dt_phys
                 t_us = t_tick  # the tick whose physics diverged (it counts as flown by the FC)
                 code = 2
                 break
-            psi1 = _atan2(2.0 * (s[6] * s[9] + s[7] * s[8]), 1.0 - 2.0 * (s[8] * s[8] + s[9] * s[9]))
+            psi1 = heading(s)
+            psi_s = psi1
             if psi1 - psi0 > _PI:
                 turns = turns - 1.0
                 u_in = (eff, paper, turns)

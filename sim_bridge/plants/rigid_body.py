@@ -93,6 +93,7 @@ from smcpilot.vehicle import VehicleParams
 __all__ = [
     "RigidBodyPlant", "RigidBodyParams", "StepInput", "NOMINAL_INPUT", "VehicleObservation", "STATE_NAMES",
     "DEFAULT_MAX_STEP_S", "rigid_body_params", "rigid_body_step", "rigid_body_substep", "rigid_body_substep_lag", "rotor_lag",
+    "heading",
     "rigid_body_targets",
 ]  # fmt: skip
 
@@ -302,7 +303,12 @@ def rigid_body_substep(
     u: StepInput,
 ) -> tuple[tuple[float, ...], tuple[float, float, float], bool]:
     """:func:`rigid_body_step` with the commanded rotor speeds (:func:`rigid_body_targets`) given."""
-    return rigid_body_substep_lag(s, targets, force_world_n, torque_body_n_m, t, h, p, u, rotor_lag(h, p))
+    return rigid_body_substep_lag(s, targets, force_world_n, torque_body_n_m, t, h, p, u, rotor_lag(h, p), heading(s) if u.paper_disturbance else 0.0)
+
+
+def heading(s: Sequence[float]) -> float:
+    """The heading in (-pi, pi] of the state's attitude quaternion (not normalised)."""
+    return _atan2(2.0 * (s[6] * s[9] + s[7] * s[8]), 1.0 - 2.0 * (s[8] * s[8] + s[9] * s[9]))
 
 
 def rotor_lag(h: float, p: RigidBodyParams) -> float:
@@ -321,9 +327,12 @@ def rigid_body_substep_lag(
     p: RigidBodyParams,
     u: StepInput,
     e_half: float,
+    psi0: float,
 ) -> tuple[tuple[float, ...], tuple[float, float, float], bool]:
     """:func:`rigid_body_substep` with the rotors' lag over half the step, ``rotor_lag(h, p)``,
-    given (computed once by a caller that takes many steps of ``h``)."""
+    given (computed once by a caller that takes many steps of ``h``), and, when the paper's
+    disturbances act, the heading of ``s`` (:func:`heading`; a caller that counts the heading's
+    turns has it: read only then)."""
     (kp_m, dkp_x, dkp_y, cd_z, inv_m, inv_ix, inv_iy, inv_iz, _idle_sq, _span_sq, w_max, _tau_m,
      ground_contact, k) = p  # fmt: skip
     e_full = e_half * e_half
@@ -335,7 +344,6 @@ def rigid_body_substep_lag(
     x, y, z, vx, vy, vz, qw, qx, qy, qz, p_, q, r, w1, w2, w3, w4 = s
     tg1, tg2, tg3, tg4 = targets
     (e1, e2, e3, e4), pd, turns = u
-    psi0 = _atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz)) if pd else 0.0
     # exact rotor speeds at t + h/2 (m*) and t + h (n*)
     m1 = tg1 + (w1 - tg1) * e_half
     m2 = tg2 + (w2 - tg2) * e_half
@@ -555,7 +563,7 @@ class RigidBodyPlant(PlantBase):
             if faults is not None:
                 faults.advance(t, h)
             u, force, torque = self.held_input(u)
-            s, accel, ok = rigid_body_substep_lag(s, targets, force, torque, t, h, p, u, e_half)
+            s, accel, ok = rigid_body_substep_lag(s, targets, force, torque, t, h, p, u, e_half, heading(s) if u.paper_disturbance else 0.0)
             if not ok:
                 self._s = s
                 self._input = u
@@ -617,6 +625,6 @@ class RigidBodyPlant(PlantBase):
 
 #: the pure step and everything it calls (checked and compiled by ``tests/test_compilable.py``).
 PURE_FUNCTIONS = (
-    rigid_body_step, rigid_body_substep, rigid_body_substep_lag, rotor_lag, rigid_body_targets, _deriv, _paper_accel,
+    rigid_body_step, rigid_body_substep, rigid_body_substep_lag, rotor_lag, heading, rigid_body_targets, _deriv, _paper_accel,
     sanitize_command, paper_disturbance,
 )  # fmt: skip
