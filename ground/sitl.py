@@ -398,10 +398,13 @@ class Sitl:
             self.tlogs.append(vlog)
         if self._grouped():
             assert o.fc_processes is not None
+            by_vehicle: dict[int, Child] = {}
             for g, members in enumerate(fc_groups(len(fleet), o.fc_processes)):
                 group_file = tlog.with_name(f"{tlog.stem}-fc-group{g + 1}.json")
                 group_file.write_text(json.dumps([every_args[i][1:] for i in members], indent=1))  # (without "fc": the module)
-                self.fcs += self._spawn_group(f"fc-group{g + 1}", group_file, [f"fc{self.sysids[i]}" for i in members])
+                children = self._spawn_group(f"fc-group{g + 1}", group_file, [f"fc{self.sysids[i]}" for i in members])
+                by_vehicle.update(zip(members, children))
+            self.fcs = [by_vehicle[i] for i in range(len(fleet))]  # (in the swarm's order, whatever the groups)
         else:
             for sysid, args in zip(self.sysids, every_args):
                 self.fcs.append(self._spawn(f"fc{sysid}", args))
