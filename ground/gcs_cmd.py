@@ -399,8 +399,17 @@ def _settle(vehicle: Vehicle, wall_s: float = 2.0) -> Telemetry:
     return vehicle.telemetry
 
 
+#: ``gcs status`` without ``--sysid`` listens at least this long (wall s) after connecting, so that
+#: every vehicle behind one address (a swarm's router) has sent its 1 Hz HEARTBEAT before the list.
+HEAR_ALL_S = 1.2
+
+
 def _status(vehicle: Vehicle, args: argparse.Namespace, out: TextIO) -> int:
+    t0 = time.monotonic()
     _settle(vehicle)
+    if args.sysid is None:  # (the telemetry of the one vehicle comes at once; the others' heartbeats at 1 Hz)
+        while time.monotonic() - t0 < HEAR_ALL_S:
+            time.sleep(0.02)
     deadline = time.monotonic() + 1.5  # SYS_STATUS (the counters) comes at 1 Hz
     while not vehicle.telemetry.comm_errors and time.monotonic() < deadline:
         time.sleep(0.02)

@@ -67,7 +67,7 @@ from sim_bridge.plants.base import Plant
 from sim_bridge.proximity import Proximity
 from sim_bridge.sensors import VehicleObservation, specific_force_frd
 from smcpilot.errors import DivergenceError, WatchdogError
-from smcpilot.fastcodec import TickRecords
+from smcpilot.fastcodec import TickRecords, decode_actuator_datagram
 from smcpilot.faults import SIM_PARAM_INDEX, SIM_PARAMS, FaultError
 from smcpilot.frames import quat_nwu_flu_to_ned_frd
 from smcpilot.jit import AUTO_MIN_LOCKSTEP_S, compile_in_background
@@ -94,6 +94,19 @@ _REAL32 = mavlink.MAV_PARAM_TYPE_REAL32
 _yield = getattr(os, "sched_yield", lambda: None)
 _isfinite = math.isfinite
 #: ODOMETRY's covariances: unknown (NaN in the first element, as MAVLink says).
+
+
+class _Answer:
+    """A flight controller's answer (HIL_ACTUATOR_CONTROLS) decoded straight to the values the
+    bridge reads (:func:`smcpilot.fastcodec.decode_actuator_datagram`), in place of pymavlink's message."""
+
+    __slots__ = ("time_usec", "controls", "mode")
+    id = mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS
+
+    def __init__(self, time_usec: int, controls: tuple[float, ...], mode: int) -> None:
+        self.time_usec = time_usec
+        self.controls = controls
+        self.mode = mode
 
 
 @dataclass(frozen=True)
@@ -148,6 +161,8 @@ class SimVehicle:
         self._truth_of: tuple[object, float, VehicleObservation] | None = None
         #: the FC's address: motor commands and parameters are taken from it only.
         self.fc_addr = self.link.peers[0]
+        #: the FC's answers decoded straight to values (:meth:`receive`)
+        self._fast_answers = self.link.signing is None and self.link.impair_counters is None
         self.faults: SimFaults | None = getattr(plant, "faults", None)
         self.commands = (0.0, 0.0, 0.0, 0.0)
         self.armed = False
@@ -176,6 +191,25 @@ class SimVehicle:
     @property
     def name(self) -> str:
         return f"vehicle {self.system_id}"
+
+    def receive(self) -> list:
+        """What waits on this vehicle's link, as (message, address) in arrival order, without
+        waiting. The FC's answers are decoded straight to values (:class:`_Answer`; an unsigned,
+        unimpaired link); anything else goes through the link's full parse, counted and checked."""
+        link = self.link
+        if not self._fast_answers:
+            return link.recv(0.0)
+        out: list = []
+        fc_addr, sysid = self.fc_addr, self.system_id
+        for data, addr in link.recv_datagrams():
+            if addr == fc_addr:
+                values = decode_actuator_datagram(data, sysid)
+                if values is not None:
+                    link.heard(addr, 1)
+                    out.append((_Answer(values[0], values[2], values[3]), addr))
+                    continue
+            out.extend(link.parse(data, addr))
+        return out
 
     # -- wire ------------------------------------------------------------------------------------
     def truth_now(self) -> VehicleObservation:
@@ -389,6 +423,8 @@ class SimBridgeApp:
         self.lost = lost
         #: vehicles taken out of the world ("remove"): no physics, no separation checks.
         self._removed: set[SimVehicle] = set()
+        #: every vehicle's link's file descriptor, in the vehicles' order (made at the first receive)
+        self._fds: list[int] = []
         #: lockstep: running mean round trip state -> answer (the slowest vehicle's), wall s.
         self.rtt_s = 0.0
         #: real time, a swarm: wall seconds from the first vehicle's state to the last one's, each period.
@@ -498,21 +534,20 @@ class SimBridgeApp:
     def _recv(self, timeout_s: float) -> list[tuple[SimVehicle, list]]:
         """Messages from every vehicle's link (waiting at most ``timeout_s`` for the first)."""
         vehicles = self.vehicles
-        if len(vehicles) == 1:
+        if len(vehicles) == 1 and not vehicles[0]._fast_answers:
             v = vehicles[0]
             return [(v, v.link.recv(timeout_s))]
-        fds = [v.link.fileno() for v in vehicles]
+        fds = self._fds
+        if len(fds) != len(vehicles):
+            fds = self._fds = [v.link.fileno() for v in vehicles]
         try:
             ready, _, _ = select.select(fds, [], [], max(0.0, timeout_s))
         except (OSError, ValueError):
             ready = fds
         if not ready:
             return []
-        out = []
-        for v, fd in zip(vehicles, fds):
-            if fd in ready:
-                out.append((v, v.link.recv(0.0)))
-        return out
+        ready_set = set(ready)
+        return [(v, v.receive()) for v, fd in zip(vehicles, fds) if fd in ready_set]
 
     # -- loops -----------------------------------------------------------------------------------
     def run(self) -> int:

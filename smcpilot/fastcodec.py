@@ -62,6 +62,7 @@ __all__ = [
     "framed",
     "TickRecords",
     "decode_state_datagram",
+    "decode_actuator_datagram",
 ]
 
 _crc16 = mavlink.mcrf4xx
@@ -525,6 +526,23 @@ _STATE_LAYOUT = (
     (ID_ODOMETRY, _ODO_EXTRA, _ODO_PAYLOAD.unpack_from, _ODO_PAYLOAD.size),
     (ID_LOCAL_POSITION_NED, _LOCAL_POSITION_NED_EXTRA, _LOCAL_POSITION_NED_PAYLOAD.unpack_from, _LOCAL_POSITION_NED_PAYLOAD.size),
 )
+
+
+def decode_actuator_datagram(data: bytes, system: int) -> tuple[int, int, tuple[float, ...], int] | None:
+    """A flight controller's answer (one HIL_ACTUATOR_CONTROLS from ``system``'s FC component,
+    unsigned MAVLink 2, as :meth:`TickRecords.actuators` writes it) decoded straight to values:
+    (time_usec, flags, the 16 controls, mode), pymavlink's values (float32 widened). None for
+    anything else (another message, a signed or foreign packet, a bad CRC, trailing bytes): the
+    link's full parse then handles it, counts and all."""
+    size = len(data)
+    if (size < 12 or data[0] != 0xFD or data[2] or data[3] or 12 + data[1] != size or data[5] != system
+            or data[6] != FC_COMPONENT_ID or (data[7] | (data[8] << 8) | (data[9] << 16)) != ID_HIL_ACTUATOR_CONTROLS):  # fmt: skip
+        return None
+    checked = _checked_payload(data, _HIL_EXTRA, _HIL_PAYLOAD.size)
+    if checked is None:
+        return None
+    v = _HIL_PAYLOAD.unpack_from(checked[0])
+    return v[0], v[1], v[2:18], v[18]
 
 
 def decode_state_datagram(data: bytes, system: int) -> tuple[tuple, tuple, tuple, tuple, tuple[bytes, bytes, bytes, bytes]] | None:

@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from smcpilot import fastcodec
+from smcpilot.protocol import FC_COMPONENT_ID, SIM_COMPONENT_ID
 
 U8 = st.integers(0, 0xFF)
 U32 = st.integers(0, 2**32 - 1)
@@ -249,5 +250,41 @@ def test_anything_but_the_simulators_datagram_goes_to_the_full_parse() -> None:
         "a signed packet": fastcodec.decode_state_datagram(good[:2] + b"\x01" + good[3:], 3),
         "a STATUSTEXT after": fastcodec.decode_state_datagram(
             good + mavlink.MAVLink(None, srcSystem=3, srcComponent=200).statustext_encode(4, b"SIM: hello").pack(mavlink.MAVLink(None, 3, 200)), 3),
+    }  # fmt: skip
+    assert all(d is None for d in cases.values()), [k for k, d in cases.items() if d is not None]
+
+
+# -- the flight controller's answer, decoded straight to values (the simulator's side) ---------------------
+@settings(max_examples=300, deadline=None)
+@given(st.integers(1, 255), st.integers(0, 255), st.integers(0, 2**63 - 1), st.lists(_F32, min_size=16, max_size=16),
+       st.integers(0, 255), st.integers(0, 2**64 - 1))  # fmt: skip
+@example(1, 0, 0, [0.0] * 16, 0, 0)  # the payload trimmed to one byte
+def test_the_fcs_answer_decodes_to_pymavlinks_values(sysid: int, seq: int, t_us: int, controls: list[float], mode: int, flags: int) -> None:
+    mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=FC_COMPONENT_ID)
+    mav.seq = seq
+    data = bytes(mav.hil_actuator_controls_encode(t_us, controls, mode, flags).pack(mav))
+    if controls[4:] == [0.0] * 12 and all(struct.pack("<f", c) != struct.pack("<f", -0.0) for c in controls[4:]):
+        assert data == fastcodec.TickRecords(sysid).actuators(seq, t_us, controls[:4], mode, flags)  # (what the FC sends)
+    d = fastcodec.decode_actuator_datagram(data, sysid)
+    assert d is not None
+    (m,) = mavlink.MAVLink(None).parse_buffer(data)
+    assert d[0] == m.time_usec and d[1] == m.flags and d[3] == m.mode and len(d[2]) == 16
+    assert all(_same(a, b) for a, b in zip(d[2], m.controls))
+
+
+def test_anything_but_the_fcs_answer_goes_to_the_full_parse() -> None:
+    good = fastcodec.TickRecords(3).actuators(9, 4_000_000, [0.5, 0.5, 0.5, 0.5], 129)
+    assert fastcodec.decode_actuator_datagram(good, 3) is not None
+    sim = mavlink.MAVLink(None, srcSystem=3, srcComponent=SIM_COMPONENT_ID)
+    cases = {
+        "another system": fastcodec.decode_actuator_datagram(good, 4),
+        "a corrupted byte": fastcodec.decode_actuator_datagram(good[:20] + bytes([good[20] ^ 1]) + good[21:], 3),
+        "cut short": fastcodec.decode_actuator_datagram(good[:-1], 3),
+        "a byte more": fastcodec.decode_actuator_datagram(good + b"\x00", 3),
+        "two answers": fastcodec.decode_actuator_datagram(good + good, 3),
+        "a signed packet": fastcodec.decode_actuator_datagram(good[:2] + b"\x01" + good[3:], 3),
+        "another component": fastcodec.decode_actuator_datagram(bytes(sim.hil_actuator_controls_encode(1, [0.0] * 16, 0, 0).pack(sim)), 3),
+        "a PARAM_SET": fastcodec.decode_actuator_datagram(bytes(sim.param_set_encode(3, 0, b"SIM_MOT_OFF", 1.0, 9).pack(sim)), 3),
+        "nothing": fastcodec.decode_actuator_datagram(b"", 3),
     }  # fmt: skip
     assert all(d is None for d in cases.values()), [k for k, d in cases.items() if d is not None]
