@@ -215,16 +215,14 @@ def rigid_body_targets(motor_commands: Sequence[float], armed: bool, p: RigidBod
 def _deriv(
     k: tuple[float, ...],
     vx: float, vy: float, vz: float, qw: float, qx: float, qy: float, qz: float, p: float, q: float, r: float,
-    z: float, t: float, acc_t: float, ax_e: float, ay_e: float, az_e: float, alx: float, aly: float, alz: float, wbar: float,
-    paper_dist: bool, psi0: float, turns: float,
+    acc_t: float, ax_e: float, ay_e: float, az_e: float, alx: float, aly: float, alz: float, wbar: float,
 ) -> tuple[float, ...]:  # fmt: skip
-    """d/dt of (vx, vy, vz, qw, qx, qy, qz, p, q, r).
+    """d/dt of (vx, vy, vz, qw, qx, qy, qz, p, q, r) without the paper's disturbances
+    (:func:`_add_paper` adds them).
 
     acc_t: thrust / m [m/s^2]; ax_e..az_e: external force / m, world [m/s^2];
-    alx..alz: rotor + external torque / I, body [rad/s^2]; wbar: net rotor speed [rad/s];
-    paper_dist: add the paper's disturbances, with the continuous heading: the quaternion's
-    heading unwrapped against psi0 (the heading in (-pi, pi] at the step's start, whose whole
-    turns are ``turns``).
+    alx..alz: rotor + external torque / I, body [rad/s^2]; wbar: net rotor speed [rad/s].
+    Small and without calls, so that compiled it is inlined into the RK4 step.
     """
     g, kdx, kdy, kdz, cx, cy, cz, kax, kay, kaz, jr_x, jr_y = k
     ax = acc_t * 2.0 * (qx * qz + qw * qy) - kdx * vx + ax_e
@@ -233,12 +231,6 @@ def _deriv(
     dp = alx + cx * q * r - jr_x * wbar * q - kax * p * (p if p > 0.0 else -p)
     dq = aly + cy * p * r + jr_y * wbar * p - kay * q * (q if q > 0.0 else -q)
     dr = alz + cz * p * q - kaz * r * (r if r > 0.0 else -r)
-    if paper_dist:
-        e_p, e_q, e_r, d_z = _paper_accel(qw, qx, qy, qz, z, t, psi0, turns)
-        dp += e_p
-        dq += e_q
-        dr += e_r
-        az += d_z
     return (
         ax, ay, az,
         -0.5 * (qx * p + qy * q + qz * r),
@@ -249,10 +241,19 @@ def _deriv(
     )  # fmt: skip
 
 
+def _add_paper(
+    d: tuple[float, ...], qw: float, qx: float, qy: float, qz: float, z: float, t: float, psi0: float, turns: float
+) -> tuple[float, ...]:
+    """:func:`_deriv`'s ``d`` with the paper's disturbances at time ``t``, height ``z`` and this
+    attitude added, with the continuous heading: the quaternion's heading unwrapped against psi0
+    (the heading in (-pi, pi] at the step's start, whose whole turns are ``turns``)."""
+    e_p, e_q, e_r, d_z = _paper_accel(qw, qx, qy, qz, z, t, psi0, turns)
+    return (d[0], d[1], d[2] + d_z, d[3], d[4], d[5], d[6], d[7] + e_p, d[8] + e_q, d[9] + e_r)
+
+
 def _paper_accel(qw: float, qx: float, qy: float, qz: float, z: float, t: float, psi0: float, turns: float) -> tuple[float, float, float, float]:
-    """The paper's disturbances as :func:`_deriv` adds them: (body angular accelerations p', q',
-    r' [rad/s^2], z'' [m/s^2]), with the continuous heading (see there). Its own function, so
-    that the compiled :func:`_deriv` stays small enough to be inlined into the RK4 step."""
+    """The paper's disturbances as :func:`_add_paper` adds them: (body angular accelerations p',
+    q', r' [rad/s^2], z'' [m/s^2]), with the continuous heading (see there)."""
     phi = _atan2(2.0 * (qw * qx + qy * qz), 1.0 - 2.0 * (qx * qx + qy * qy))
     st = 2.0 * (qw * qy - qz * qx)
     theta = _asin(1.0 if st > 1.0 else (-1.0 if st < -1.0 else st))
@@ -374,30 +375,34 @@ def rigid_body_substep_lag(
     bC = n1 - n2 + n3 - n4
 
     hh = 0.5 * h
-    a1, a2, a3, a4, a5, a6, a7, a8, a9, a10 = _deriv(
-        k, vx, vy, vz, qw, qx, qy, qz, p_, q, r, z, t, tA, ax_e, ay_e, az_e, xA, yA, zA, bA, pd, psi0, turns
-    )
+    dA = _deriv(k, vx, vy, vz, qw, qx, qy, qz, p_, q, r, tA, ax_e, ay_e, az_e, xA, yA, zA, bA)
+    if pd:
+        dA = _add_paper(dA, qw, qx, qy, qz, z, t, psi0, turns)
+    a1, a2, a3, a4, a5, a6, a7, a8, a9, a10 = dA
     b1, b2, b3, b4, b5, b6, b7, b8, b9, b10 = (
         vx + hh * a1, vy + hh * a2, vz + hh * a3, qw + hh * a4, qx + hh * a5,
         qy + hh * a6, qz + hh * a7, p_ + hh * a8, q + hh * a9, r + hh * a10,
     )  # fmt: skip
-    c1, c2, c3, c4, c5, c6, c7, c8, c9, c10 = _deriv(
-        k, b1, b2, b3, b4, b5, b6, b7, b8, b9, b10, z + hh * vz, t + hh, tB, ax_e, ay_e, az_e, xB, yB, zB, bB, pd, psi0, turns
-    )
+    dB = _deriv(k, b1, b2, b3, b4, b5, b6, b7, b8, b9, b10, tB, ax_e, ay_e, az_e, xB, yB, zB, bB)
+    if pd:
+        dB = _add_paper(dB, b4, b5, b6, b7, z + hh * vz, t + hh, psi0, turns)
+    c1, c2, c3, c4, c5, c6, c7, c8, c9, c10 = dB
     d1, d2, d3, d4, d5, d6, d7, d8, d9, d10 = (
         vx + hh * c1, vy + hh * c2, vz + hh * c3, qw + hh * c4, qx + hh * c5,
         qy + hh * c6, qz + hh * c7, p_ + hh * c8, q + hh * c9, r + hh * c10,
     )  # fmt: skip
-    e1, e2, e3, e4, e5, e6, e7, e8, e9, e10 = _deriv(
-        k, d1, d2, d3, d4, d5, d6, d7, d8, d9, d10, z + hh * b3, t + hh, tB, ax_e, ay_e, az_e, xB, yB, zB, bB, pd, psi0, turns
-    )
+    dC = _deriv(k, d1, d2, d3, d4, d5, d6, d7, d8, d9, d10, tB, ax_e, ay_e, az_e, xB, yB, zB, bB)
+    if pd:
+        dC = _add_paper(dC, d4, d5, d6, d7, z + hh * b3, t + hh, psi0, turns)
+    e1, e2, e3, e4, e5, e6, e7, e8, e9, e10 = dC
     f1, f2, f3, f4, f5, f6, f7, f8, f9, f10 = (
         vx + h * e1, vy + h * e2, vz + h * e3, qw + h * e4, qx + h * e5,
         qy + h * e6, qz + h * e7, p_ + h * e8, q + h * e9, r + h * e10,
     )  # fmt: skip
-    g1, g2, g3, g4, g5, g6, g7, g8, g9, g10 = _deriv(
-        k, f1, f2, f3, f4, f5, f6, f7, f8, f9, f10, z + h * d3, t + h, tC, ax_e, ay_e, az_e, xC, yC, zC, bC, pd, psi0, turns
-    )
+    dD = _deriv(k, f1, f2, f3, f4, f5, f6, f7, f8, f9, f10, tC, ax_e, ay_e, az_e, xC, yC, zC, bC)
+    if pd:
+        dD = _add_paper(dD, f4, f5, f6, f7, z + h * d3, t + h, psi0, turns)
+    g1, g2, g3, g4, g5, g6, g7, g8, g9, g10 = dD
     h6 = h / 6.0
     vx1 = vx + h6 * (a1 + 2.0 * (c1 + e1) + g1)
     vy1 = vy + h6 * (a2 + 2.0 * (c2 + e2) + g2)
@@ -625,6 +630,6 @@ class RigidBodyPlant(PlantBase):
 
 #: the pure step and everything it calls (checked and compiled by ``tests/test_compilable.py``).
 PURE_FUNCTIONS = (
-    rigid_body_step, rigid_body_substep, rigid_body_substep_lag, rotor_lag, heading, rigid_body_targets, _deriv, _paper_accel,
-    sanitize_command, paper_disturbance,
+    rigid_body_step, rigid_body_substep, rigid_body_substep_lag, rotor_lag, heading, rigid_body_targets, _deriv, _add_paper,
+    _paper_accel, sanitize_command, paper_disturbance,
 )  # fmt: skip
