@@ -43,24 +43,15 @@ def add_arguments(sub: argparse._SubParsersAction) -> None:
     c.set_defaults(bench=bench_swarm)
 
 
-def _counts(text: str) -> list[int]:
+def _whole_numbers(text: str, flag: str, what: str, lowest: int) -> list[int]:
+    """``--flag N,N,...``: whole numbers in ``lowest..MAX_VEHICLES``, each once (else one line, exit 2)."""
     try:
-        counts = [int(v) for v in text.split(",")]
+        values = [int(v) for v in text.split(",")]
     except ValueError:
-        raise ConfigError(f"--counts must be whole numbers K,K,..., got {text!r}") from None
-    if not counts or not all(1 <= k <= MAX_VEHICLES for k in counts):
-        raise ConfigError(f"--counts must lie in 1..{MAX_VEHICLES}, got {text!r}")
-    return counts
-
-
-def _layouts(text: str) -> list[int]:
-    try:
-        layouts = [int(v) for v in text.split(",")]
-    except ValueError:
-        raise ConfigError(f"--fc-processes must be whole numbers N,N,... (0: one process per vehicle), got {text!r}") from None
-    if not layouts or not all(0 <= n <= MAX_VEHICLES for n in layouts):
-        raise ConfigError(f"--fc-processes must lie in 0..{MAX_VEHICLES}, got {text!r}")
-    return list(dict.fromkeys(layouts))
+        raise ConfigError(f"{flag} must be whole numbers {what}, got {text!r}") from None
+    if not values or not all(lowest <= v <= MAX_VEHICLES for v in values):
+        raise ConfigError(f"{flag} must lie in {lowest}..{MAX_VEHICLES}, got {text!r}")
+    return list(dict.fromkeys(values))
 
 
 def _fly(k: int, duration_s: float, lockstep: bool, log_dir: Path, fc_processes: int = 0) -> dict:
@@ -111,12 +102,12 @@ def _fly(k: int, duration_s: float, lockstep: bool, log_dir: Path, fc_processes:
 
 
 def bench_swarm(args: argparse.Namespace) -> int:
-    counts = _counts(args.counts)
+    counts = _whole_numbers(args.counts, "--counts", "K,K,...", 1)
     if not args.duration > 0:
         raise ConfigError(f"--duration must be > 0 simulated seconds, got {args.duration:g}")
     print(f"bench swarm: {platform.python_implementation()} {platform.python_version()}, {os.cpu_count()} CPUs; lockstep,"
           f" {args.duration:g} simulated s of take-off and hover per run, no ground link")  # fmt: skip
-    layouts = _layouts(args.fc_processes)
+    layouts = _whole_numbers(args.fc_processes, "--fc-processes", "N,N,... (0: one process per vehicle)", 0)
     print(f"{'K':>4} {'FC procs':>8} {'start s':>8} {'wall s':>8} {'veh-s/s':>9} {'vs K=1':>7} {'x real':>7} {'ticks/s':>9} {'CPU/veh':>8}"
           f" {'kernel':>7} {'compiled':>8} {'sim CPU':>8} {'physics':>9} {'skew s':>7}")  # fmt: skip
     base: float | None = None

@@ -65,7 +65,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from sim_bridge.faults import SEVERITY_REJECTED, SimFaults
 from sim_bridge.plants.base import Plant
 from sim_bridge.proximity import Proximity
-from sim_bridge.sensors import VehicleObservation, specific_force_frd
+from sim_bridge.sensors import specific_force_frd
 from smcpilot.errors import DivergenceError, WatchdogError
 from smcpilot.fastcodec import TickRecords, decode_actuator_datagram
 from smcpilot.faults import SIM_PARAM_INDEX, SIM_PARAMS, FaultError
@@ -157,8 +157,6 @@ class SimVehicle:
         self._records = TickRecords(system_id)
         self._gravity = float(plant.vehicle.gravity_mps2)  # type: ignore[attr-defined]
         self._truth = plant.truth  # type: ignore[attr-defined]
-        #: the last truth computed, and the plant's state it was computed from (its state tuple, time)
-        self._truth_of: tuple[object, float, VehicleObservation] | None = None
         #: the FC's address: motor commands and parameters are taken from it only.
         self.fc_addr = self.link.peers[0]
         #: the FC's answers decoded straight to values (:meth:`receive`)
@@ -212,24 +210,9 @@ class SimVehicle:
         return out
 
     # -- wire ------------------------------------------------------------------------------------
-    def truth_now(self) -> VehicleObservation:
-        """The plant's true state now: computed once per state (the separation check and the
-        state sent after it share it). A plant whose state is one tuple that each change replaces
-        (the rigid body's ``_s``) is known unchanged by that tuple and its time; any other plant
-        computes it on every call."""
-        p = self.plant
-        key, t_s = getattr(p, "_s", None), getattr(p, "_t_s", None)
-        cached = self._truth_of
-        if key is not None and cached is not None and cached[0] is key and cached[1] == t_s:
-            return cached[2]
-        tru = self._truth()
-        if key is not None and t_s is not None:
-            self._truth_of = (key, t_s, tru)
-        return tru
-
     def send_state(self) -> None:
         obs = self.plant.observe()
-        tru = self.truth_now()
+        tru = self._truth()
         link = self.link
         t_us = self._clock_us()
         t_ms = (t_us // 1000) & 0xFFFFFFFF
@@ -342,7 +325,7 @@ class SimVehicle:
 
     def position_ned_m(self) -> tuple[float, float, float]:
         """The true position in the swarm's frame: NED, m, from the swarm's home."""
-        x, y, z = self.truth_now().position_m
+        x, y, z = self._truth().position_m
         return (x + self.offset_ne_m[0], -y + self.offset_ne_m[1], -z)
 
     def summary(self) -> dict:

@@ -31,7 +31,7 @@ from fc.estimate import EST_DEAD_RECKONING, estimate_step
 from fc.modes.base import WATCH_DIST2, WATCH_DIST3, WATCH_NONE, WATCH_TIME, WATCH_Z_NEAR
 from fc.pipeline import VehicleState, pipeline_step_sensed
 from lab.fast.mt import mt_gauss, mt_gauss_fill
-from sim_bridge.plants.rigid_body import heading, rigid_body_substep_lag, rigid_body_targets, rotor_lag
+from sim_bridge.plants.rigid_body import heading, heading_turns, rigid_body_substep_lag, rigid_body_targets, rotor_lag
 from sim_bridge.sensors import specific_force_frd
 from smcpilot.frames import euler_from_quat, euler_from_quat_heading, wrap_pi
 from smcpilot.protocol import FLAG_ARMED, FLAG_LANDING, FLAG_POSITION_HOLD
@@ -48,11 +48,8 @@ SPAN_OVERFLOW = 3  # the wire's float32 would overflow on the next tick; its obs
 #: math.hypot round differently from a plain square root).
 _MARGIN = 1e-9
 _F32_MAX = 3.4028234663852886e38
-_PI = math.pi
-_TWO_PI = 2.0 * math.pi
 _exp = math.exp
 _sqrt = math.sqrt
-_atan2 = math.atan2
 _isfinite = math.isfinite
 
 #: columns of a recorded row (what :class:`lab.metrics.MetricsRecorder` keeps).
@@ -549,13 +546,10 @@ def fly_span(
                 t_us = t_tick  # the tick whose physics diverged (it counts as flown by the FC)
                 code = 2
                 break
-            psi1 = heading(s)
+            psi1, turns1 = heading_turns(s, psi0, turns)
             psi_s = psi1
-            if psi1 - psi0 > _PI:
-                turns = turns - 1.0
-                u_in = (eff, paper, turns)
-            elif psi1 - psi0 < -_PI:
-                turns = turns + 1.0
+            if turns1 != turns:
+                turns = turns1
                 u_in = (eff, paper, turns)
             psi0 = psi1
             acc_x = accel[0]

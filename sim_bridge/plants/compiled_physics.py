@@ -32,7 +32,15 @@ from collections.abc import Sequence
 from typing import Any
 
 from sim_bridge.plants import rigid_body as rb
-from sim_bridge.plants.rigid_body import RigidBodyParams, RigidBodyPlant, StepInput, rigid_body_substep, rigid_body_targets
+from sim_bridge.plants.rigid_body import (
+    RigidBodyParams,
+    RigidBodyPlant,
+    StepInput,
+    heading_turns,
+    rigid_body_substep_lag,
+    rigid_body_targets,
+    rotor_lag,
+)
 from smcpilot.errors import DivergenceError
 from smcpilot.jit import cache_index, compile_pure, jit_unavailable_reason, say_once
 
@@ -62,9 +70,6 @@ PP_SIZE = 25
 #: row and the time at the end of the failing sub-step (s) in ``out``.
 OUT_SIZE = 2
 
-_atan2 = math.atan2
-_PI = math.pi
-_isfinite = math.isfinite
 
 
 def _params_of(pp, i):  # type: ignore[no-untyped-def]
@@ -102,9 +107,11 @@ def physics_span(io, pp, t_us0, dt_us, dt_s, n_steps, out):  # type: ignore[no-u
             n_sub = int(io[i, IO_NSUB])
             h = io[i, IO_H]
             accel = (io[i, IO_ACCEL], io[i, IO_ACCEL + 1], io[i, IO_ACCEL + 2])
+            e_half = rotor_lag(h, p)
             for j in range(n_sub):
                 t = t_s + j * h
-                s, accel_j, ok = rigid_body_substep(s, targets, force, torque, t, h, p, StepInput(eff, paper, turns))
+                s, accel_j, ok = rigid_body_substep_lag(s, targets, force, torque, t, h, p, StepInput(eff, paper, turns), e_half,
+                                                        psi0 if paper else 0.0)  # fmt: skip
                 if not ok:  # as step() leaves it: the state before this sub-step, the turns so far
                     for m in range(17):
                         io[i, m] = s[m]
@@ -116,14 +123,7 @@ def physics_span(io, pp, t_us0, dt_us, dt_s, n_steps, out):  # type: ignore[no-u
                     out[1] = t + h
                     return k
                 accel = accel_j
-                qw = s[6]
-                qz = s[9]
-                psi1 = _atan2(2.0 * (qw * qz + s[7] * s[8]), 1.0 - 2.0 * (s[8] * s[8] + qz * qz))
-                if psi1 - psi0 > _PI:
-                    turns = turns - 1.0
-                elif psi1 - psi0 < -_PI:
-                    turns = turns + 1.0
-                psi0 = psi1
+                psi0, turns = heading_turns(s, psi0, turns)
             for m in range(17):
                 io[i, m] = s[m]
             io[i, IO_ACCEL] = accel[0]

@@ -93,7 +93,7 @@ from smcpilot.vehicle import VehicleParams
 __all__ = [
     "RigidBodyPlant", "RigidBodyParams", "StepInput", "NOMINAL_INPUT", "VehicleObservation", "STATE_NAMES",
     "DEFAULT_MAX_STEP_S", "rigid_body_params", "rigid_body_step", "rigid_body_substep", "rigid_body_substep_lag", "rotor_lag",
-    "heading",
+    "heading", "heading_turns",
     "rigid_body_targets",
 ]  # fmt: skip
 
@@ -312,6 +312,18 @@ def heading(s: Sequence[float]) -> float:
     return _atan2(2.0 * (s[6] * s[9] + s[7] * s[8]), 1.0 - 2.0 * (s[8] * s[8] + s[9] * s[9]))
 
 
+def heading_turns(s: Sequence[float], psi0: float, turns: float) -> tuple[float, float]:
+    """After a step from heading ``psi0`` (in (-pi, pi]) to the state ``s``: the new heading
+    (:func:`heading`) and the whole turns counted, ``turns`` one less when it crossed from -pi to
+    +pi, one more when from +pi to -pi (the continuous psi of the paper's disturbances)."""
+    psi1 = heading(s)
+    if psi1 - psi0 > _PI:
+        turns = turns - 1.0
+    elif psi1 - psi0 < -_PI:
+        turns = turns + 1.0
+    return psi1, turns
+
+
 def rotor_lag(h: float, p: RigidBodyParams) -> float:
     """exp(-h / (2 tau_m)): how much of a rotor's distance to its target speed is left after half a
     step of ``h`` seconds (what :func:`rigid_body_substep_lag` takes; the same for every step of ``h``)."""
@@ -516,8 +528,10 @@ class RigidBodyPlant(PlantBase):
         self._t_s = float(t_s)
         self._accel = (0.0, 0.0, 0.0)
         self._obs_cache = None
+        #: the last :meth:`truth` and what it was made of (the state tuple, its time, the acceleration)
+        self._truth_memo: tuple[tuple[float, ...], float, tuple[float, float, float], VehicleObservation] | None = None
         #: the heading in (-pi, pi] at the end of the last step, and the whole turns it has made.
-        self._psi = _atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+        self._psi = heading(self._s)
         self._input = self._input._replace(psi_turns=0.0)
         self.env.reset()
         if self.faults is not None:
@@ -568,19 +582,15 @@ class RigidBodyPlant(PlantBase):
             if faults is not None:
                 faults.advance(t, h)
             u, force, torque = self.held_input(u)
-            s, accel, ok = rigid_body_substep_lag(s, targets, force, torque, t, h, p, u, e_half, heading(s) if u.paper_disturbance else 0.0)
+            # (psi0 is the heading of s: every writer of the state writes its heading with it)
+            s, accel, ok = rigid_body_substep_lag(s, targets, force, torque, t, h, p, u, e_half, psi0 if u.paper_disturbance else 0.0)
             if not ok:
                 self._s = s
                 self._input = u
                 raise DivergenceError("rigid-body plant state became non-finite", t + h)
-            # count the heading's turns (continuous psi of the paper's disturbances)
-            qw, qz = s[6], s[9]
-            psi1 = _atan2(2.0 * (qw * qz + s[7] * s[8]), 1.0 - 2.0 * (s[8] * s[8] + qz * qz))
-            if psi1 - psi0 > _PI:
-                u = u._replace(psi_turns=u.psi_turns - 1.0)
-            elif psi1 - psi0 < -_PI:
-                u = u._replace(psi_turns=u.psi_turns + 1.0)
-            psi0 = psi1
+            psi0, turns = heading_turns(s, psi0, u.psi_turns)
+            if turns != u.psi_turns:
+                u = u._replace(psi_turns=turns)
             self._s = s
             self._accel = accel
         self._psi = psi0
@@ -613,23 +623,32 @@ class RigidBodyPlant(PlantBase):
 
     # -- observation --------------------------------------------------------------------------------
     def truth(self) -> VehicleObservation:
-        """The exact state as a :class:`VehicleObservation` (no sensor noise)."""
-        x, y, z, vx, vy, vz, qw, qx, qy, qz, p, q, r, w1, w2, w3, w4 = self._s
+        """The exact state as a :class:`VehicleObservation` (no sensor noise). Made once per state:
+        every change of the state replaces the state tuple (by a step, a compiled span or a reset),
+        so the same tuple, time and acceleration give the same (immutable) observation back."""
+        s, t_s, accel = self._s, self._t_s, self._accel
+        memo = self._truth_memo
+        if memo is not None and memo[0] is s and memo[1] == t_s and memo[2] is accel:
+            return memo[3]
+        x, y, z, vx, vy, vz, qw, qx, qy, qz, p, q, r, w1, w2, w3, w4 = s
         phi, theta, psi = euler_from_quat((qw, qx, qy, qz))
-        return VehicleObservation(
-            t_s=self._t_s,
+        obs = VehicleObservation(
+            t_s=t_s,
             position_m=(x, y, z),
             velocity_mps=(vx, vy, vz),
             euler_rad=(wrap_pi(phi), theta, wrap_pi(psi)),
             body_rates_radps=(p, q, r),
-            accel_mps2=self._accel,
+            accel_mps2=accel,
             rotor_speed_radps=(w1, w2, w3, w4),
             quaternion=(qw, qx, qy, qz),
         )
+        self._truth_memo = (s, t_s, accel, obs)
+        return obs
 
 
 #: the pure step and everything it calls (checked and compiled by ``tests/test_compilable.py``).
 PURE_FUNCTIONS = (
-    rigid_body_step, rigid_body_substep, rigid_body_substep_lag, rotor_lag, heading, rigid_body_targets, _deriv, _add_paper,
+    rigid_body_step, rigid_body_substep, rigid_body_substep_lag, rotor_lag, heading, heading_turns, rigid_body_targets, _deriv,
+    _add_paper,
     _paper_accel, sanitize_command, paper_disturbance,
 )  # fmt: skip
