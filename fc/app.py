@@ -76,6 +76,7 @@ from smcpilot.complaints import Complaints
 from smcpilot.errors import LinkError, RateMismatchError, TlogError, WatchdogError
 from smcpilot.fastcodec import TickRecords, decode_state_datagram
 from smcpilot.faults import SIM_PARAM_INDEX
+from smcpilot.gc_pauses import GcPauses
 from smcpilot.geo import Home
 from smcpilot.impair import LinkImpairment
 from smcpilot.jit import AUTO_MIN_LOCKSTEP_S
@@ -149,6 +150,10 @@ LOCKSTEP_PROBE_S = 0.2
 LAW_OVERRUN_TICKS = 25
 #: the tlog is handed to the OS at least this often (simulated s of ticks).
 TLOG_FLUSH_S = 0.25
+#: real time: a tick this late or later is a stall, kept with its time (FcStats.stalls), at most
+#: STALLS_KEPT of them.
+STALL_S = 0.001
+STALLS_KEPT = 200
 #: real time: a state may be stamped at most this much (plus 4x the wall time since the last
 #: one) after the last one; later stamps are taken for forged or garbled and dropped.
 FUTURE_STATE_S = 0.5
@@ -194,6 +199,11 @@ class FcStats:
     foreign_imu: int = 0
     #: ODOMETRY (the plant's true state) taken with a state and logged.
     truth_msgs: int = 0
+    #: real time: the ticks STALL_S or more late, as (monotonic wall s when the tick ran, lateness
+    #: s), the first STALLS_KEPT of them: to line up with the garbage collector's passes and with
+    #: other processes' stalls (``smcpilot bench sitl``).
+    stalls: list[tuple[float, float]] = field(default_factory=list)
+    stall_count: int = 0
 
     def summary(self) -> dict:
         late = sorted(self.lateness_s)
@@ -225,6 +235,8 @@ class FcStats:
             "states_without_imu": self.states_without_imu,
             "foreign_imu": self.foreign_imu,
             "truth_msgs": self.truth_msgs,
+            "stalls": {"count": self.stall_count, "threshold_s": STALL_S, "at_s": [round(t, 6) for t, _ in self.stalls],
+                       "late_s": [round(d, 6) for _, d in self.stalls]},
         }
 
     def budget_summary(self) -> dict[str, object]:
@@ -393,6 +405,8 @@ class FlightControllerApp:
         self._stop = False
         self._exit_code = EXIT_OK
         self._cpu_at_first_tick_s = 0.0
+        #: real time: the garbage collector's passes during the loop
+        self._gc_pauses = GcPauses(monotonic)
         #: lockstep: when the last state was flown and the last probe sent (wall s), states flown.
         self._ls_last_rx = self._ls_last_probe = 0.0
         self._ls_states = 0
@@ -546,6 +560,7 @@ class FlightControllerApp:
         t = os.times()  # the kernel's share (system calls, wake-ups) beside our own code's
         summary["cpu_user_s"], summary["cpu_sys_s"] = round(t.user, 3), round(t.system, 3)
         summary["rx_rejected"] = self.rejected_summary()
+        summary["gc"] = self._gc_pauses.summary()
         flight = self.core.flight
         summary["pipeline"] = {"compiled": flight.compiled, "compiled_ticks": flight.compiled_ticks, "why_not": self.jit_why}
         summary["sim_bad"] = dict(self.sim_complaints.counts)
@@ -679,6 +694,11 @@ class FlightControllerApp:
             raise WatchdogError(f"simulator {what} (lockstep watchdog {limit:g} s); stopping")
 
     def _run_realtime(self) -> None:
+        """The fixed-rate loop, with the garbage collector's passes timed (FC_SUMMARY's ``gc``)."""
+        with self._gc_pauses:
+            self._realtime_loop()
+
+    def _realtime_loop(self) -> None:
         fds = self._fds()
         sim_fd = fds[0]
         mono = self._mono
@@ -732,6 +752,10 @@ class FlightControllerApp:
                 continue
             late = -wait
             lateness.append(late)
+            if late >= STALL_S:
+                stats.stall_count += 1
+                if len(stats.stalls) < STALLS_KEPT:
+                    stats.stalls.append((now, late))
             if late >= period:
                 missed = int(late / period)
                 self.stats.overruns += missed

@@ -11,9 +11,11 @@ from __future__ import annotations
 import argparse
 import functools
 import importlib
+import json
 import math
 import os
 import platform
+import subprocess
 import sys
 import time
 import timeit
@@ -331,7 +333,11 @@ def bench_sitl(args: argparse.Namespace) -> int:
             print(f"\nreal time, {args.realtime_s:g} s at 500 Hz (takes {args.realtime_s:g} s) ...", flush=True)
             sitl = Sitl(opts)
             with sitl:
+                # beside the flight, a loop that only waits for the same deadlines: its stalls are the machine's
+                floor_proc = subprocess.Popen([sys.executable, "-m", "lab.timer_floor", f"{max(1.0, args.realtime_s - 1.0):g}"],
+                                              stdout=subprocess.PIPE, text=True)  # fmt: skip
                 sitl.wait(timeout_s=args.realtime_s + 60)
+                floor_out, _ = floor_proc.communicate(timeout=120)
             fcs = sitl.fc_summary or {}
             ticks = fcs.get("ticks", 0)
             p50 = fcs.get("lateness_p50_s")
@@ -342,11 +348,41 @@ def bench_sitl(args: argparse.Namespace) -> int:
                 f" ({100.0 * fcs.get('overruns', 0) / max(ticks, 1):.2f} %), loop lateness p50 {_us(p50)},"
                 f" p99 {_us(p99)}, max {_us(mx)} (period 2000 µs)"
             )
+            _print_stalls(fcs, floor_out)
             pipe = fcs.get("pipeline") or {}
             print(f"  the FC's pipeline: {'compiled' if pipe.get('compiled') else 'CPython (' + str(pipe.get('why_not')) + ')'}")
             phys = (sitl.sim_summary or {}).get("physics") or {}
             print(f"  the simulator's physics: {'compiled' if phys.get('compiled') else 'Python (' + str(phys.get('why_not')) + ')'}")
     return 0
+
+
+def _print_stalls(fcs: dict, floor_out: str) -> None:
+    """Where the FC's late ticks came from: the garbage collector's passes, and the stalls of a
+    bare loop in its own process at the same moments (the machine's)."""
+    from lab.timer_floor import coincident
+
+    st = fcs.get("stalls") or {}
+    gcs = fcs.get("gc") or {}
+    at, late = st.get("at_s") or [], st.get("late_s") or []
+    try:
+        floor = json.loads(floor_out.strip().splitlines()[-1])
+    except (ValueError, IndexError):
+        floor = None
+    thr = 1e3 * float(st.get("threshold_s") or 0.001)
+    by_gc = coincident(at, late, gcs.get("long_at_s") or [], gcs.get("long_s") or [])
+    cols = gcs.get("collections") or [0, 0, 0]
+    print(f"  stalls (ticks ≥ {thr:g} ms late): the FC {st.get('count', 0)}; during a garbage collection {by_gc}"
+          f" (collections {'/'.join(str(c) for c in cols)} by generation, longest {1e3 * float(gcs.get('max_s') or 0.0):.2f} ms)")  # fmt: skip
+    if floor is None:
+        print("  the bare loop beside it gave no figures")
+        return
+    fst = floor["stalls"]
+    same = coincident(at, late, fst["at_s"], fst["late_s"])
+    steal = floor.get("steal_share")
+    print(f"  a bare {1.0 / floor['period_s']:g} Hz loop beside it, computing nothing: {fst['count']} stalls, {floor['missed']} missed"
+          f" of {floor['ticks']} ({100.0 * floor['missed'] / max(1, floor['ticks']):.2f} %), p99 {_us(floor['lateness_p99_s'])};"
+          f" of the FC's {len(at)} stalls with times, {same} at the same moments as the bare loop's (the machine's)"
+          + (f"; CPU steal {100.0 * steal:.1f} % of the machine's time" if steal is not None else ""))  # fmt: skip
 
 
 def _us(v: float | None) -> str:

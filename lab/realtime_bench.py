@@ -4,7 +4,9 @@ Each pair runs ``smcpilot bench sitl --realtime-s S`` twice, back to back: once 
 once in ``--against REV`` (checked out into a temporary git worktree and run from there with the
 same Python and installed packages), the order alternating from pair to pair so that a machine
 that speeds up or slows down does not favour one side. Printed per run: control ticks, missed
-deadlines (ticks that overran their 2 ms period), and the loop's lateness p50, p99 and max; then
+deadlines (ticks that overran their 2 ms period), and the loop's lateness p50, p99 and max, and
+(where the tree prints it) the missed deadlines of a bare loop run beside the flight and how many of
+the FC's stalls fell at the same moments as its (the machine's, not the FC's code); then
 the median of each side over the pairs and this tree's ratio to the other. Figures, never
 pass/fail; a machine shared with other work shows in both sides (``--pairs`` more, and read the
 ratio).
@@ -19,6 +21,7 @@ import statistics
 import subprocess
 import sys
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,6 +31,13 @@ ROOT = Path(__file__).resolve().parents[1]
 _LINE = re.compile(
     r"(?P<ticks>\d+) ticks, (?P<missed>\d+) missed deadlines \((?P<pct>[\d.]+) %\), loop lateness"
     r" p50 (?P<p50>[\d.]+|n/a)(?: µs)?, p99 (?P<p99>[\d.]+|n/a)(?: µs)?, max (?P<max>[\d.]+|n/a)"
+)
+
+_FLOOR = re.compile(
+    r"stalls \(ticks ≥ [\d.]+ ms late\): the FC (?P<stalls>\d+);.*?"
+    r"a bare [\d.]+ Hz loop beside it, computing nothing: (?P<fstalls>\d+) stalls, (?P<fmissed>\d+) missed of (?P<fticks>\d+)"
+    r".*?of the FC's (?P<kept>\d+) stalls with times, (?P<same>\d+) at the same moments",
+    re.S,
 )
 
 
@@ -47,6 +57,13 @@ class RealtimeRun:
     p50_us: float
     p99_us: float
     max_us: float
+    #: the FC's stalls (ticks 1 ms late or more); a bare loop's beside it (missed deadlines of its
+    #: ticks), and how many of the FC's stalls (of those kept with times) fell at the same moments
+    stalls: int | None = None
+    floor_missed: int | None = None
+    floor_ticks: int | None = None
+    stalls_kept: int | None = None
+    stalls_same: int | None = None
 
     @property
     def missed_pct(self) -> float:
@@ -62,7 +79,11 @@ def parse_run(output: str) -> RealtimeRun | None:
     def us(text: str) -> float:
         return float(text) if text != "n/a" else float("nan")
 
-    return RealtimeRun(int(m["ticks"]), int(m["missed"]), us(m["p50"]), us(m["p99"]), us(m["max"]))
+    f = _FLOOR.search(output)
+    if f is None:  # (an earlier revision prints no floor)
+        return RealtimeRun(int(m["ticks"]), int(m["missed"]), us(m["p50"]), us(m["p99"]), us(m["max"]))
+    return RealtimeRun(int(m["ticks"]), int(m["missed"]), us(m["p50"]), us(m["p99"]), us(m["max"]), int(f["stalls"]),
+                       int(f["fmissed"]), int(f["fticks"]), int(f["kept"]), int(f["same"]))  # fmt: skip
 
 
 def _run(tree: Path, seconds: float) -> RealtimeRun:
@@ -89,7 +110,24 @@ def _worktree(rev: str, into: Path) -> Path:
 
 
 def _row(name: str, r: RealtimeRun) -> str:
-    return f"  {name:<10} {r.ticks:>7} ticks  {r.missed:>5} missed ({r.missed_pct:5.2f} %)  p50 {r.p50_us:6.0f} µs  p99 {r.p99_us:6.0f} µs  max {r.max_us:7.0f} µs"
+    row = f"  {name:<10} {r.ticks:>7} ticks  {r.missed:>5} missed ({r.missed_pct:5.2f} %)  p50 {r.p50_us:6.0f} µs  p99 {r.p99_us:6.0f} µs  max {r.max_us:7.0f} µs"
+    if r.floor_ticks:
+        row += (f"  | bare loop {r.floor_missed} missed ({100.0 * (r.floor_missed or 0) / r.floor_ticks:.2f} %);"
+                f" stalls {r.stalls}, {r.stalls_same} of {r.stalls_kept} with the bare loop's")  # fmt: skip
+    return row
+
+
+def _median(rs: list[RealtimeRun]) -> RealtimeRun:
+    """Each figure's median over the runs (the bare loop's only where every run has one)."""
+
+    def m(get: Callable[[RealtimeRun], float | int | None]) -> float:
+        return statistics.median(float(get(r) or 0) for r in rs)
+
+    floor = all(r.floor_ticks for r in rs)
+    return RealtimeRun(int(m(lambda r: r.ticks)), int(m(lambda r: r.missed)), m(lambda r: r.p50_us), m(lambda r: r.p99_us),
+                       m(lambda r: r.max_us),
+                       *((int(m(lambda r: r.stalls)), int(m(lambda r: r.floor_missed)), int(m(lambda r: r.floor_ticks)),
+                          int(m(lambda r: r.stalls_kept)), int(m(lambda r: r.stalls_same))) if floor else ()))  # fmt: skip
 
 
 def bench_realtime(args: argparse.Namespace) -> int:
@@ -118,9 +156,7 @@ def bench_realtime(args: argparse.Namespace) -> int:
     print("median over the runs:")
     med: dict[str, RealtimeRun] = {}
     for name, rs in runs.items():
-        med[name] = RealtimeRun(int(statistics.median(r.ticks for r in rs)), int(statistics.median(r.missed for r in rs)),
-                                statistics.median(r.p50_us for r in rs), statistics.median(r.p99_us for r in rs),
-                                statistics.median(r.max_us for r in rs))  # fmt: skip
+        med[name] = _median(rs)
         print(_row(name, med[name]))
     if args.against is not None:
         a, b = med["this tree"], med[args.against]
