@@ -55,7 +55,7 @@ import signal
 import struct
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
@@ -699,97 +699,137 @@ class FlightControllerApp:
             self._realtime_loop()
 
     def _realtime_loop(self) -> None:
+        """The fixed-rate loop of one FC, from its steps (:meth:`realtime_wait_first`,
+        :meth:`realtime_begin`, :meth:`realtime_work`, :meth:`realtime_fds`, :meth:`realtime_readable`,
+        :meth:`realtime_due`), which :mod:`fc.group` calls for several FCs in one loop."""
         fds = self._fds()
-        sim_fd = fds[0]
         mono = self._mono
-        period = self.cfg.period_s
         start = mono()
         # Wait for the first state before starting the fixed-rate loop.
         while not self._stop and self.state is None:
             readable, _, _ = select.select(fds, (), (), 0.1)
-            if sim_fd in readable:
-                self._poll_sim()
-            self._poll_ground()
-            if self.gcs is not None:
-                self.gcs_handler.send_durable_acks()
-                self.gcs_handler.send_param_lists(all_now=True)
-            if mono() - start > self.startup_timeout_s:
-                raise WatchdogError(f"simulator sent nothing within {self.startup_timeout_s:g} s; stopping")
-        deadline = mono() + period
-        lateness = self.stats.lateness_s
-        slow_ticks = 0
+            self.realtime_wait_first(readable, mono() - start)
+        self.realtime_begin(mono())
+        while not self._stop:
+            now = mono()
+            wait = self.rt_deadline - now
+            if wait > 0.0:
+                if self.realtime_work(now):
+                    continue
+                readable, _, _ = select.select(self.realtime_fds(), (), (), wait)
+                if readable:
+                    self.realtime_readable(readable)
+                continue
+            if self.realtime_due(now):
+                break
+
+    def realtime_wait_first(self, readable: Sequence[int], waited_s: float) -> None:
+        """Real time, before the first state: what came (``readable``: this app's ready sockets),
+        the ground's acknowledgements and lists; the start-up watchdog after ``waited_s``."""
+        if self.sim.fileno() in readable:
+            self._poll_sim()
+        self._poll_ground()
+        if self.gcs is not None:
+            self.gcs_handler.send_durable_acks()
+            self.gcs_handler.send_param_lists(all_now=True)
+        if waited_s > self.startup_timeout_s:
+            raise WatchdogError(f"simulator sent nothing within {self.startup_timeout_s:g} s; stopping")
+
+    def realtime_begin(self, now: float, first_deadline: float | None = None) -> None:
+        """Real time, the first state in: the fixed-rate loop's state; its first deadline one
+        period from ``now`` (or ``first_deadline``: a group's FCs share their deadlines)."""
+        period = self.cfg.period_s
+        self._rt_period = period
+        self.rt_deadline = now + period if first_deadline is None else first_deadline
+        self._rt_slow_ticks = 0
         # The loop first: ground-link work draws on a budget of GCS_BUDGET_SHARE of each period
         # (fc.intake: most important and oldest first) and never starts within the guard before a
         # deadline; the ground socket is watched only while the budget lasts.
-        budget = GCS_BUDGET_SHARE * period
-        guard = GCS_GUARD_SHARE * period
-        credit = budget
-        worked = False
-        gcs_fd = self.gcs.fileno() if self.gcs is not None else -1
-        intake = self.intake
+        self._rt_budget = GCS_BUDGET_SHARE * period
+        self._rt_guard = GCS_GUARD_SHARE * period
+        self._rt_credit = self._rt_budget
+        self._rt_worked = False
+        self._rt_can_work = True
+        fds = self._fds()
+        self._rt_all_fds = fds
+        self._rt_sim_only = [fds[0]]
+        self._rt_sim_fd = fds[0]
+        self._rt_gcs_fd = self.gcs.fileno() if self.gcs is not None else -1
+
+    def realtime_work(self, now: float) -> bool:
+        """Real time, before the deadline: ground-link work from the intake, within the period's
+        budget and never inside the guard before the deadline (True: some was done, look again);
+        at least one datagram a period (the most important waiting), whatever the credit."""
+        wait = self.rt_deadline - now
+        can_work = self._rt_can_work = (self._rt_credit > 0.0 or not self._rt_worked) and wait > self._rt_guard
+        if not (can_work and self.intake):
+            return False
+        spent = self._work_intake(min(self.rt_deadline - self._rt_guard, now + self._rt_credit))
+        self._rt_worked = True
+        self._rt_credit -= spent
         stats = self.stats
-        sim_only = [sim_fd]
-        while not self._stop:
-            now = mono()
-            wait = deadline - now
-            if wait > 0.0:
-                # at least one datagram a period (the most important waiting), whatever the credit
-                can_work = (credit > 0.0 or not worked) and wait > guard
-                if can_work and intake:
-                    spent = self._work_intake(min(deadline - guard, now + credit))
-                    worked = True
-                    credit -= spent
-                    stats.gcs_work_s += spent
-                    if credit <= 0.0 and intake:
-                        stats.gcs_budget_spent_periods += 1
-                    continue
-                readable, _, _ = select.select(fds if can_work else sim_only, (), (), wait)
-                if readable:
-                    if sim_fd in readable:
-                        self._poll_sim()
-                    if gcs_fd in readable:
-                        self._take_gcs()
-                continue
-            late = -wait
-            lateness.append(late)
-            if late >= STALL_S:
-                stats.stall_count += 1
-                if len(stats.stalls) < STALLS_KEPT:
-                    stats.stalls.append((now, late))
-            if late >= period:
-                missed = int(late / period)
-                self.stats.overruns += missed
-                deadline += missed * period
-            deadline += period
-            if self._impaired:  # release held datagrams on time
-                self._poll_sim()
-                if self.gcs is not None:
-                    self.gcs.pump()
-            age = now - self._state_wall_s
-            if age > self.cfg.watchdog_s:
-                raise WatchdogError(f"simulator has been silent for {age:.1f} s (real-time watchdog); stopping")
-            t_start = mono()
-            self._tick(self.clock.now_us(), stale=age > self.cfg.failsafe_state_timeout_s)
-            t_end = mono()
-            spent = t_end - t_start
-            # the period's new share, less the ground work of the tick (telemetry) and of taking
-            # what waits on the ground socket off it (counted and queued by class, or dropped)
+        stats.gcs_work_s += spent
+        if self._rt_credit <= 0.0 and self.intake:
+            stats.gcs_budget_spent_periods += 1
+        return True
+
+    def realtime_fds(self) -> list[int]:
+        """Real time, before the deadline: the sockets to wait on (the ground's only while the
+        period's budget lasts, as :meth:`realtime_work` found)."""
+        return self._rt_all_fds if self._rt_can_work else self._rt_sim_only
+
+    def realtime_readable(self, readable: Sequence[int]) -> None:
+        """Real time, before the deadline: what came on this app's sockets in ``readable``."""
+        if self._rt_sim_fd in readable:
+            self._poll_sim()
+        if self._rt_gcs_fd in readable:
             self._take_gcs()
-            ground = self._gcs_tick_s + mono() - t_end
-            stats.gcs_work_s += ground
-            credit = min(budget, credit + budget) - ground
-            worked = False
-            if spent > period and self.core.flight.armed and not self.core.law_failed:
-                # Ticks that cannot keep the rate, again and again, are a law too slow for it: the
-                # failsafe (open loop, cheap) flies instead of a loop that falls ever later. A fast
-                # tick takes one back (the state-loss failsafe a starved loop falls into is fast).
-                slow_ticks += 1
-                if slow_ticks >= LAW_OVERRUN_TICKS:
-                    self.core.law_failure(f"overran its tick {LAW_OVERRUN_TICKS} times ({spent * 1e3:.1f} ms of {period * 1e3:.1f} ms)")
-            elif slow_ticks:
-                slow_ticks -= 1
-            if self.duration_s is not None and self.clock.now_s() >= self.duration_s:
-                break
+
+    def realtime_due(self, now: float) -> bool:
+        """Real time, the deadline passed (``now``): the lateness, the watchdog, the tick, the
+        ground link's share; True when the flight's duration is flown (the loop ends)."""
+        stats = self.stats
+        period = self._rt_period
+        late = now - self.rt_deadline
+        stats.lateness_s.append(late)
+        if late >= STALL_S:
+            stats.stall_count += 1
+            if len(stats.stalls) < STALLS_KEPT:
+                stats.stalls.append((now, late))
+        if late >= period:
+            missed = int(late / period)
+            stats.overruns += missed
+            self.rt_deadline += missed * period
+        self.rt_deadline += period
+        if self._impaired:  # release held datagrams on time
+            self._poll_sim()
+            if self.gcs is not None:
+                self.gcs.pump()
+        age = now - self._state_wall_s
+        if age > self.cfg.watchdog_s:
+            raise WatchdogError(f"simulator has been silent for {age:.1f} s (real-time watchdog); stopping")
+        mono = self._mono
+        t_start = mono()
+        self._tick(self.clock.now_us(), stale=age > self.cfg.failsafe_state_timeout_s)
+        t_end = mono()
+        spent = t_end - t_start
+        # the period's new share, less the ground work of the tick (telemetry) and of taking
+        # what waits on the ground socket off it (counted and queued by class, or dropped)
+        self._take_gcs()
+        ground = self._gcs_tick_s + mono() - t_end
+        stats.gcs_work_s += ground
+        self._rt_credit = min(self._rt_budget, self._rt_credit + self._rt_budget) - ground
+        self._rt_worked = False
+        if spent > period and self.core.flight.armed and not self.core.law_failed:
+            # Ticks that cannot keep the rate, again and again, are a law too slow for it: the
+            # failsafe (open loop, cheap) flies instead of a loop that falls ever later. A fast
+            # tick takes one back (the state-loss failsafe a starved loop falls into is fast).
+            self._rt_slow_ticks += 1
+            if self._rt_slow_ticks >= LAW_OVERRUN_TICKS:
+                self.core.law_failure(f"overran its tick {LAW_OVERRUN_TICKS} times ({spent * 1e3:.1f} ms of {period * 1e3:.1f} ms)")
+        elif self._rt_slow_ticks:
+            self._rt_slow_ticks -= 1
+        return self.duration_s is not None and self.clock.now_s() >= self.duration_s
 
     # -- input ---------------------------------------------------------------------------------
     def _poll_sim(self) -> bool:

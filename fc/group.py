@@ -12,9 +12,10 @@ flights together) and the process's fate (a killed group is every one of its veh
 - **Lockstep** (:func:`fly`): one ``select`` loop calls each flight controller's lockstep steps as
   its sockets have something. A lockstep flight controller's log depends only on what its
   simulator sends it, so each log is the same, byte for byte, as its own process would write (tested).
-- **Real time** (:func:`fly_realtime`): each flight controller runs its own real-time loop, on its
-  own wall clock, in a thread of its own; their ticks take turns on the interpreter (a tick holds it
-  some tens of microseconds, then its loop sleeps in ``select`` until the next deadline).
+- **Real time** (:func:`fly_realtime`): one loop calls each flight controller's real-time steps:
+  its ticks at its deadlines, its ground-link work within its budget, what comes on its sockets.
+  They keep their own wall clocks and watchdogs and share their deadlines (the same beat), so the
+  process wakes once a period for all of them, and their ticks run one after the other.
 
 FILE is JSON: a list of ``python -m fc`` argument lists (all lockstep or all real time). Each flight
 controller's lines (``FC_LISTENING``, ``FC_READY``, errors, ``FC_SUMMARY``) are printed as ``@I LINE``,
@@ -29,10 +30,11 @@ import argparse
 import contextlib
 import gc
 import json
+import math
+import os
 import select
 import signal
 import sys
-import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -41,6 +43,8 @@ from typing import TextIO
 from fc.app import EXIT_CONFIG, EXIT_OK, FlightControllerApp
 from fc.cli import build_app
 from smcpilot.errors import RateMismatchError, WatchdogError
+
+_yield = getattr(os, "sched_yield", lambda: None)
 
 #: the ground link's acknowledgements, parameter lists, probes and watchdogs of every flight
 #: controller are seen to at least this often (wall s) while states keep coming.
@@ -100,6 +104,9 @@ def fly(apps: Sequence[FlightControllerApp]) -> int:
         owners: dict[int, tuple[FlightControllerApp, bool]] = {}
         last_between = mono()
         impaired: list[FlightControllerApp] = []
+        # busy-poll this long after the last state before blocking (the FCs' --spin-s, the least of them)
+        spin_s = min(a.spin_s for a in apps)
+        last_state = mono()
         while live:
             if not owners:
                 owners = {a.sim.fileno(): (a, True) for a in live}
@@ -107,8 +114,12 @@ def fly(apps: Sequence[FlightControllerApp]) -> int:
                 # an impaired link holds datagrams back: its app looks at it on every turn (as its own loop
                 # does), and the loop wakes when the first held one is due
                 impaired = [a for a in live if a._impaired]
-            wait_s = min(a.lockstep_wait_s() for a in impaired) if impaired else 0.1
+            spinning = spin_s > 0.0 and mono() - last_state < spin_s
+            wait_s = 0.0 if spinning else min(a.lockstep_wait_s() for a in impaired) if impaired else 0.1
             readable, _, _ = select.select(list(owners), (), (), wait_s)
+            if spinning and not readable and not impaired:
+                _yield()  # (let another process have this core if the machine is oversubscribed)
+                continue
             ended = []
             turn = [owners[fd] for fd in readable]
             turn += [(a, True) for a in impaired]
@@ -117,7 +128,8 @@ def fly(apps: Sequence[FlightControllerApp]) -> int:
                     continue
                 try:
                     if is_sim:
-                        app.lockstep_take()
+                        if app.lockstep_take():
+                            last_state = mono()
                     else:
                         app.lockstep_between(True)
                 except (WatchdogError, RateMismatchError) as exc:
@@ -153,42 +165,114 @@ def fly(apps: Sequence[FlightControllerApp]) -> int:
 
 
 def fly_realtime(apps: Sequence[FlightControllerApp]) -> int:
-    """Fly ``apps`` (built, real time) until each has ended, each on its own wall clock in a thread
-    of its own (their ticks take turns on the interpreter); the exit code."""
+    """Fly ``apps`` (built, real time) in one loop until each has ended; the exit code.
+
+    Each flight controller keeps its own wall clock, watchdogs and ground-link budget (the steps
+    of its own real-time loop, :meth:`FlightControllerApp.realtime_due` and the rest), and they
+    share their deadlines: the first to have its first state sets them, the others tick on the same
+    beat from theirs. So the process wakes once a period for all of them, not once each.
+    """
+    mono = time.monotonic
     for app in apps:
         app.flights_per_process = len(apps)
     started: list[FlightControllerApp] = []
+    finished: list[FlightControllerApp] = []
+    codes: list[int] = []
+
+    def end(app: FlightControllerApp) -> None:
+        live.remove(app)
+        if app in waiting:
+            waiting.remove(app)
+        finished.append(app)
+        codes.append(app.finish())
+
+    live: list[FlightControllerApp] = list(apps)
+    waiting: list[FlightControllerApp] = list(apps)  # (no state yet: their loops have not begun)
     try:
         for app in apps:
             app.start(freeze_gc=False)
             started.append(app)
-    except BaseException:
+        gc.collect()
+        gc.freeze()
+        with contextlib.ExitStack() as timed:
+            for app in apps:
+                timed.enter_context(app._gc_pauses)
+            start = last_first = mono()
+            beat: float | None = None  # a deadline every FC shares (their periods alike)
+            while live:
+                now = mono()
+                flying = [a for a in live if a not in waiting]
+                due = sorted((a for a in flying if a.rt_deadline <= now), key=lambda a: a.rt_deadline)
+                if due:
+                    for app in due:
+                        if app._stop:
+                            continue
+                        try:
+                            if app.realtime_due(mono()):
+                                app._stop = True
+                        except (WatchdogError, RateMismatchError) as exc:
+                            app.ended_by(exc)
+                    for app in [a for a in live if a._stop]:
+                        end(app)
+                    continue
+                worked = False
+                for app in flying:
+                    if app.realtime_work(now):
+                        worked = True
+                if worked:
+                    continue
+                owners: dict[int, FlightControllerApp] = {}
+                for app in flying:
+                    for fd in app.realtime_fds():
+                        owners[fd] = app
+                for app in waiting:
+                    for fd in app._fds():
+                        owners[fd] = app
+                wait_s = min((a.rt_deadline for a in flying), default=now + 0.1) - now
+                if waiting:
+                    wait_s = min(wait_s, 0.1)
+                readable, _, _ = select.select(list(owners), (), (), max(0.0, wait_s))
+                now = mono()
+                first_turn = bool(waiting) and (readable or now - last_first >= 0.1)
+                if first_turn:
+                    last_first = now
+                ready = {owners[fd] for fd in readable}
+                for app in [a for a in live if a in ready or (first_turn and a in waiting)]:
+                    mine = [fd for fd in readable if owners[fd] is app]
+                    try:
+                        if app in waiting:
+                            app.realtime_wait_first(mine, now - start)
+                            if app.state is not None and not app._stop:
+                                period = app.cfg.period_s
+                                if beat is None:
+                                    beat = now + period
+                                    app.realtime_begin(now, beat)
+                                else:  # the shared beat's next deadline after now
+                                    app.realtime_begin(now, beat + (math.floor((now - beat) / period) + 1) * period)
+                                waiting.remove(app)
+                        else:
+                            app.realtime_readable(mine)
+                    except (WatchdogError, RateMismatchError) as exc:
+                        app.ended_by(exc)
+                for app in [a for a in live if a._stop]:
+                    end(app)
+    finally:  # whatever ended the loop: every log closed, every summary said
         for app in apps:
+            if app in finished:
+                continue
             with contextlib.suppress(Exception):
-                app.finish() if app in started else app.close()
-        raise
-    gc.collect()
-    gc.freeze()
-    codes: dict[int, int] = {}
-
-    def fly_one(i: int, app: FlightControllerApp) -> None:
-        codes[i] = 1  # (an exception in the loop: printed by the thread, the log closed by fly's finally)
-        codes[i] = app.fly()
-
-    threads = [threading.Thread(target=fly_one, args=(i, app), name=f"fc-{i}", daemon=True) for i, app in enumerate(apps)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        while t.is_alive():
-            t.join(0.2)  # (the main thread stays free for the signal handler)
-    return next((codes[i] for i in range(len(apps)) if codes.get(i, 1) != EXIT_OK), EXIT_OK)
+                if app in started:
+                    codes.append(app.finish())
+                else:
+                    app.close()
+    return next((c for c in codes if c != EXIT_OK), EXIT_OK)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m fc.group",
-        description="Several flight controllers in one process (a swarm on few cores): lockstep ones in one loop, real-time"
-        " ones a thread each; each is the one `python -m fc ARGS` flies, its lines printed as '@I LINE'.",
+        description="Several flight controllers in one process (a swarm on few cores): lockstep or real time, in one loop;"
+        " each is the one `python -m fc ARGS` flies, its lines printed as '@I LINE'.",
     )
     p.add_argument("file", type=Path, metavar="FILE", help="JSON: a list of `python -m fc` argument lists, all lockstep (--lockstep) or all real time")
     args = p.parse_args(argv)

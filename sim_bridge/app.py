@@ -211,6 +211,21 @@ class SimVehicle:
 
     # -- wire ------------------------------------------------------------------------------------
     def send_state(self) -> None:
+        """The state now to this vehicle's FC (:meth:`make_state`, then sent; the faults' news after it)."""
+        self.make_state()
+        self.send_made()
+
+    def send_made(self) -> None:
+        """The state :meth:`make_state` made, to the FC, then the faults' news (STATUSTEXT)."""
+        self.link.send_packets(self.last_state)
+        faults = self.faults
+        if faults is not None and faults.events:
+            self.announce()
+
+    def make_state(self) -> None:
+        """Encode the state now (``last_state``: ATTITUDE, HIGHRES_IMU, ODOMETRY, LOCAL_POSITION_NED),
+        not yet sent: a swarm's simulator makes every vehicle's first, then sends them in one burst
+        (a sleeping FC process is woken once for several, not once each)."""
         obs = self.plant.observe()
         tru = self._truth()
         link = self.link
@@ -231,11 +246,7 @@ class SimVehicle:
             rec.odometry(link.take_seq(), t_us, tx, ty, tz, qw, qx, qy, qz, tvx, tvy, tvz, tp, tq, tr),
             rec.local_position_ned(link.take_seq(), t_ms, x, y, z, vx, vy, vz),
         )
-        link.send_packets(packets)
         self.last_state = packets
-        faults = self.faults
-        if faults is not None and faults.events:
-            self.announce()
 
     def say_goodbye(self) -> None:
         """A clean end: HEARTBEAT with MAV_STATE_POWEROFF (a few copies: the link may lose some), so
@@ -604,7 +615,9 @@ class SimBridgeApp:
         def send_all() -> None:
             resend_after = min(tm.resend_s, max(tm.resend_min_s, 4.0 * self.rtt_s)) if self.rtt_s else tm.resend_s
             for v in vehicles:
-                v.send_state()
+                v.make_state()
+            for v in vehicles:
+                v.send_made()
             now = mono()
             for v in vehicles:  # the watchdog counts from here (a vehicle that answered early is not blamed for a slow one)
                 v.sent_at = v.first_sent = v.last_answer = now
@@ -732,9 +745,11 @@ class SimBridgeApp:
                         break
                 continue
             if k % substeps == 0:
+                for v in alive:
+                    v.make_state()
                 first = mono()
                 for v in alive:
-                    v.send_state()
+                    v.send_made()
                 if len(alive) > 1:
                     self._fanout_s.append(mono() - first)
                 self._check_proximity()

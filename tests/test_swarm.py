@@ -356,7 +356,7 @@ def test_a_group_of_flight_controllers_on_an_impaired_link_writes_the_same_logs(
 
 
 def test_flight_controllers_in_a_group_fly_a_real_time_swarm(tmp_path: Path) -> None:
-    """In real time a group's FCs each run their own wall-clock loop (a thread each), every one to the end."""
+    """In real time a group's FCs each keep their own wall clock, in one loop, every one to the end."""
     sc = swarm_scenario(tmp_path, count=3, duration=2.0)
     opts = SitlOptions(scenario=sc, timed=True, lockstep=False, gcs=None, tlog=tmp_path / "rt.tlog", log_dir=tmp_path,
                        watchdog_s=10.0, fc_processes=1)  # fmt: skip
