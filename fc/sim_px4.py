@@ -123,6 +123,10 @@ def parse_px4_url(url: str) -> tuple[str, int]:
     return host, port
 
 
+class SimulatorGoneError(WatchdogError):
+    """The connection to the simulator broke (closed or reset) while the FC wrote to it."""
+
+
 @dataclass(frozen=True)
 class Px4Output:
     """How the FC's motor commands go on PX4's wire: motor order and normalisation."""
@@ -301,7 +305,7 @@ class Px4Link:
         except TimeoutError:
             raise WatchdogError(f"the simulator has read nothing for {self.send_timeout_s:g} s; stopping") from None
         except OSError as exc:
-            raise WatchdogError(f"the connection to the simulator broke ({exc.strerror or exc}); stopping") from None
+            raise SimulatorGoneError(f"the connection to the simulator broke ({exc.strerror or exc}); stopping") from None
         self.counters.tx_datagrams += 1
 
     def recv(self) -> list[Any] | None:
@@ -582,7 +586,17 @@ class Px4FlightControllerApp(FlightControllerApp):
         return encode_hil_actuator_controls(link.take_seq(), *link.source, t_us, controls + _ZEROS12, mode, ACTUATOR_FLAG_LOCKSTEP)
 
     def _answer_sim(self, packets: tuple[bytes, ...]) -> None:
-        self.px4.send_bytes(b"".join(packets))
+        try:
+            self.px4.send_bytes(b"".join(packets))
+        except SimulatorGoneError:
+            t_s = self.clock.now_s()
+            if self.duration_s is None or t_s < self.duration_s:
+                raise
+            # The answer to the state at --duration: a simulator that flies the same duration may
+            # close (or reset) the connection with that state, before it reads the answer. The
+            # flight is flown: the clean end, as a close after the answer is (the log goes on whole).
+            self.say(f"fc px4: the simulator closed the connection with its last state (t = {t_s:.3f} s); stopping")
+            self._stop = True
 
     def forward_sim_param(self, name: str, value: float) -> None:
         link = self.px4

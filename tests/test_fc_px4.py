@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import select
 import socket
+import struct
 import subprocess
 import sys
 import time
@@ -405,8 +406,31 @@ def test_smcpilot_sitl_flies_on_another_simulator(tmp_path: Path) -> None:
         if sim.poll() is None:
             sim.kill()
             sim.wait()
-    assert r.returncode == 0, r.stdout + r.stderr
+    assert r.returncode == 0, r.stdout + r.stderr + "\n[the served simulator]\n" + (sim_out or "")
     assert "SITL ended: 6.00 simulated s" in r.stdout and "3001 control ticks" in r.stdout, r.stdout
     assert sim.returncode == 0, sim_out
     bad = subprocess.run([sys.executable, "-m", "lab.cli", "sitl", "--px4-frame", "plus"], capture_output=True, text=True, timeout=WALL_S)
     assert bad.returncode == 2 and "go with --sim px4" in bad.stderr
+
+
+def test_a_simulator_that_closes_with_the_last_state_ends_cleanly(tmp_path: Path, sim: FakePx4Sim) -> None:
+    """A simulator that flies the same duration may close (here: reset) the connection with its last
+    state, before it reads the answer: the FC flew its duration, so that is the clean end (exit 0),
+    not a broken connection (seen in CI with `smcpilot sim --serve px4` under load)."""
+    n = 5
+    fc = _fc(tmp_path, sim.port, "--duration", f"{n * PERIOD_US * 1e-6:g}")
+    try:
+        sim.accept()
+        for k in range(n):
+            sim.send(sim.state(k * PERIOD_US))
+            sim.answer()
+        assert sim.conn is not None
+        sim.conn.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))  # close = reset
+        sim.send(sim.state(n * PERIOD_US))
+        sim.conn.close()
+        sim.conn = None
+        rc = fc.wait(timeout_s=WALL_S)
+    finally:
+        fc.kill()
+    assert rc == 0, fc.all_lines
+    assert fc.summary()["ticks"] == n + 1
