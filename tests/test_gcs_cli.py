@@ -60,8 +60,9 @@ def gcs(*args: str, connect: str | None = None, cwd: Path | None = None, timeout
     return subprocess.run([*cmd, *args], capture_output=True, text=True, timeout=timeout_s, cwd=cwd, stdin=subprocess.DEVNULL)
 
 
-def _sitl(tmp_path: Path, speed: float | None = None) -> Sitl:
-    return Sitl(SitlOptions.of(lockstep=True, speed=speed, gcs=f"udpin:{LOOPBACK}:0", log_dir=tmp_path, tlog=tmp_path / "sitl.tlog"))
+def _sitl(tmp_path: Path, speed: float | None = None, param_file: Path | None = None) -> Sitl:
+    return Sitl(SitlOptions.of(lockstep=True, speed=speed, gcs=f"udpin:{LOOPBACK}:0", log_dir=tmp_path, tlog=tmp_path / "sitl.tlog",
+                               param_file=param_file))
 
 
 @pytest.fixture(scope="module")
@@ -74,10 +75,14 @@ def fc_url(tmp_path_factory: pytest.TempPathFactory) -> Iterator[str]:
 
 @pytest.fixture
 def fresh_fc_url(tmp_path: Path) -> Iterator[str]:
-    """A SITL of this test's own (flights change the state), paced at 4x real time: unpaced, the
-    lockstep runs so far ahead between two CLI invocations (each a process start) that the FC's
-    10 s disarm delay can pass between `gcs arm` and `gcs takeoff`."""
-    with _sitl(tmp_path, speed=4.0) as sitl:
+    """A SITL of this test's own (flights change the state), paced at 4x real time, with the FC's
+    disarm delay (10 s by default, tested in test_commander) at its 127 s maximum, as a parameter
+    file sets it: unpaced, the lockstep runs so far ahead between two CLI invocations (each a
+    process start) that 10 s pass between `gcs arm` and `gcs takeoff`, and at 4x a loaded CI
+    machine took more than 2.5 s to start one (the vehicle had disarmed itself: "arm first")."""
+    params = tmp_path / "fc.parm"
+    params.write_text("DISARM_DELAY 127\n", encoding="utf-8")
+    with _sitl(tmp_path, speed=4.0, param_file=params) as sitl:
         assert sitl.gcs_address
         yield f"udpout:{sitl.gcs_address}"
 
