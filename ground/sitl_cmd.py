@@ -95,7 +95,7 @@ def add_sitl_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fc-processes", type=int, metavar="N",
                    help="swarm: fly the K flight controllers in N processes, several in each (the same FCs; in lockstep"
                    " one loop and the same logs byte for byte; far fewer wake-ups on a machine of few cores: N = its cores"
-                   " is fastest); default: one process per vehicle")  # fmt: skip
+                   " less one, or its cores, is fastest); default: one process per vehicle")  # fmt: skip
 
 
 def _options(args: argparse.Namespace, **extra: Any) -> SitlOptions:

@@ -224,8 +224,10 @@ class SimVehicle:
 
     def make_state(self) -> None:
         """Encode the state now (``last_state``: ATTITUDE, HIGHRES_IMU, ODOMETRY, LOCAL_POSITION_NED),
-        not yet sent: a swarm's simulator makes every vehicle's first, then sends them in one burst
-        (a sleeping FC process is woken once for several, not once each)."""
+        not yet sent: in real time a swarm's simulator makes every vehicle's first, then sends them
+        in one burst (a sleeping FC process is woken once for several, not once each). In lockstep
+        each goes out as soon as it is made (:meth:`send_state`): its FC, busy-polling on the other
+        core, works while the next is made (measured faster, docs/swarms.md)."""
         obs = self.plant.observe()
         tru = self._truth()
         link = self.link
@@ -614,10 +616,8 @@ class SimBridgeApp:
 
         def send_all() -> None:
             resend_after = min(tm.resend_s, max(tm.resend_min_s, 4.0 * self.rtt_s)) if self.rtt_s else tm.resend_s
-            for v in vehicles:
-                v.make_state()
-            for v in vehicles:
-                v.send_made()
+            for v in vehicles:  # each state out as soon as it is made: its FC works while the next one is made
+                v.send_state()
             now = mono()
             for v in vehicles:  # the watchdog counts from here (a vehicle that answered early is not blamed for a slow one)
                 v.sent_at = v.first_sent = v.last_answer = now

@@ -688,12 +688,13 @@ def test_signing_holds_end_to_end_through_the_router(tmp_path: Path) -> None:
     with Sitl(opts) as sitl:
         assert sitl.gcs_address is not None
         host, port = sitl.gcs_address.rsplit(":", 1)
-        # an unsigned station's arm request reaches the vehicle (routed) and is dropped there
-        mav = mavlink.MAVLink(None, srcSystem=250, srcComponent=190)
-        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as stranger:
-            stranger.sendto(mav.command_long_encode(2, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0).pack(mav),
-                            (host, int(port)))  # fmt: skip
         with Swarm(f"udpout:{sitl.gcs_address}", [1, 2], connect_timeout_s=20, signing_key=key_file) as swarm:
+            # an unsigned station's arm request reaches the vehicle (routed) and is dropped there; sent once
+            # the swarm is connected: the router has heard both vehicles (before, it had no route to drop it by)
+            mav = mavlink.MAVLink(None, srcSystem=250, srcComponent=190)
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as stranger:
+                stranger.sendto(mav.command_long_encode(2, 1, mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0, 0, 0, 0, 0).pack(mav),
+                                (host, int(port)))  # fmt: skip
             swarm[2].sleep_sim(0.5)
             assert not swarm[2].armed  # the stranger did not arm it
             swarm[2].arm()  # a signed command through the router: accepted (signature intact)
