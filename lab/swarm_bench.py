@@ -37,10 +37,19 @@ def add_arguments(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--duration", type=float, default=10.0, metavar="S", help="simulated seconds per lockstep run (default 10)")
     c.add_argument("--realtime-s", type=float, default=0.0, metavar="S",
                    help="also fly S wall seconds in real time per K, counting missed deadlines (default 0: skip)")
-    c.add_argument("--fc-processes", default=f"0,{os.cpu_count() or 2}", metavar="N,N,...",
+    c.add_argument("--fc-processes", default=default_layouts(), metavar="N,N,...",
                    help="lockstep layouts to fly each K in: the FCs in N processes (fc.group), 0 for one process per vehicle"
-                   f" (default 0,{os.cpu_count() or 2}: both, this machine's cores)")  # fmt: skip
+                   f" (default {default_layouts()}: a process per vehicle; one less than this machine's cores, where the groups"
+                   " and the simulator busy-poll; the cores)")  # fmt: skip
     c.set_defaults(bench=bench_swarm)
+
+
+def default_layouts(cores: int | None = None) -> str:
+    """``--fc-processes``' default: 0 (a process per vehicle), one less than the cores (the groups
+    and the simulator fit the cores, so they busy-poll: the fastest on 2 cores, docs/swarms.md),
+    and the cores; each once ("0,1,2" on 2 cores, "0,1" on one)."""
+    n = cores if cores is not None else os.cpu_count() or 2
+    return ",".join(str(v) for v in dict.fromkeys((0, max(1, n - 1), n)))
 
 
 def _whole_numbers(text: str, flag: str, what: str, lowest: int) -> list[int]:

@@ -193,15 +193,18 @@ def fly_swarm_in_process(scenario: Scenario, tlog: Path, *, echo: Callable[[str]
     return SwarmResult(scenario, "in-process", results, [v.sysid for v in fleet], prox.summary([v.sysid for v in fleet]), wall)
 
 
-def fly_swarm_sitl(scenario: Scenario, tlog: Path, *, echo: Callable[[str], None] | None = None) -> SwarmResult:
-    """Fly the swarm as its SITL processes in lockstep on free ports (no ground link)."""
+def fly_swarm_sitl(scenario: Scenario, tlog: Path, *, echo: Callable[[str], None] | None = None,
+                   fc_processes: int | None = None) -> SwarmResult:  # fmt: skip
+    """Fly the swarm as its SITL processes in lockstep on free ports (no ground link);
+    ``fc_processes``: the flight controllers in that many processes (``smcpilot sitl --fc-processes``)."""
     from ground.sitl import Sitl, SitlError, SitlOptions
     from sim_bridge.app import EXIT_DIVERGED
 
     fleet = scenario.fleet()
     for v in fleet:
         vehicle_tlog(tlog, v.sysid).with_suffix(".parm").unlink(missing_ok=True)
-    opts = SitlOptions(scenario=scenario, timed=True, lockstep=True, gcs=None, log_dir=tlog.parent, tlog=tlog)
+    opts = SitlOptions(scenario=scenario, timed=True, lockstep=True, gcs=None, log_dir=tlog.parent, tlog=tlog,
+                       fc_processes=fc_processes)  # fmt: skip
     t0 = time.perf_counter()
     status, message = "ok", ""
     sitl = Sitl(opts, echo=echo)
@@ -221,8 +224,10 @@ def fly_swarm_sitl(scenario: Scenario, tlog: Path, *, echo: Callable[[str], None
     return SwarmResult(scenario, "sitl", results, [v.sysid for v in fleet], prox, wall)
 
 
-def fly_swarm(scenario: Scenario, out_dir: Path, *, sitl: bool = False, echo: Callable[[str], None] | None = None) -> SwarmResult:
-    """Fly a swarm scenario one way or the other into ``out_dir``; summarise each vehicle's log."""
+def fly_swarm(scenario: Scenario, out_dir: Path, *, sitl: bool = False, echo: Callable[[str], None] | None = None,
+              fc_processes: int | None = None) -> SwarmResult:  # fmt: skip
+    """Fly a swarm scenario one way or the other into ``out_dir``; summarise each vehicle's log
+    (``fc_processes``: SITL's flight controllers in that many processes)."""
     from ground.logs import load_log, summarize
 
     for v in scenario.fleet():
@@ -230,7 +235,7 @@ def fly_swarm(scenario: Scenario, out_dir: Path, *, sitl: bool = False, echo: Ca
     out_dir.mkdir(parents=True, exist_ok=True)
     tlog = out_dir / f"{scenario.name}.tlog"
     scenario.save(out_dir / f"{scenario.name}.scenario.toml")
-    result = (fly_swarm_sitl if sitl else fly_swarm_in_process)(scenario, tlog, echo=echo)
+    result = fly_swarm_sitl(scenario, tlog, echo=echo, fc_processes=fc_processes) if sitl else fly_swarm_in_process(scenario, tlog, echo=echo)
     for r in result.vehicles:
         if r.tlog.exists() and r.tlog.stat().st_size > 0:
             log = load_log(r.tlog)

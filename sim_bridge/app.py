@@ -185,6 +185,10 @@ class SimVehicle:
         self.crashed = False
         #: lockstep: messages that came after this vehicle's answer, acted on from the next state.
         self.deferred: list = []
+        #: lockstep, a swarm: the simulated time of the state last sent to this vehicle (µs), and its
+        #: answer to it with what came after, held while other vehicles are a step behind.
+        self.t_us = 0
+        self.held: list = []
 
     @property
     def name(self) -> str:
@@ -435,6 +439,9 @@ class SimBridgeApp:
         self.physics: CompiledPhysics | None = None
         self.physics_why: str | None = "not started"
         self.physics_python_steps = 0
+        #: lockstep, a swarm sent states ahead (:meth:`_run_lockstep_swarm`): the states sent while
+        #: another vehicle was a period behind, and the answers held until it caught up.
+        self.ahead_counts: dict[str, int] | None = None
 
     def _clock_us(self) -> int:
         return self._t_us
@@ -561,7 +568,9 @@ class SimBridgeApp:
         self._wall_start = self._mono()
         cpu_start = time.process_time()
         try:
-            if tm.lockstep:
+            if tm.lockstep and len(self.vehicles) > 1 and tm.spin_s > 0.0:
+                self._run_lockstep_swarm()
+            elif tm.lockstep:
                 self._run_lockstep()
             else:
                 self._run_realtime()
@@ -590,6 +599,8 @@ class SimBridgeApp:
                     summary[key] = sum(p[key] for p in per)
                 if self.proximity is not None:
                     summary["proximity"] = self.proximity.summary([v.system_id for v in self.vehicles])
+                if self.ahead_counts is not None:  # lockstep, states sent ahead of the slowest vehicle
+                    summary["ahead"] = dict(self.ahead_counts)
                 if self._fanout_s:  # real time: how far apart in wall time the vehicles got the same state
                     f = sorted(self._fanout_s)
                     summary["fanout_skew_s"] = {"p50": f[len(f) // 2], "p99": f[min(len(f) - 1, int(0.99 * len(f)))], "max": f[-1]}
@@ -669,6 +680,193 @@ class SimBridgeApp:
                     what = "never answered" if not v.answered else f"has been silent for {now - v.last_answer:.1f} s"
                     who = "flight controller" if len(vehicles) == 1 else f"the flight controller of {v.name}"
                     raise WatchdogError(f"{who} {what} (lockstep watchdog {limit:g} s); stopping")
+                if now - v.sent_at > v.resend_after:
+                    v.resends += 1
+                    # The same bytes again (a lost state or a lost answer): a copy cannot change the FC's log.
+                    v.link.send_packets(v.last_state)
+                    v.sent_at = now
+                    v.resend_after = min(tm.resend_s, 2.0 * v.resend_after)
+
+    def _run_lockstep_swarm(self) -> None:
+        """Lockstep for several vehicles: each vehicle's next state goes out as soon as its FC has
+        answered, while the others are still flying theirs.
+
+        Every plant is at the barrier ``B`` (its FC has not yet answered the state of ``B``) or one
+        control period ahead (its state of ``B + period`` sent). A vehicle whose FC answers the
+        state of ``B`` is integrated one period and sent its next state at once: its FC works while
+        the simulator waits for the slowest one (measured: docs/swarms.md). An answer that comes
+        from a vehicle already ahead is held, with whatever came after it, until every vehicle is
+        ahead: then the barrier moves a period, the vehicles' separation is checked there (a contact
+        stops both vehicles' motors before either flies on), and the held answers fly. So every
+        plant flies what it flies when all advance together, each vehicle's messages act from the
+        same state of its own, and the logs do not depend on the order the answers came in. (The
+        separation's STATUSTEXTs reach an FC after the state they were checked at, not before.)
+
+        Flown when the simulator busy-polls (``--spin-s`` > 0). Blocking, each state sent alone
+        wakes an FC's process once more, and the barrier loop (:meth:`_run_lockstep`) was the
+        faster (docs/swarms.md).
+        """
+        tm = self.timing
+        substeps = tm.substeps
+        dt_s = 1.0 / tm.physics_hz
+        dt_us = int(round(dt_s * 1e6))
+        duration_us = None if tm.duration_s is None else int(round(tm.duration_s * 1e6))
+        mono = self._mono
+        spin_s = tm.spin_s
+        vehicles = self.vehicles
+        barrier = self._t_us
+        for v in vehicles:
+            v.t_us = barrier
+        behind: set[SimVehicle] = set(vehicles)  # at the barrier, their FC's answer to it not yet in
+        pending: set[SimVehicle] = set()  # the answer to the last state sent not yet in
+        done: set[SimVehicle] = set()  # answered the final state (at the duration)
+        # the physics steps of the current period: flown compiled / in Python (by any vehicle)
+        flew = [False, False]
+
+        def final(v: SimVehicle) -> bool:
+            return duration_us is not None and v.t_us >= duration_us
+
+        # [the re-send interval (from the running round trip: renewed as the barrier moves), the
+        # last send (wall s): the loop busy-polls for spin_s after it]
+        resend = [tm.resend_s, mono()]
+
+        def send(v: SimVehicle) -> None:
+            self._t_us = v.t_us
+            v.send_state()
+            v.sent_at = v.first_sent = v.last_answer = resend[1] = mono()
+            v.resend_after = resend[0]
+            pending.add(v)
+
+        def integrate(v: SimVehicle) -> None:
+            t_us = v.t_us
+            phys = self.physics
+            if phys is not None:
+                try:
+                    why = phys.fly([v.plant], [v.commands], [v.armed], t_us, dt_us, dt_s, substeps, count=False)
+                except DivergenceError as exc:
+                    self._t_us = t_us + exc.steps_done * dt_us  # type: ignore[attr-defined]
+                    raise
+                if why is None:
+                    v.t_us = t_us + substeps * dt_us
+                    flew[0] = True
+                    return
+            flew[1] = True
+            step, cmds, armed = v.plant.step, v.commands, v.armed
+            for _ in range(substeps):
+                self._t_us = t_us  # (a divergence is said at the step that failed)
+                step(t_us * 1e-6, dt_s, cmds, armed)
+                t_us += dt_us
+            v.t_us = t_us
+
+        counts = self.ahead_counts = {"states": 0, "held": 0}
+
+        def fly_on(v: SimVehicle, msgs: list) -> None:
+            """``v``'s messages from its answer to the state at the barrier on: the answer flies it
+            a period and its next state goes out; the rest act from that state."""
+            self._t_us = v.t_us
+            pending.add(v)  # (a held answer: its vehicle waits for it again, a moment)
+            rest = self._take_answer(v, msgs, pending, final(v))
+            if v in pending:  # (no answer in msgs: a stale or foreign one only)
+                return
+            behind.discard(v)
+            if final(v):
+                done.add(v)
+                return
+            integrate(v)
+            send(v)
+            if behind:
+                counts["states"] += 1
+            if rest:
+                take(v, rest)
+
+        def take(v: SimVehicle, msgs: list) -> None:
+            """What came from ``v``'s link, by where ``v`` is."""
+            if v.held:  # ahead and answered: all of it waits for the barrier
+                v.held.extend(msgs)
+                return
+            if v in behind:
+                fly_on(v, msgs)
+                return
+            if v in done:
+                return
+            # ahead: what comes before its answer acts now; the answer and what follows wait
+            self._t_us = v.t_us
+            fc_addr = v.fc_addr
+            for k, (msg, addr) in enumerate(msgs):
+                if addr != fc_addr:
+                    v.foreign_msgs += 1
+                    continue
+                mid = msg.id
+                if mid != _ACTUATORS:
+                    if mid == _PARAM_SET or mid == _PARAM_READ or mid == _PARAM_LIST:
+                        v.on_param(msg)
+                    continue
+                if msg.time_usec != v.t_us:
+                    v.stale_actuator_msgs += 1
+                    continue
+                if final(v):
+                    self._take_answer(v, msgs[k:], pending, True)
+                    done.add(v)
+                    return
+                v.held = msgs[k:]
+                counts["held"] += 1
+                v.last_answer = mono()  # (answered: the watchdog is not its)
+                pending.discard(v)
+                return
+
+        for v in vehicles:
+            send(v)
+        while not self._stop:
+            now = mono()
+            spinning = now - resend[1] < spin_s
+            wait = 0.0 if spinning else min(0.05, min(v.resend_after for v in pending) if pending else 0.05)
+            batches = self._recv(wait)
+            if batches or wait > 0.0:
+                for v in vehicles:
+                    if v.link.peer_refused and v not in done:
+                        if final(v) and v in pending:
+                            pending.discard(v)  # a timed FC stops on the last state: its answer was lost, it is gone
+                            behind.discard(v)
+                            done.add(v)
+                            continue
+                        who = f"the flight controller of {v.name} has closed its port"
+                        raise WatchdogError(f"{who} (the FC process has died); stopping")
+            for v, msgs in batches:
+                take(v, msgs)
+            if len(done) == len(vehicles):
+                self._t_us = max(v.t_us for v in vehicles)
+                return
+            if not behind:  # every vehicle a period ahead: the barrier moves
+                barrier += substeps * dt_us
+                self._t_us = barrier
+                phys = self.physics
+                if phys is not None and flew[0]:
+                    phys.steps += substeps
+                if flew[1]:
+                    self.physics_python_steps += substeps
+                flew[0] = flew[1] = False
+                if self.rtt_s:
+                    resend[0] = min(tm.resend_s, max(tm.resend_min_s, 4.0 * self.rtt_s))
+                self._check_proximity()
+                if tm.speed is not None and (duration_us is None or barrier < duration_us):
+                    ahead = barrier * 1e-6 / tm.speed - (mono() - self._wall_start)
+                    if ahead > 0.0:
+                        self._sleep(ahead)
+                behind = {v for v in vehicles if v not in done}
+                for v in vehicles:
+                    if v.held:
+                        msgs, v.held = v.held, []
+                        fly_on(v, msgs)
+                continue
+            now = mono()
+            if now - resend[1] < spin_s:
+                _yield()  # let the FCs have the cores if the machine is oversubscribed
+                continue
+            for v in list(pending):
+                limit = tm.watchdog_s if v.answered else tm.startup_timeout_s
+                if now - v.last_answer > limit:
+                    what = "never answered" if not v.answered else f"has been silent for {now - v.last_answer:.1f} s"
+                    raise WatchdogError(f"the flight controller of {v.name} {what} (lockstep watchdog {limit:g} s); stopping")
                 if now - v.sent_at > v.resend_after:
                     v.resends += 1
                     # The same bytes again (a lost state or a lost answer): a copy cannot change the FC's log.

@@ -341,6 +341,24 @@ def test_flight_controllers_flown_in_groups_write_the_same_logs(tmp_path: Path) 
     assert {s["tlog"] for s in grouped.fc_summaries if s} == {str(p) for p in grouped.tlogs}
 
 
+def test_states_sent_ahead_of_the_slowest_vehicle_give_the_same_logs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A busy-polling simulator sends each vehicle its next state as soon as its FC has answered
+    (SimBridgeApp._run_lockstep_swarm): each log is byte for byte the one the barrier loop gives
+    (noise and gusts on, a fault, a resend-free flight of 3 vehicles in one spinning group)."""
+    from ground.sitl import Sitl
+
+    extra = '[environment]\nnoise = true\ngust_std_n = 0.5\n[[fault]]\nkind = "motor"\nstart_s = 1.0\nmotor = 1\nefficiency = 0.7\n'
+    sc = swarm_scenario(tmp_path, count=3, duration=2.0, extra=extra)
+    barrier = fly(sc, tmp_path / "barrier", "run")
+    monkeypatch.setattr(Sitl, "_spinning", lambda self: True)  # (whatever this machine's cores)
+    ahead = fly(sc, tmp_path / "ahead", "run", fc_processes=1)
+    assert "--spin-s" not in ahead.sim.proc.args  # the simulator busy-polls: it sends states ahead
+    assert [p.read_bytes() for p in ahead.tlogs] == [p.read_bytes() for p in barrier.tlogs]
+    sim = ahead.sim_summary
+    assert sim is not None and sim["sim_time_s"] == pytest.approx(2.0) and sim["actuator_msgs"] == 3 * 1000
+    assert sim["ahead"]["states"] > 0 and "ahead" not in (barrier.sim_summary or {})
+
+
 @pytest.mark.slow
 def test_a_group_of_flight_controllers_on_an_impaired_link_writes_the_same_logs(tmp_path: Path) -> None:
     """A lossy, delayed simulator link: the group's loop releases what the link holds back on time,
@@ -596,6 +614,25 @@ def test_in_process_swarm_gives_sitls_motor_commands_tick_for_tick_contact_inclu
         assert ma == mb
 
 
+def test_states_sent_ahead_keep_the_contact_and_the_motor_commands(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The simulator that sends states ahead of the slowest vehicle (one spinning group) checks the
+    separation when every vehicle has reached a state, before any flies on: the same contact, the
+    same motor commands tick for tick as the in-process swarm."""
+    from ground.sitl import Sitl
+    from lab.swarm_run import fly_swarm
+
+    monkeypatch.setattr(Sitl, "_spinning", lambda self: True)
+    sc = swarm_scenario(tmp_path, count=3, duration=7.0, extra=CONTACT_VEHICLES, swarm_keys="spacing_m = 3.0")
+    ip = fly_swarm(sc, tmp_path / "ip")
+    st = fly_swarm(sc, tmp_path / "st", sitl=True, fc_processes=1)
+    assert ip.status == st.status == "ok"
+    assert ip.proximity["contacts"] and ip.proximity["contacts"] == st.proximity["contacts"]
+    for a, b in zip(ip.vehicles, st.vehicles):
+        ma, mb = _motors(a.tlog), _motors(b.tlog)
+        assert len(ma) == len(mb) == 3501
+        assert ma == mb
+
+
 # -- swarm missions -----------------------------------------------------------------------------------
 PAIR_MISSION = """
 name = "pair"
@@ -788,5 +825,8 @@ def test_bench_swarm_flies_both_layouts(tmp_path: Path) -> None:
     rows = [ln.split() for ln in r.stdout.splitlines() if ln.split()[:1] == ["2"]]
     assert [row[1] for row in rows] == ["2", "1"], r.stdout  # FC processes: one each, then one group
     assert all(row[-1] == "0.000" for row in rows)  # zero skew in lockstep
+    from lab.swarm_bench import default_layouts
+
+    assert default_layouts(2) == "0,1,2" and default_layouts(1) == "0,1" and default_layouts(8) == "0,7,8"
     bad = smcpilot("bench", "swarm", "--fc-processes", "x", cwd=tmp_path)
     assert bad.returncode == 2 and "--fc-processes must be whole numbers" in bad.stderr

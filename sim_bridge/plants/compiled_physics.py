@@ -192,12 +192,14 @@ class CompiledPhysics:
         self.steps = 0
 
     def fly(self, plants: Sequence[Any], commands: Sequence[Sequence[float]], armed: Sequence[bool],
-            t_us0: int, dt_us: int, dt_s: float, n_steps: int) -> str | None:  # fmt: skip
+            t_us0: int, dt_us: int, dt_s: float, n_steps: int, *, count: bool = True) -> str | None:  # fmt: skip
         """Step ``plants`` (a subset of :attr:`plants`, in their order) ``n_steps`` physics steps as
         their :meth:`RigidBodyPlant.step` would, called once a step at ``(t_us0 + k dt_us) 1e-6`` s
         for ``dt_s`` s. Returns None when done, or why it did not fly them (nothing changed: step
         them in Python). Raises :class:`DivergenceError` as the plant does (its state and time as
-        Python leaves them), with the steps completed in :attr:`DivergenceError.steps_done`."""
+        Python leaves them), with the steps completed in :attr:`DivergenceError.steps_done`.
+        ``count``: add the steps flown to :attr:`steps` (a caller flying the vehicles one at a time
+        counts each step once itself)."""
         t_end = (t_us0 + n_steps * dt_us) * 1e-6
         for p in plants:
             why = steady(p, t_end)
@@ -229,7 +231,8 @@ class CompiledPhysics:
                     io[i, IO_ACTIVE] = 0.0
             self._active = active
         done = self._entry(io, self.pp, t_us0, dt_us, dt_s, n_steps, self.out)
-        self.steps += done
+        if count:
+            self.steps += done
         failed = int(self.out[0]) if done < n_steps else -1
         for i, p, u, force, torque in inputs:
             # the steps this vehicle completed: in the failing step, those before the failing one flew it
