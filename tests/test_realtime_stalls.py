@@ -29,15 +29,15 @@ def test_a_frozen_fc_reports_its_stall_at_that_moment(tmp_path: Path) -> None:
         t_stop = time.monotonic()
         os.kill(pid, signal.SIGSTOP)
         time.sleep(0.04)
+        t_cont = time.monotonic()  # (before the signal: the FC may run its late tick before kill() returns)
         os.kill(pid, signal.SIGCONT)
-        t_cont = time.monotonic()
         assert sitl.wait(timeout_s=60.0) == 0
     f = sitl.fc_summary or {}
     st, gcp = f["stalls"], f["gc"]
     at, late = st["at_s"], st["late_s"]
     assert len(at) == len(late) == min(st["count"], 200)
     assert all(d >= st["threshold_s"] for d in late)
-    # the freeze: a tick that ran after SIGCONT, due before SIGSTOP's moment plus a period
+    # the freeze: a tick that ran after SIGCONT was sent, due before SIGSTOP's moment plus a period
     frozen = [(t, d) for t, d in zip(at, late) if t >= t_cont and t - d <= t_stop + PERIOD_S]
     assert frozen, (t_stop, t_cont, list(zip(at, late)))
     assert max(d for _, d in frozen) >= 0.035
