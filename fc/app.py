@@ -649,10 +649,12 @@ class FlightControllerApp:
         self._ls_last_rx = self._ls_last_probe = self._mono()
         self._ls_states = 0
 
-    def lockstep_take(self) -> bool:
-        """Lockstep: fly what waits on the simulator link (True: a state was flown); the ground
-        link is looked at every 8 states."""
-        if not self._poll_sim():
+    def lockstep_take(self, max_datagrams: int = 256) -> bool:
+        """Lockstep: fly what waits on the simulator link, at most ``max_datagrams`` datagrams
+        (True: a state was flown); the ground link is looked at every 8 states. (A caller that
+        ``select``s before each call takes one: the rest makes the socket readable again, and no
+        empty read is paid for.)"""
+        if not self._poll_sim(max_datagrams):
             return False
         self._ls_last_rx = self._mono()
         self._ls_states += 1
@@ -832,7 +834,7 @@ class FlightControllerApp:
         return self.duration_s is not None and self.clock.now_s() >= self.duration_s
 
     # -- input ---------------------------------------------------------------------------------
-    def _poll_sim(self) -> bool:
+    def _poll_sim(self, max_datagrams: int = 256) -> bool:
         """Handle simulator traffic; True if a state was flown (lockstep) or taken (real time).
 
         Checks, each counted in :class:`FcStats` and dropped (never adopted): a state from another
@@ -842,7 +844,7 @@ class FlightControllerApp:
         got = False
         sim = self.sim
         fast = self._fast_states
-        for data, addr in sim.recv_datagrams():
+        for data, addr in sim.recv_datagrams(max_datagrams):
             peer = self._sim_peer
             if peer is not None and addr != peer:
                 # not the simulator: parsed (and counted) as ground work, least important

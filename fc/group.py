@@ -128,7 +128,7 @@ def fly(apps: Sequence[FlightControllerApp]) -> int:
                     continue
                 try:
                     if is_sim:
-                        if app.lockstep_take():
+                        if app.lockstep_take(1):  # (one datagram: select says when there is more)
                             last_state = mono()
                     else:
                         app.lockstep_between(True)

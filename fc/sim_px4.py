@@ -444,8 +444,9 @@ class Px4FlightControllerApp(FlightControllerApp):
                 what = "sent no state" if not self.core.ticks else f"has sent no state for {now - last_rx:.1f} s"
                 raise WatchdogError(f"the simulator {what} (lockstep watchdog {limit:g} s); stopping")
 
-    def _poll_sim(self) -> bool:
-        """Everything that waits on the connection; True if a state was flown."""
+    def _poll_sim(self, max_datagrams: int = 256) -> bool:
+        """Everything that waits on the connection (a stream: ``max_datagrams`` does not apply);
+        True if a state was flown."""
         msgs = self.px4.recv()
         flown = False
         for msg in msgs or ():
