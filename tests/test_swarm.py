@@ -598,33 +598,26 @@ def test_smcpilot_run_flies_a_swarm_in_process(tmp_path: Path) -> None:
         assert len(_motors(tmp_path / "out" / f"contact-v{sid}.tlog")) == 3501
 
 
-@pytest.mark.slow
-def test_in_process_swarm_gives_sitls_motor_commands_tick_for_tick_contact_included(tmp_path: Path) -> None:
-    from lab.swarm_run import fly_swarm
-
-    sc = swarm_scenario(tmp_path, count=3, duration=7.0, extra=CONTACT_VEHICLES + "[environment]\nnoise = true\ngust_std_n = 0.3\n",
-                        swarm_keys="spacing_m = 3.0")  # fmt: skip
-    ip = fly_swarm(sc, tmp_path / "ip")
-    st = fly_swarm(sc, tmp_path / "st", sitl=True)
-    assert ip.status == st.status == "ok"
-    assert ip.proximity["contacts"] and ip.proximity["contacts"] == st.proximity["contacts"]
-    for a, b in zip(ip.vehicles, st.vehicles):
-        ma, mb = _motors(a.tlog), _motors(b.tlog)
-        assert len(ma) == len(mb) == 3501
-        assert ma == mb
-
-
-def test_states_sent_ahead_keep_the_contact_and_the_motor_commands(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """The simulator that sends states ahead of the slowest vehicle (one spinning group) checks the
-    separation when every vehicle has reached a state, before any flies on: the same contact, the
-    same motor commands tick for tick as the in-process swarm."""
+@pytest.mark.parametrize("fc_processes", [
+    pytest.param(None, marks=pytest.mark.slow, id="a-process-each"),
+    pytest.param(1, id="one-spinning-group-states-sent-ahead"),
+])
+def test_in_process_swarm_gives_sitls_motor_commands_tick_for_tick_contact_included(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, fc_processes: int | None,
+) -> None:  # fmt: skip
+    """The same contact, the same motor commands tick for tick, in process and in SITL: with a
+    process per FC (the simulator waits for every answer), and with one spinning group (the
+    simulator sends each vehicle its next state ahead of the slowest and checks the separation
+    when all have reached a state, before any flies on)."""
     from ground.sitl import Sitl
     from lab.swarm_run import fly_swarm
 
-    monkeypatch.setattr(Sitl, "_spinning", lambda self: True)
-    sc = swarm_scenario(tmp_path, count=3, duration=7.0, extra=CONTACT_VEHICLES, swarm_keys="spacing_m = 3.0")
+    if fc_processes is not None:
+        monkeypatch.setattr(Sitl, "_spinning", lambda self: True)  # (whatever this machine's cores)
+    sc = swarm_scenario(tmp_path, count=3, duration=7.0, extra=CONTACT_VEHICLES + "[environment]\nnoise = true\ngust_std_n = 0.3\n",
+                        swarm_keys="spacing_m = 3.0")  # fmt: skip
     ip = fly_swarm(sc, tmp_path / "ip")
-    st = fly_swarm(sc, tmp_path / "st", sitl=True, fc_processes=1)
+    st = fly_swarm(sc, tmp_path / "st", sitl=True, fc_processes=fc_processes)
     assert ip.status == st.status == "ok"
     assert ip.proximity["contacts"] and ip.proximity["contacts"] == st.proximity["contacts"]
     for a, b in zip(ip.vehicles, st.vehicles):
