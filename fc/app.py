@@ -249,6 +249,9 @@ def state_from_mavlink(att: mavlink.MAVLink_attitude_message, pos: mavlink.MAVLi
                             pos.x, pos.y, pos.z, pos.vx, pos.vy, pos.vz))  # fmt: skip
 
 
+_tuple_new = tuple.__new__
+
+
 def state_from_wire(vals: tuple[float, ...]):  # type: ignore[no-untyped-def]
     """(VehicleState in the paper frame, body rates FLU, missing) from the 12 wire values
     (:data:`smcpilot.wire.WIRE_FIELDS`: ATTITUDE's angles and rates, LOCAL_POSITION_NED's position
@@ -347,6 +350,8 @@ class FlightControllerApp:
         #: decode the simulator's per-tick datagram straight to values (else every datagram goes
         #: through the link's full parse into message objects; the same result, slower)
         self._fast_states = isinstance(self.sim, MavlinkUdp) and self.sim.signing is None
+        #: the state datagram's compiled decoder (:mod:`fc.state_kernel`; None: CPython's), with the pipeline.
+        self._state_decoder: Any = None
         gcs = self.gcs
         #: the flight core: the one control tick (plan, modes, failsafes, pipeline, events).
         self.core = FlightCore(
@@ -487,6 +492,12 @@ class FlightControllerApp:
         from fc.compiled_pipeline import attach_compiled, compile_in_background
 
         why = self.jit_why = attach_compiled(self.core.flight, compile_new=self.jit == "wait")
+        if why is None and self._fast_states:
+            from fc.state_kernel import compiled_decoder
+
+            self._state_decoder = compiled_decoder(compile_new=self.jit == "wait")
+            if self._state_decoder is None and self.jit == "auto":  # (cached with the pipeline from now on)
+                compile_in_background(self.cfg.controller)
         if why is None or "not in the pure style" in why:  # (that one fc.cli says already)
             return
         note = f"fc: the pipeline flies in CPython: {why}"
@@ -562,7 +573,9 @@ class FlightControllerApp:
         summary["rx_rejected"] = self.rejected_summary()
         summary["gc"] = self._gc_pauses.summary()
         flight = self.core.flight
-        summary["pipeline"] = {"compiled": flight.compiled, "compiled_ticks": flight.compiled_ticks, "why_not": self.jit_why}
+        dec = self._state_decoder
+        summary["pipeline"] = {"compiled": flight.compiled, "compiled_ticks": flight.compiled_ticks, "why_not": self.jit_why,
+                               "states_decoded_compiled": 0 if dec is None else dec.decoded}  # fmt: skip
         summary["sim_bad"] = dict(self.sim_complaints.counts)
         summary["tlog"] = str(self.tlog.path) if self.tlog is not None else None
         summary.update(self._summary_extra())
@@ -844,6 +857,7 @@ class FlightControllerApp:
         got = False
         sim = self.sim
         fast = self._fast_states
+        dec = self._state_decoder
         for data, addr in sim.recv_datagrams(max_datagrams):
             peer = self._sim_peer
             if peer is not None and addr != peer:
@@ -853,18 +867,34 @@ class FlightControllerApp:
             if fast and peer is not None:
                 # the simulator's per-tick datagram, decoded straight to values (anything else:
                 # the link's full parse below, which counts and checks it the same way)
-                d = decode_state_datagram(data, self._sim_sysid)
-                if d is not None and d[0][0] == d[3][0]:  # (stamps that differ: the full parse says so)
-                    sim.heard(addr, 4)
-                    att, imu, odo, lpn, (p_att, p_imu, p_odo, p_lpn) = d
-                    self._att = None
-                    self._imu = self._truth = None
-                    if self._take_state(
-                        lpn[0], (*att[1:7], *lpn[1:7]), (imu[0], imu[14], imu[1], imu[2], imu[3], p_imu, addr), (odo[0], p_odo, addr),
-                        p_att, p_lpn, addr,
-                    ):  # fmt: skip
-                        got = True
-                    continue
+                if dec is not None:  # compiled: decoded and converted in one call (fc.state_kernel)
+                    if dec.decode(data, self._sim_sysid):
+                        sim.heard(addr, 4)
+                        fo = dec.fo.tolist()
+                        io = dec.io.tolist()
+                        e0, e1, e2, e3 = io[5], io[6], io[7], io[8]
+                        self._att = None
+                        self._imu = self._truth = None
+                        if self._take_state(
+                            io[0], (_tuple_new(VehicleState, fo[0:12]), (fo[12], fo[13], fo[14]), io[1]),
+                            (io[2], io[3], fo[15], fo[16], fo[17], data[e0:e1], addr), (io[4], data[e1:e2], addr),
+                            data[:e0], data[e2:e3], addr,
+                        ):  # fmt: skip
+                            got = True
+                        continue
+                else:
+                    d = decode_state_datagram(data, self._sim_sysid)
+                    if d is not None and d[0][0] == d[3][0]:  # (stamps that differ: the full parse says so)
+                        sim.heard(addr, 4)
+                        att, imu, odo, lpn, (p_att, p_imu, p_odo, p_lpn) = d
+                        self._att = None
+                        self._imu = self._truth = None
+                        if self._take_state(
+                            lpn[0], state_from_wire((*att[1:7], *lpn[1:7])), (imu[0], imu[14], imu[1], imu[2], imu[3], p_imu, addr),
+                            (odo[0], p_odo, addr), p_att, p_lpn, addr,
+                        ):  # fmt: skip
+                            got = True
+                        continue
             for msg, src in sim.parse(data, addr):
                 if self._on_sim_message(msg, src):
                     got = True
@@ -906,8 +936,8 @@ class FlightControllerApp:
                 m, src = truth
                 truth_v = (m.time_usec, m.get_msgbuf(), src)
             return self._take_state(
-                msg.time_boot_ms, (att.roll, att.pitch, att.yaw, att.rollspeed, att.pitchspeed, att.yawspeed,
-                                   msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz),
+                msg.time_boot_ms, state_from_wire((att.roll, att.pitch, att.yaw, att.rollspeed, att.pitchspeed, att.yawspeed,
+                                                   msg.x, msg.y, msg.z, msg.vx, msg.vy, msg.vz)),
                 imu_v if imu is not None else None, truth_v if truth is not None else None, att.get_msgbuf(), msg.get_msgbuf(), addr,
             )  # fmt: skip
         elif type(msg) is _STATUSTEXT:  # its field "id" (the chunk id) hides the message id
@@ -922,16 +952,16 @@ class FlightControllerApp:
             self._stop = True
         return False
 
-    def _take_state(self, t_ms: int, wire: tuple[float, ...], imu: tuple | None, truth: tuple | None,
-                    att_packet: bytes, lpn_packet: bytes, addr: Address) -> bool:  # fmt: skip
-        """A state from the simulator (``wire``: the 12 wire values stamped ``t_ms``, with the IMU
-        and the truth that came with it and the two packets, logged as they came); flies the
-        tick in lockstep. False when its stamp is not the next one's (counted)."""
+    def _take_state(self, t_ms: int, taken: tuple[VehicleState, tuple[float, float, float], int], imu: tuple | None,
+                    truth: tuple | None, att_packet: bytes, lpn_packet: bytes, addr: Address) -> bool:  # fmt: skip
+        """A state from the simulator (``taken``: :func:`state_from_wire` of the 12 wire values
+        stamped ``t_ms``, with the IMU and the truth that came with it and the two packets, logged
+        as they came); flies the tick in lockstep. False when its stamp is not the next one's (counted)."""
         if self._sim_peer is None:
             self._sim_peer = addr
         if not self._stamp_ok(t_ms):
             return False
-        state, rates, missing = state_from_wire(wire)
+        state, rates, missing = taken
         if missing:
             self.stats.states_missing_fields += 1
             if missing == 2:

@@ -328,6 +328,10 @@ def main(argv: list[str] | None = None) -> int:
         print("another process is compiling; nothing done")
         return 0
     why = attach_compiled(FlightControl(FcConfig(controller=args.law), DEFAULT_VEHICLE), compile_new=True)
+    if why is None:
+        from fc.state_kernel import compiled_decoder
+
+        compiled_decoder(compile_new=True)  # (the state datagram's decoder, which the FC loads with it)
     print("compiled" if why is None else f"not compiled: {why}")
     return 0 if why is None else 1
 

@@ -84,6 +84,36 @@ def _argument_lists(path: Path) -> list[list[str]]:
     return data
 
 
+class _Readable:
+    """Which of a set of sockets have something to read: ``epoll`` where there is one (the set
+    registered once, not handed to the kernel on every turn as ``select`` does), else ``select``."""
+
+    def __init__(self) -> None:
+        self._fds: list[int] = []
+        self._epoll: select.epoll | None = None
+
+    def watch(self, fds: Sequence[int]) -> None:
+        """Look at ``fds`` from now on (instead of the previous set)."""
+        self.close()
+        self._fds = list(fds)
+        if hasattr(select, "epoll"):
+            self._epoll = select.epoll(len(self._fds) or 1)
+            for fd in self._fds:
+                self._epoll.register(fd, select.EPOLLIN)
+
+    def wait(self, timeout_s: float) -> list[int]:
+        """The readable ones, waiting at most ``timeout_s`` (0: not at all) for one."""
+        ep = self._epoll
+        if ep is None:
+            return select.select(self._fds, (), (), timeout_s)[0]
+        return [fd for fd, _ in ep.poll(timeout_s)]
+
+    def close(self) -> None:
+        if self._epoll is not None:
+            self._epoll.close()
+            self._epoll = None
+
+
 def fly(apps: Sequence[FlightControllerApp]) -> int:
     """Fly ``apps`` (built, lockstep) in one loop until each has ended; the exit code."""
     mono = time.monotonic
@@ -92,6 +122,7 @@ def fly(apps: Sequence[FlightControllerApp]) -> int:
     started: list[FlightControllerApp] = []
     finished: list[FlightControllerApp] = []
     codes: list[int] = []
+    poller = _Readable()
     try:
         for app in apps:
             app.start(freeze_gc=False)
@@ -114,9 +145,10 @@ def fly(apps: Sequence[FlightControllerApp]) -> int:
                 # an impaired link holds datagrams back: its app looks at it on every turn (as its own loop
                 # does), and the loop wakes when the first held one is due
                 impaired = [a for a in live if a._impaired]
+                poller.watch(list(owners))
             spinning = spin_s > 0.0 and mono() - last_state < spin_s
             wait_s = 0.0 if spinning else min(a.lockstep_wait_s() for a in impaired) if impaired else 0.1
-            readable, _, _ = select.select(list(owners), (), (), wait_s)
+            readable = poller.wait(wait_s)
             if spinning and not readable and not impaired:
                 _yield()  # (let another process have this core if the machine is oversubscribed)
                 continue
@@ -153,6 +185,7 @@ def fly(apps: Sequence[FlightControllerApp]) -> int:
                     codes.append(app.finish())
                     owners = {}
     finally:  # whatever ended the loop: every log closed, every summary said
+        poller.close()
         for app in apps:
             if app in finished:
                 continue
