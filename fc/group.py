@@ -9,9 +9,10 @@ and ground sockets, system id, parameters and parameter file, ``.tlog``, signing
 share the interpreter, the compiled pipeline (loaded once for all: ``--jit auto`` counts their
 flights together) and the process's fate (a killed group is every one of its vehicles lost).
 
-- **Lockstep** (:func:`fly`): one ``select`` loop calls each flight controller's lockstep steps as
-  its sockets have something. A lockstep flight controller's log depends only on what its
-  simulator sends it, so each log is the same, byte for byte, as its own process would write (tested).
+- **Lockstep** (:func:`fly`): one polling loop (``epoll``, :class:`smcpilot.udplink.readiness.Readiness`)
+  calls each flight controller's lockstep steps as its sockets have something. A lockstep flight
+  controller's log depends only on what its simulator sends it, so each log is the same, byte for
+  byte, as its own process would write (tested).
 - **Real time** (:func:`fly_realtime`): one loop calls each flight controller's real-time steps:
   its ticks at its deadlines, its ground-link work within its budget, what comes on its sockets.
   They keep their own wall clocks and watchdogs and share their deadlines (the same beat), so the
@@ -43,6 +44,7 @@ from typing import TextIO
 from fc.app import EXIT_CONFIG, EXIT_OK, FlightControllerApp
 from fc.cli import build_app
 from smcpilot.errors import RateMismatchError, WatchdogError
+from smcpilot.udplink.readiness import Readiness
 
 _yield = getattr(os, "sched_yield", lambda: None)
 
@@ -84,36 +86,6 @@ def _argument_lists(path: Path) -> list[list[str]]:
     return data
 
 
-class _Readable:
-    """Which of a set of sockets have something to read: ``epoll`` where there is one (the set
-    registered once, not handed to the kernel on every turn as ``select`` does), else ``select``."""
-
-    def __init__(self) -> None:
-        self._fds: list[int] = []
-        self._epoll: select.epoll | None = None
-
-    def watch(self, fds: Sequence[int]) -> None:
-        """Look at ``fds`` from now on (instead of the previous set)."""
-        self.close()
-        self._fds = list(fds)
-        if hasattr(select, "epoll"):
-            self._epoll = select.epoll(len(self._fds) or 1)
-            for fd in self._fds:
-                self._epoll.register(fd, select.EPOLLIN)
-
-    def wait(self, timeout_s: float) -> list[int]:
-        """The readable ones, waiting at most ``timeout_s`` (0: not at all) for one."""
-        ep = self._epoll
-        if ep is None:
-            return select.select(self._fds, (), (), timeout_s)[0]
-        return [fd for fd, _ in ep.poll(timeout_s)]
-
-    def close(self) -> None:
-        if self._epoll is not None:
-            self._epoll.close()
-            self._epoll = None
-
-
 def fly(apps: Sequence[FlightControllerApp]) -> int:
     """Fly ``apps`` (built, lockstep) in one loop until each has ended; the exit code."""
     mono = time.monotonic
@@ -122,7 +94,7 @@ def fly(apps: Sequence[FlightControllerApp]) -> int:
     started: list[FlightControllerApp] = []
     finished: list[FlightControllerApp] = []
     codes: list[int] = []
-    poller = _Readable()
+    poller = Readiness()
     try:
         for app in apps:
             app.start(freeze_gc=False)
@@ -160,7 +132,7 @@ def fly(apps: Sequence[FlightControllerApp]) -> int:
                     continue
                 try:
                     if is_sim:
-                        if app.lockstep_take(1):  # (one datagram: select says when there is more)
+                        if app.lockstep_take(1):  # (one datagram: the poll says when there is more)
                             last_state = mono()
                     else:
                         app.lockstep_between(True)

@@ -52,7 +52,6 @@ import gc
 import json
 import math
 import os
-import select
 import signal
 import sys
 import time
@@ -73,6 +72,7 @@ from smcpilot.frames import quat_nwu_flu_to_ned_frd
 from smcpilot.jit import AUTO_MIN_LOCKSTEP_S, compile_in_background
 from smcpilot.link import MavlinkUdp
 from smcpilot.protocol import SIM_COMPONENT_ID
+from smcpilot.udplink.readiness import Readiness
 from smcpilot.wire import wire_of_paper
 
 if TYPE_CHECKING:
@@ -425,6 +425,9 @@ class SimBridgeApp:
         self._removed: set[SimVehicle] = set()
         #: every vehicle's link's file descriptor, in the vehicles' order (made at the first receive)
         self._fds: list[int] = []
+        self._vehicle_of_fd: dict[int, SimVehicle] = {}
+        #: the vehicles' links polled (epoll where there is one: :class:`smcpilot.udplink.readiness.Readiness`).
+        self._readiness = Readiness()
         #: lockstep: running mean round trip state -> answer (the slowest vehicle's), wall s.
         self.rtt_s = 0.0
         #: real time, a swarm: wall seconds from the first vehicle's state to the last one's, each period.
@@ -543,13 +546,19 @@ class SimBridgeApp:
         fds = self._fds
         if len(fds) != len(vehicles):
             fds = self._fds = [v.link.fileno() for v in vehicles]
+            self._vehicle_of_fd = {fd: v for fd, v in zip(fds, vehicles)}
+            self._readiness.watch(fds)
         try:
-            ready, _, _ = select.select(fds, [], [], max(0.0, timeout_s))
+            ready = self._readiness.wait(timeout_s)
         except (OSError, ValueError):
             ready = fds
         if not ready:
             return []
-        ready_set = set(ready)
+        of = self._vehicle_of_fd
+        if len(ready) == 1:
+            v = of[ready[0]]
+            return [(v, v.receive())]
+        ready_set = set(ready)  # (in the vehicles' order)
         return [(v, v.receive()) for v, fd in zip(vehicles, fds) if fd in ready_set]
 
     # -- loops -----------------------------------------------------------------------------------
@@ -604,6 +613,7 @@ class SimBridgeApp:
                 if self._fanout_s:  # real time: how far apart in wall time the vehicles got the same state
                     f = sorted(self._fanout_s)
                     summary["fanout_skew_s"] = {"p50": f[len(f) // 2], "p99": f[min(len(f) - 1, int(0.99 * len(f)))], "max": f[-1]}
+            self._readiness.close()
             for v in self.vehicles:
                 if self._exit == EXIT_OK:
                     v.say_goodbye()
