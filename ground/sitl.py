@@ -270,8 +270,9 @@ class Sitl:
         default) only when the FC groups and the simulator fit the machine's cores (on two cores:
         one group). Otherwise (a process per vehicle, or more groups) every process blocks: a
         spinning process would take the core another needs to answer it. On a 2-core machine,
-        K = 16 in lockstep, one spinning group flew 16.4 vehicle-seconds per wall second against
-        15.2 for two blocking groups and 6.1 for a process per vehicle, in one run (docs/swarms.md)."""
+        K = 16 in lockstep, one spinning group flew 19.6 vehicle-seconds per wall second against
+        13.4 for two blocking groups and 11.1 for a process per vehicle, in one run on 4 December
+        (docs/swarms.md)."""
         o = self.options
         if not self._grouped():
             return False
