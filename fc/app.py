@@ -250,6 +250,8 @@ def state_from_mavlink(att: mavlink.MAVLink_attitude_message, pos: mavlink.MAVLi
 
 
 _tuple_new = tuple.__new__
+#: not empty once this process has started compiling the state decoder in the background.
+_DECODER_COMPILE_STARTED: list[bool] = []
 
 
 def state_from_wire(vals: tuple[float, ...]):  # type: ignore[no-untyped-def]
@@ -496,8 +498,9 @@ class FlightControllerApp:
             from fc.state_kernel import compiled_decoder
 
             self._state_decoder = compiled_decoder(compile_new=self.jit == "wait")
-            if self._state_decoder is None and self.jit == "auto":  # (cached with the pipeline from now on)
-                compile_in_background(self.cfg.controller)
+            if self._state_decoder is None and self.jit == "auto" and not _DECODER_COMPILE_STARTED:
+                _DECODER_COMPILE_STARTED.append(True)  # (once a process: a group's FCs all come here)
+                compile_in_background(self.cfg.controller)  # (it caches the decoder with the pipeline)
         if why is None or "not in the pure style" in why:  # (that one fc.cli says already)
             return
         note = f"fc: the pipeline flies in CPython: {why}"
