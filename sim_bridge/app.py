@@ -57,7 +57,7 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -65,6 +65,7 @@ from sim_bridge.faults import SEVERITY_REJECTED, SimFaults
 from sim_bridge.plants.base import Plant
 from sim_bridge.proximity import Proximity
 from sim_bridge.sensors import specific_force_frd
+from sim_bridge.state_encoder import DATAGRAM_MAX_BYTES
 from smcpilot.errors import DivergenceError, WatchdogError
 from smcpilot.fastcodec import TickRecords, decode_actuator_datagram
 from smcpilot.faults import SIM_PARAM_INDEX, SIM_PARAMS, FaultError
@@ -174,6 +175,8 @@ class SimVehicle:
         #: actuator messages with a NaN or infinite motor value (that motor keeps its last command).
         self.nonfinite_actuator_msgs = 0
         self.last_state: tuple[bytes, ...] = ()
+        #: the state datagram's compiled encoder (:mod:`sim_bridge.state_encoder`; None: CPython makes it).
+        self.encoder: Any = None
         #: lockstep: when the state was last sent (wall s), when first sent, the re-send interval;
         #: ``last_answer``: its last answer, or the last new state sent to it (the watchdog counts from it).
         self.sent_at = 0.0
@@ -219,6 +222,12 @@ class SimVehicle:
         self.make_state()
         self.send_made()
 
+    def fast_states_ok(self) -> bool:
+        """The link sends a state's four packets as one datagram, unchanged (unsigned, unimpaired,
+        not logged): the compiled encoder may make that datagram itself."""
+        link = self.link
+        return self._fast_answers and not link.logged and link.max_datagram_bytes >= DATAGRAM_MAX_BYTES
+
     def send_made(self) -> None:
         """The state :meth:`make_state` made, to the FC, then the faults' news (STATUSTEXT)."""
         self.link.send_packets(self.last_state)
@@ -236,6 +245,17 @@ class SimVehicle:
         tru = self._truth()
         link = self.link
         t_us = self._clock_us()
+        enc = self.encoder
+        if enc is not None and obs.accel_mps2 is not None:  # compiled: the same bytes in one call
+            enc.vin[:] = (*obs.euler_rad, *obs.body_rates_radps, *obs.position_m, *obs.velocity_mps, *obs.accel_mps2,
+                          *tru.quaternion, *tru.euler_rad, *tru.body_rates_radps, *tru.position_m, *tru.velocity_mps,
+                          self._gravity)  # fmt: skip
+            data = enc.encode(t_us, link.peek_seq())
+            if data is not None:  # (else a NaN or a value beyond float32: made below, as always)
+                for _ in range(4):
+                    link.take_seq()
+                self.last_state = (data,)
+                return
         t_ms = (t_us // 1000) & 0xFFFFFFFF
         (phi, theta, psi), (pf, qf, rf), (xw, yw, zw), (vxw, vyw, vzw) = obs.euler_rad, obs.body_rates_radps, obs.position_m, obs.velocity_mps
         roll, pitch, yaw, p, q, r, x, y, z, vx, vy, vz = wire_of_paper(phi, theta, psi, pf, qf, rf, xw, yw, zw, vxw, vyw, vzw)
@@ -480,6 +500,14 @@ class SimBridgeApp:
 
         self.physics, why = compiled_physics.load([v.plant for v in self.vehicles], compile_new=self.jit == "wait")
         self.physics_why = why
+        if why is None:
+            from sim_bridge.state_encoder import compiled_encoder
+
+            for v in self.vehicles:
+                if v.fast_states_ok():
+                    v.encoder = compiled_encoder(v.system_id, compile_new=self.jit == "wait")
+            if self.jit == "auto" and any(v.encoder is None for v in self.vehicles if v.fast_states_ok()):
+                compile_in_background("sim_bridge.plants.compiled_physics")  # (it caches the encoder too)
         if why is None or why == "no rigid-body plant":
             return
         note = f"sim: the physics is stepped in Python: {why}"
@@ -596,7 +624,8 @@ class SimBridgeApp:
                              "cpu_start_s": round(cpu_start, 3),
                              "cpu_sys_s": round(os.times().system, 3),
                              "physics": {"compiled": self.physics is not None, "compiled_steps": self.physics.steps if self.physics else 0,
-                                         "python_steps": self.physics_python_steps, "why_not": self.physics_why}}  # fmt: skip
+                                         "python_steps": self.physics_python_steps, "why_not": self.physics_why,
+                                         "states_encoded_compiled": sum(v.encoder.made for v in self.vehicles if v.encoder is not None)}}  # fmt: skip
             if len(self.vehicles) == 1:
                 summary.update(v0.summary())
                 del summary["system_id"], summary["crashed"]

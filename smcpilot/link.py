@@ -340,6 +340,20 @@ class MavlinkUdp:
             raise self._closed_error()
         self._transmit(packets, (addr,))
 
+    def peek_seq(self) -> int:
+        """The sequence number :meth:`take_seq` gives next (not consumed)."""
+        return int(self._encoder.mav.seq)
+
+    @property
+    def logged(self) -> bool:
+        """What this link sends and receives is copied to a ``.tlog``."""
+        return self._tap is not None
+
+    @property
+    def max_datagram_bytes(self) -> int:
+        """The largest datagram :meth:`send_packets` makes of several packets."""
+        return self._max_datagram_bytes
+
     def take_seq(self) -> int:
         """The next sequence number, consumed: for packets encoded by :mod:`smcpilot.fastcodec`
         directly (no message object) and sent with :meth:`send_packets`."""

@@ -174,8 +174,9 @@ def test_the_simulator_process_flies_the_same_compiled_and_in_python(tmp_path) -
         phys = sitl.sim_summary["physics"]  # type: ignore[index]
         if jit == "wait":
             assert phys["compiled"] and phys["compiled_steps"] > 9000 and 0 < phys["python_steps"] < 100, phys
+            assert phys["states_encoded_compiled"] > 5000, phys  # (sim_bridge.state_encoder: the same log from its states too)
         else:
-            assert not phys["compiled"] and phys["why_not"] == "--jit off", phys
+            assert not phys["compiled"] and phys["why_not"] == "--jit off" and phys["states_encoded_compiled"] == 0, phys
         logs[jit] = (tmp_path / jit / f"{jit}.tlog").read_bytes()
     assert len(logs["off"]) > 100_000 and logs["wait"] == logs["off"]
 

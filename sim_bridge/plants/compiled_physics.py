@@ -318,6 +318,9 @@ def main(argv: list[str] | None = None) -> int:
     if phys is None:
         print(f"python -m sim_bridge.plants.compiled_physics: not compiled: {why}", file=sys.stderr)
         return 1
+    from sim_bridge.state_encoder import compiled_encoder
+
+    compiled_encoder(1, compile_new=True)  # (the state datagram's encoder, loaded with the physics)
     print("the simulator's physics is compiled and cached")
     return 0
 

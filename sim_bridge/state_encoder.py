@@ -1,0 +1,241 @@
+"""A vehicle's per-tick state datagram, made compiled: the observation to the wire's bytes in one call.
+
+Each control period the simulator sends each vehicle's FC one datagram: ATTITUDE, HIGHRES_IMU,
+ODOMETRY, LOCAL_POSITION_NED (:meth:`sim_bridge.app.SimVehicle.make_state`). In CPython that is
+two wire conversions (:func:`smcpilot.wire.wire_of_paper`), the accelerometer's specific force
+(:func:`sim_bridge.sensors.specific_force_frd`), the truth's quaternion in NED/FRD and four packets
+packed and framed by :class:`smcpilot.fastcodec.TickRecords`. :func:`encode_state` does all of it
+in the pure style, for numba to compile, into a byte array the caller owns; the same bytes as
+``TickRecords`` (``tests/test_state_encoder.py``). Two kinds of state give 0, and the caller makes
+them in CPython: a finite value beyond float32's range, which ``TickRecords`` refuses (``struct``
+raises, as it always has), and a NaN anywhere (a sensor's dropout, say): the sign of a NaN that
+arithmetic makes is not fixed by IEEE 754, and compiled code gives +NaN where CPython gives −NaN
+(the specific force of a NaN quaternion), which would change the FC's log.
+
+The FC's side decodes these datagrams the same way: :mod:`fc.state_kernel`.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import Any
+
+import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from sim_bridge.sensors import specific_force_frd
+from smcpilot.fastcodec import TickRecords
+from smcpilot.frames import (
+    euler_flu_to_frd,
+    flu_to_frd,
+    nwu_to_ned,
+    quat_nwu_flu_to_ned_frd,
+    quat_rotate,
+    quat_rotate_inverse,
+    rates_flu_to_frd,
+)
+from smcpilot.protocol import IMU_FIELDS_UPDATED, SIM_COMPONENT_ID
+from smcpilot.wire import wire_of_paper
+
+#: the inputs (``vin``, float64): the observation's Euler angles (rad, FLU in NWU), body rates
+#: (rad/s, FLU), position (m, NWU), velocity (m/s, NWU), acceleration (m/s^2, NWU); the truth's
+#: quaternion (FLU in NWU), Euler angles, body rates, position, velocity; gravity (m/s^2).
+V_OBS = 0
+V_ACCEL = 12
+V_QUAT = 15
+V_TRUTH = 19
+V_GRAVITY = 31
+V_SIZE = 32
+#: the largest datagram (four packets of at most 12 + 255 bytes), the buffer's size.
+OUT_BYTES = 4 * (12 + 255)
+#: the longest datagram :func:`encode_state` makes: four untrimmed payloads (28, 63, 233, 28 bytes),
+#: 12 bytes of header and CRC each.
+DATAGRAM_MAX_BYTES = 4 * 12 + 28 + 63 + 233 + 28
+
+_ID_ATT = int(mavlink.MAVLINK_MSG_ID_ATTITUDE)
+_ID_IMU = int(mavlink.MAVLINK_MSG_ID_HIGHRES_IMU)
+_ID_ODO = int(mavlink.MAVLINK_MSG_ID_ODOMETRY)
+_ID_LPN = int(mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED)
+_X_ATT = int(mavlink.MAVLink_attitude_message.crc_extra)
+_X_IMU = int(mavlink.MAVLink_highres_imu_message.crc_extra)
+_X_ODO = int(mavlink.MAVLink_odometry_message.crc_extra)
+_X_LPN = int(mavlink.MAVLink_local_position_ned_message.crc_extra)
+_COMPONENT = int(SIM_COMPONENT_ID)
+_IMU_FIELDS = int(IMU_FIELDS_UPDATED)
+_F32_MAX = 3.4028234663852886e38
+
+
+def _put_u32(out, j, v):  # type: ignore[no-untyped-def]
+    out[j] = v & 0xFF
+    out[j + 1] = (v >> 8) & 0xFF
+    out[j + 2] = (v >> 16) & 0xFF
+    out[j + 3] = (v >> 24) & 0xFF
+
+
+def _put_u64(out, j, v):  # type: ignore[no-untyped-def]
+    _put_u32(out, j, v & 0xFFFFFFFF)
+    _put_u32(out, j + 4, (v >> 32) & 0xFFFFFFFF)
+
+
+def _put_f32(out, j, x, bits, f32):  # type: ignore[no-untyped-def]
+    """``x`` as a little-endian float32 at ``out[j]``; False when a finite ``x`` is beyond float32's
+    range (``struct`` raises there) or ``x`` is NaN (whose sign compiled arithmetic does not give
+    as CPython's does: CPython makes that state). ``bits``/``f32``: one uint32 and its float32 view."""
+    if x != x:
+        return False
+    if math.isfinite(x) and (x > _F32_MAX or x < -_F32_MAX):
+        f32[0] = x
+        if not math.isfinite(f32[0]):
+            return False
+    f32[0] = x
+    _put_u32(out, j, np.int64(bits[0]))
+    return True
+
+
+def _frame(out, start, n_full, msg_id, extra, seq, sysid):  # type: ignore[no-untyped-def]
+    """Frame the payload of ``n_full`` bytes written at ``out[start + 10]``: the header, the payload's
+    trailing zeros trimmed (one byte kept), the CRC. Returns the packet's end."""
+    p = start + 10
+    n = n_full
+    while n > 1 and out[p + n - 1] == 0:
+        n -= 1
+    out[start] = 0xFD
+    out[start + 1] = n
+    out[start + 2] = 0
+    out[start + 3] = 0
+    out[start + 4] = seq & 0xFF
+    out[start + 5] = sysid
+    out[start + 6] = _COMPONENT
+    out[start + 7] = msg_id & 0xFF
+    out[start + 8] = (msg_id >> 8) & 0xFF
+    out[start + 9] = (msg_id >> 16) & 0xFF
+    crc = 0xFFFF
+    end = p + n
+    for j in range(start + 1, end + 1):
+        b = int(out[j]) if j < end else extra
+        tmp = (b ^ (crc & 0xFF)) & 0xFF
+        tmp = (tmp ^ (tmp << 4)) & 0xFF
+        crc = ((crc >> 8) ^ (tmp << 8) ^ (tmp << 3) ^ (tmp >> 4)) & 0xFFFF
+    out[end] = crc & 0xFF
+    out[end + 1] = crc >> 8
+    return end + 2
+
+
+def _floats(out, j, ok, a, b, c, bits, f32):  # type: ignore[no-untyped-def]
+    """Three float32 at ``out[j]``; ``ok`` and-ed with each one's range check."""
+    ok = _put_f32(out, j, a, bits, f32) and ok
+    ok = _put_f32(out, j + 4, b, bits, f32) and ok
+    return _put_f32(out, j + 8, c, bits, f32) and ok
+
+
+def encode_state(vin, t_us, seq, sysid, odo_tail, out, bits, f32):  # type: ignore[no-untyped-def]
+    """The state datagram of ``vin`` (see :data:`V_OBS` …) stamped ``t_us`` (µs) into ``out`` (uint8,
+    :data:`OUT_BYTES`), the four packets numbered ``seq`` … ``seq + 3`` (mod 256) from ``sysid``'s
+    simulator component; ``odo_tail``: ODOMETRY's constant tail (:attr:`TickRecords.odo_tail`).
+    Returns the datagram's length, or 0 when a value is NaN or does not fit a float32 (the caller
+    then makes this state in CPython)."""
+    roll, pitch, yaw, p, q, r, x, y, z, vx, vy, vz = wire_of_paper(
+        vin[0], vin[1], vin[2], vin[3], vin[4], vin[5], vin[6], vin[7], vin[8], vin[9], vin[10], vin[11]
+    )  # fmt: skip
+    quat = (vin[V_QUAT], vin[V_QUAT + 1], vin[V_QUAT + 2], vin[V_QUAT + 3])
+    fx, fy, fz = specific_force_frd((vin[V_ACCEL], vin[V_ACCEL + 1], vin[V_ACCEL + 2]), quat, vin[V_GRAVITY])
+    tv = V_TRUTH
+    _a, _b, _c, tp, tq, tr, tx, ty, tz, tvx, tvy, tvz = wire_of_paper(
+        vin[tv], vin[tv + 1], vin[tv + 2], vin[tv + 3], vin[tv + 4], vin[tv + 5], vin[tv + 6], vin[tv + 7], vin[tv + 8],
+        vin[tv + 9], vin[tv + 10], vin[tv + 11],
+    )  # fmt: skip
+    qw, qx, qy, qz = quat_nwu_flu_to_ned_frd(quat)
+    t_ms = (t_us // 1000) & 0xFFFFFFFF
+    ok = True
+    # ATTITUDE: time_boot_ms, roll, pitch, yaw, rollspeed, pitchspeed, yawspeed
+    s = 0
+    _put_u32(out, s + 10, t_ms)
+    ok = _floats(out, s + 14, ok, roll, pitch, yaw, bits, f32)
+    ok = _floats(out, s + 26, ok, p, q, r, bits, f32)
+    s = _frame(out, s, 28, _ID_ATT, _X_ATT, seq, sysid)
+    # HIGHRES_IMU: time_usec, xacc .. zgyro, seven zeros, fields_updated, id
+    _put_u64(out, s + 10, t_us)
+    ok = _floats(out, s + 18, ok, fx, fy, fz, bits, f32)
+    ok = _floats(out, s + 30, ok, p, q, r, bits, f32)
+    for j in range(s + 42, s + 70):
+        out[j] = 0
+    out[s + 70] = _IMU_FIELDS & 0xFF
+    out[s + 71] = (_IMU_FIELDS >> 8) & 0xFF
+    out[s + 72] = 0
+    s = _frame(out, s, 63, _ID_IMU, _X_IMU, seq + 1, sysid)
+    # ODOMETRY: time_usec, x, y, z, q[4], vx, vy, vz, rollspeed, pitchspeed, yawspeed, the constant tail
+    _put_u64(out, s + 10, t_us)
+    ok = _floats(out, s + 18, ok, tx, ty, tz, bits, f32)
+    ok = _put_f32(out, s + 30, qw, bits, f32) and ok
+    ok = _floats(out, s + 34, ok, qx, qy, qz, bits, f32)
+    ok = _floats(out, s + 46, ok, tvx, tvy, tvz, bits, f32)
+    ok = _floats(out, s + 58, ok, tp, tq, tr, bits, f32)
+    n_tail = len(odo_tail)
+    for j in range(n_tail):
+        out[s + 70 + j] = odo_tail[j]
+    s = _frame(out, s, 60 + n_tail, _ID_ODO, _X_ODO, seq + 2, sysid)
+    # LOCAL_POSITION_NED: time_boot_ms, x, y, z, vx, vy, vz
+    _put_u32(out, s + 10, t_ms)
+    ok = _floats(out, s + 14, ok, x, y, z, bits, f32)
+    ok = _floats(out, s + 26, ok, vx, vy, vz, bits, f32)
+    s = _frame(out, s, 28, _ID_LPN, _X_LPN, seq + 3, sysid)
+    return s if ok else 0
+
+
+class StateEncoder:
+    """:func:`encode_state`'s compiled entry point with the arrays it uses, for one vehicle."""
+
+    def __init__(self, entry: Any, sysid: int) -> None:
+        self._entry = entry
+        self.sysid = sysid
+        self.vin = np.zeros(V_SIZE)
+        self.out = np.zeros(OUT_BYTES, dtype=np.uint8)
+        self._tail = np.frombuffer(TickRecords(sysid).odo_tail, dtype=np.uint8).copy()
+        self._bits = np.zeros(1, dtype=np.uint32)
+        self._f32 = self._bits.view(np.float32)
+        #: datagrams made.
+        self.made = 0
+
+    def encode(self, t_us: int, seq: int) -> bytes | None:
+        """The datagram of :attr:`vin` (filled by the caller) stamped ``t_us``, its packets numbered
+        from ``seq``; None when a value is NaN or does not fit a float32 (make it in CPython)."""
+        n: int = self._entry(self.vin, t_us, seq, self.sysid, self._tail, self.out, self._bits, self._f32)
+        if not n:
+            return None
+        self.made += 1
+        return self.out[:n].tobytes()
+
+
+_TWINS: dict[Any, Any] = {}
+
+
+def _twins() -> dict[Any, Any]:
+    """The compiled twins (made once a process)."""
+    if not _TWINS:
+        from smcpilot.jit import compile_pure
+
+        _TWINS.update(compile_pure((
+            encode_state, _put_u32, _put_u64, _put_f32, _frame, _floats, wire_of_paper, specific_force_frd,
+            quat_nwu_flu_to_ned_frd, euler_flu_to_frd, rates_flu_to_frd, nwu_to_ned, flu_to_frd, quat_rotate_inverse, quat_rotate,
+        )))  # fmt: skip
+    return _TWINS
+
+
+def compiled_encoder(sysid: int, *, compile_new: bool) -> StateEncoder | None:
+    """The compiled :func:`encode_state` for vehicle ``sysid`` (loaded from numba's on-disk cache, or
+    compiled first when ``compile_new``: a few seconds, once), or None when it cannot be had (no
+    numba, JIT off, not cached and not ``compile_new``)."""
+    from smcpilot.jit import cache_index, jit_unavailable_reason, numba_module
+
+    if jit_unavailable_reason() is not None:
+        return None
+    fn = _twins()[encode_state]
+    index = cache_index(fn)
+    if not compile_new and (index is None or not os.path.exists(index)):
+        return None
+    types = numba_module().types
+    sig = (types.float64[::1], types.int64, types.int64, types.int64, types.uint8[::1], types.uint8[::1], types.uint32[::1],
+           types.float32[::1])  # fmt: skip
+    fn.compile(sig)
+    return StateEncoder(fn.overloads[sig].entry_point, sysid)
