@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from smcpilot.framing import FRAMING_FUNCTIONS, HEADER_BYTES, crc_x25, get_byte, get_f32, get_u32, get_u64
 from smcpilot.protocol import SIM_COMPONENT_ID
 from smcpilot.wire import paper_of_wire
 
@@ -43,7 +44,6 @@ I_ODO_USEC = 4
 I_ENDS = 5
 I_SIZE = 9
 
-_HEADER = 10  # MAVLink 2 header bytes (magic, length, flags, seq, system, component, id)
 _ID_ATT = int(mavlink.MAVLINK_MSG_ID_ATTITUDE)
 _ID_IMU = int(mavlink.MAVLINK_MSG_ID_HIGHRES_IMU)
 _ID_ODO = int(mavlink.MAVLINK_MSG_ID_ODOMETRY)
@@ -58,36 +58,6 @@ _COMPONENT = int(SIM_COMPONENT_ID)
 _IMU_FIELDS_AT = 8 + 13 * 4
 _NAN = math.nan
 _isfinite = math.isfinite
-
-
-def _crc(data, start, end, extra):  # type: ignore[no-untyped-def]
-    """MAVLink's CRC-16/MCRF4XX of ``data[start:end]`` and then the byte ``extra``."""
-    crc = 0xFFFF
-    for j in range(start, end + 1):
-        b = data[j] if j < end else extra
-        tmp = (b ^ (crc & 0xFF)) & 0xFF
-        tmp = (tmp ^ (tmp << 4)) & 0xFF
-        crc = ((crc >> 8) ^ (tmp << 8) ^ (tmp << 3) ^ (tmp >> 4)) & 0xFFFF
-    return crc
-
-
-def _byte(data, j, end):  # type: ignore[no-untyped-def]
-    """``data[j]``, or 0 past the payload's ``end`` (MAVLink 2 trims a payload's trailing zeros)."""
-    return data[j] if j < end else 0
-
-
-def _u32(data, j, end):  # type: ignore[no-untyped-def]
-    return _byte(data, j, end) | (_byte(data, j + 1, end) << 8) | (_byte(data, j + 2, end) << 16) | (_byte(data, j + 3, end) << 24)
-
-
-def _u64(data, j, end):  # type: ignore[no-untyped-def]
-    return np.uint64(_u32(data, j, end)) | (np.uint64(_u32(data, j + 4, end)) << np.uint64(32))
-
-
-def _f32(data, j, end, bits, f32):  # type: ignore[no-untyped-def]
-    """The little-endian float32 at ``data[j]``, widened (``bits`` and ``f32``: one uint32 and its float32 view)."""
-    bits[0] = _u32(data, j, end)
-    return np.float64(f32[0])
 
 
 def decode_state(data, system, fo, io, bits, f32):  # type: ignore[no-untyped-def]
@@ -106,35 +76,35 @@ def decode_state(data, system, fo, io, bits, f32):  # type: ignore[no-untyped-de
             return 0
         if (data[i + 7] | (data[i + 8] << 8) | (data[i + 9] << 16)) != _IDS[k]:
             return 0
-        body = i + _HEADER + n
-        if _crc(data, i + 1, body, _EXTRAS[k]) != (data[body] | (data[body + 1] << 8)):
+        body = i + HEADER_BYTES + n
+        if crc_x25(data, i + 1, body, _EXTRAS[k]) != (data[body] | (data[body + 1] << 8)):
             return 0
-        p = i + _HEADER
+        p = i + HEADER_BYTES
         if k == 0:
-            t_ms = _u32(data, p, body)
-            roll = _f32(data, p + 4, body, bits, f32)
-            pitch = _f32(data, p + 8, body, bits, f32)
-            yaw = _f32(data, p + 12, body, bits, f32)
-            ps = _f32(data, p + 16, body, bits, f32)
-            qs = _f32(data, p + 20, body, bits, f32)
-            rs = _f32(data, p + 24, body, bits, f32)
+            t_ms = get_u32(data, p, body)
+            roll = get_f32(data, p + 4, body, bits, f32)
+            pitch = get_f32(data, p + 8, body, bits, f32)
+            yaw = get_f32(data, p + 12, body, bits, f32)
+            ps = get_f32(data, p + 16, body, bits, f32)
+            qs = get_f32(data, p + 20, body, bits, f32)
+            rs = get_f32(data, p + 24, body, bits, f32)
         elif k == 1:
-            io[I_IMU_USEC] = _u64(data, p, body)
-            fo[F_ACCEL] = _f32(data, p + 8, body, bits, f32)
-            fo[F_ACCEL + 1] = _f32(data, p + 12, body, bits, f32)
-            fo[F_ACCEL + 2] = _f32(data, p + 16, body, bits, f32)
-            io[I_IMU_FIELDS] = _byte(data, p + _IMU_FIELDS_AT, body) | (_byte(data, p + _IMU_FIELDS_AT + 1, body) << 8)
+            io[I_IMU_USEC] = get_u64(data, p, body)
+            fo[F_ACCEL] = get_f32(data, p + 8, body, bits, f32)
+            fo[F_ACCEL + 1] = get_f32(data, p + 12, body, bits, f32)
+            fo[F_ACCEL + 2] = get_f32(data, p + 16, body, bits, f32)
+            io[I_IMU_FIELDS] = get_byte(data, p + _IMU_FIELDS_AT, body) | (get_byte(data, p + _IMU_FIELDS_AT + 1, body) << 8)
         elif k == 2:
-            io[I_ODO_USEC] = _u64(data, p, body)
+            io[I_ODO_USEC] = get_u64(data, p, body)
         else:
-            if _u32(data, p, body) != t_ms:
+            if get_u32(data, p, body) != t_ms:
                 return 0
-            xn = _f32(data, p + 4, body, bits, f32)
-            yn = _f32(data, p + 8, body, bits, f32)
-            zn = _f32(data, p + 12, body, bits, f32)
-            vxn = _f32(data, p + 16, body, bits, f32)
-            vyn = _f32(data, p + 20, body, bits, f32)
-            vzn = _f32(data, p + 24, body, bits, f32)
+            xn = get_f32(data, p + 4, body, bits, f32)
+            yn = get_f32(data, p + 8, body, bits, f32)
+            zn = get_f32(data, p + 12, body, bits, f32)
+            vxn = get_f32(data, p + 16, body, bits, f32)
+            vyn = get_f32(data, p + 20, body, bits, f32)
+            vzn = get_f32(data, p + 24, body, bits, f32)
         io[I_ENDS + k] = end
         i = end
     if i != size:
@@ -202,7 +172,7 @@ def _twins() -> dict[Any, Any]:
 
     wire, problems = pure_closure((paper_of_wire,))  # (the wire's conversion and what it calls)
     assert not problems, problems
-    _TWINS.update(compile_pure((decode_state, _crc, _byte, _u32, _u64, _f32, _finite_or_nan, *wire)))
+    _TWINS.update(compile_pure((decode_state, _finite_or_nan, *FRAMING_FUNCTIONS, *wire)))
     return _TWINS
 
 

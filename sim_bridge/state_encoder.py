@@ -17,7 +17,6 @@ The FC's side decodes these datagrams the same way: :mod:`fc.state_kernel`.
 
 from __future__ import annotations
 
-import math
 import os
 from typing import Any
 
@@ -35,6 +34,7 @@ from smcpilot.frames import (
     quat_rotate_inverse,
     rates_flu_to_frd,
 )
+from smcpilot.framing import FRAMING_FUNCTIONS, frame, put_f32, put_u32, put_u64
 from smcpilot.protocol import IMU_FIELDS_UPDATED, SIM_COMPONENT_ID
 from smcpilot.wire import wire_of_paper
 
@@ -63,70 +63,21 @@ _X_ODO = int(mavlink.MAVLink_odometry_message.crc_extra)
 _X_LPN = int(mavlink.MAVLink_local_position_ned_message.crc_extra)
 _COMPONENT = int(SIM_COMPONENT_ID)
 _IMU_FIELDS = int(IMU_FIELDS_UPDATED)
-_F32_MAX = 3.4028234663852886e38
 
 
-def _put_u32(out, j, v):  # type: ignore[no-untyped-def]
-    out[j] = v & 0xFF
-    out[j + 1] = (v >> 8) & 0xFF
-    out[j + 2] = (v >> 16) & 0xFF
-    out[j + 3] = (v >> 24) & 0xFF
-
-
-def _put_u64(out, j, v):  # type: ignore[no-untyped-def]
-    _put_u32(out, j, v & 0xFFFFFFFF)
-    _put_u32(out, j + 4, (v >> 32) & 0xFFFFFFFF)
-
-
-def _put_f32(out, j, x, bits, f32):  # type: ignore[no-untyped-def]
-    """``x`` as a little-endian float32 at ``out[j]``; False when a finite ``x`` is beyond float32's
-    range (``struct`` raises there) or ``x`` is NaN (whose sign compiled arithmetic does not give
-    as CPython's does: CPython makes that state). ``bits``/``f32``: one uint32 and its float32 view."""
+def _put_f32_nan(out, j, x, bits, f32):  # type: ignore[no-untyped-def]
+    """:func:`smcpilot.framing.put_f32`, and False for a NaN too (whose sign compiled arithmetic
+    does not give as CPython's does: CPython makes that state)."""
     if x != x:
         return False
-    if math.isfinite(x) and (x > _F32_MAX or x < -_F32_MAX):
-        f32[0] = x
-        if not math.isfinite(f32[0]):
-            return False
-    f32[0] = x
-    _put_u32(out, j, np.int64(bits[0]))
-    return True
-
-
-def _frame(out, start, n_full, msg_id, extra, seq, sysid):  # type: ignore[no-untyped-def]
-    """Frame the payload of ``n_full`` bytes written at ``out[start + 10]``: the header, the payload's
-    trailing zeros trimmed (one byte kept), the CRC. Returns the packet's end."""
-    p = start + 10
-    n = n_full
-    while n > 1 and out[p + n - 1] == 0:
-        n -= 1
-    out[start] = 0xFD
-    out[start + 1] = n
-    out[start + 2] = 0
-    out[start + 3] = 0
-    out[start + 4] = seq & 0xFF
-    out[start + 5] = sysid
-    out[start + 6] = _COMPONENT
-    out[start + 7] = msg_id & 0xFF
-    out[start + 8] = (msg_id >> 8) & 0xFF
-    out[start + 9] = (msg_id >> 16) & 0xFF
-    crc = 0xFFFF
-    end = p + n
-    for j in range(start + 1, end + 1):
-        b = int(out[j]) if j < end else extra
-        tmp = (b ^ (crc & 0xFF)) & 0xFF
-        tmp = (tmp ^ (tmp << 4)) & 0xFF
-        crc = ((crc >> 8) ^ (tmp << 8) ^ (tmp << 3) ^ (tmp >> 4)) & 0xFFFF
-    out[end] = crc & 0xFF
-    out[end + 1] = crc >> 8
-    return end + 2
+    return put_f32(out, j, x, bits, f32)
 
 
 def _floats(out, j, ok, a, b, c, bits, f32):  # type: ignore[no-untyped-def]
     """Three float32 at ``out[j]``; ``ok`` and-ed with each one's range check."""
-    ok = _put_f32(out, j, a, bits, f32) and ok
-    ok = _put_f32(out, j + 4, b, bits, f32) and ok
-    return _put_f32(out, j + 8, c, bits, f32) and ok
+    ok = _put_f32_nan(out, j, a, bits, f32) and ok
+    ok = _put_f32_nan(out, j + 4, b, bits, f32) and ok
+    return _put_f32_nan(out, j + 8, c, bits, f32) and ok
 
 
 def encode_state(vin, t_us, seq, sysid, odo_tail, out, bits, f32):  # type: ignore[no-untyped-def]
@@ -150,12 +101,12 @@ def encode_state(vin, t_us, seq, sysid, odo_tail, out, bits, f32):  # type: igno
     ok = True
     # ATTITUDE: time_boot_ms, roll, pitch, yaw, rollspeed, pitchspeed, yawspeed
     s = 0
-    _put_u32(out, s + 10, t_ms)
+    put_u32(out, s + 10, t_ms)
     ok = _floats(out, s + 14, ok, roll, pitch, yaw, bits, f32)
     ok = _floats(out, s + 26, ok, p, q, r, bits, f32)
-    s = _frame(out, s, 28, _ID_ATT, _X_ATT, seq, sysid)
+    s = frame(out, s, 28, _ID_ATT, _X_ATT, seq, sysid, _COMPONENT)
     # HIGHRES_IMU: time_usec, xacc .. zgyro, seven zeros, fields_updated, id
-    _put_u64(out, s + 10, t_us)
+    put_u64(out, s + 10, t_us)
     ok = _floats(out, s + 18, ok, fx, fy, fz, bits, f32)
     ok = _floats(out, s + 30, ok, p, q, r, bits, f32)
     for j in range(s + 42, s + 70):
@@ -163,23 +114,23 @@ def encode_state(vin, t_us, seq, sysid, odo_tail, out, bits, f32):  # type: igno
     out[s + 70] = _IMU_FIELDS & 0xFF
     out[s + 71] = (_IMU_FIELDS >> 8) & 0xFF
     out[s + 72] = 0
-    s = _frame(out, s, 63, _ID_IMU, _X_IMU, seq + 1, sysid)
+    s = frame(out, s, 63, _ID_IMU, _X_IMU, seq + 1, sysid, _COMPONENT)
     # ODOMETRY: time_usec, x, y, z, q[4], vx, vy, vz, rollspeed, pitchspeed, yawspeed, the constant tail
-    _put_u64(out, s + 10, t_us)
+    put_u64(out, s + 10, t_us)
     ok = _floats(out, s + 18, ok, tx, ty, tz, bits, f32)
-    ok = _put_f32(out, s + 30, qw, bits, f32) and ok
+    ok = _put_f32_nan(out, s + 30, qw, bits, f32) and ok
     ok = _floats(out, s + 34, ok, qx, qy, qz, bits, f32)
     ok = _floats(out, s + 46, ok, tvx, tvy, tvz, bits, f32)
     ok = _floats(out, s + 58, ok, tp, tq, tr, bits, f32)
     n_tail = len(odo_tail)
     for j in range(n_tail):
         out[s + 70 + j] = odo_tail[j]
-    s = _frame(out, s, 60 + n_tail, _ID_ODO, _X_ODO, seq + 2, sysid)
+    s = frame(out, s, 60 + n_tail, _ID_ODO, _X_ODO, seq + 2, sysid, _COMPONENT)
     # LOCAL_POSITION_NED: time_boot_ms, x, y, z, vx, vy, vz
-    _put_u32(out, s + 10, t_ms)
+    put_u32(out, s + 10, t_ms)
     ok = _floats(out, s + 14, ok, x, y, z, bits, f32)
     ok = _floats(out, s + 26, ok, vx, vy, vz, bits, f32)
-    s = _frame(out, s, 28, _ID_LPN, _X_LPN, seq + 3, sysid)
+    s = frame(out, s, 28, _ID_LPN, _X_LPN, seq + 3, sysid, _COMPONENT)
     return s if ok else 0
 
 
@@ -216,7 +167,7 @@ def _twins() -> dict[Any, Any]:
         from smcpilot.jit import compile_pure
 
         _TWINS.update(compile_pure((
-            encode_state, _put_u32, _put_u64, _put_f32, _frame, _floats, wire_of_paper, specific_force_frd,
+            encode_state, _put_f32_nan, _floats, *FRAMING_FUNCTIONS, wire_of_paper, specific_force_frd,
             quat_nwu_flu_to_ned_frd, euler_flu_to_frd, rates_flu_to_frd, nwu_to_ned, flu_to_frd, quat_rotate_inverse, quat_rotate,
         )))  # fmt: skip
     return _TWINS
