@@ -352,8 +352,10 @@ class FlightControllerApp:
         #: decode the simulator's per-tick datagram straight to values (else every datagram goes
         #: through the link's full parse into message objects; the same result, slower)
         self._fast_states = isinstance(self.sim, MavlinkUdp) and self.sim.signing is None
-        #: the state datagram's compiled decoder (:mod:`fc.state_kernel`; None: CPython's), with the pipeline.
+        #: the state datagram's compiled decoder and the tick's answer's and record's compiled encoder
+        #: (:mod:`fc.state_kernel`; None: CPython's), loaded with the compiled pipeline.
         self._state_decoder: Any = None
+        self._answer_encoder: Any = None
         gcs = self.gcs
         #: the flight core: the one control tick (plan, modes, failsafes, pipeline, events).
         self.core = FlightCore(
@@ -495,10 +497,17 @@ class FlightControllerApp:
 
         why = self.jit_why = attach_compiled(self.core.flight, compile_new=self.jit == "wait")
         if why is None and self._fast_states:
-            from fc.state_kernel import compiled_decoder
+            from fc.state_kernel import compiled_answer_encoder, compiled_decoder
 
-            self._state_decoder = compiled_decoder(compile_new=self.jit == "wait")
-            if self._state_decoder is None and self.jit == "auto" and not _DECODER_COMPILE_STARTED:
+            wait = self.jit == "wait"
+            self._state_decoder = compiled_decoder(compile_new=wait)
+            flight = self.core.flight
+            self._answer_encoder = compiled_answer_encoder(
+                self._sim_records.sysid, self._records.sysid, ACTUATOR_FLAG_LOCKSTEP if self.lockstep else 0, flight.diag_mask[:3],
+                compile_new=wait,
+            )  # fmt: skip
+            missing = self._state_decoder is None or self._answer_encoder is None
+            if missing and self.jit == "auto" and not _DECODER_COMPILE_STARTED:
                 _DECODER_COMPILE_STARTED.append(True)  # (once a process: a group's FCs all come here)
                 compile_in_background(self.cfg.controller)  # (it caches the decoder with the pipeline)
         if why is None or "not in the pure style" in why:  # (that one fc.cli says already)
@@ -576,9 +585,10 @@ class FlightControllerApp:
         summary["rx_rejected"] = self.rejected_summary()
         summary["gc"] = self._gc_pauses.summary()
         flight = self.core.flight
-        dec = self._state_decoder
+        dec, enc = self._state_decoder, self._answer_encoder
         summary["pipeline"] = {"compiled": flight.compiled, "compiled_ticks": flight.compiled_ticks, "why_not": self.jit_why,
-                               "states_decoded_compiled": 0 if dec is None else dec.decoded}  # fmt: skip
+                               "states_decoded_compiled": 0 if dec is None else dec.decoded,
+                               "answers_encoded_compiled": 0 if enc is None else enc.made}  # fmt: skip
         summary["sim_bad"] = dict(self.sim_complaints.counts)
         summary["tlog"] = str(self.tlog.path) if self.tlog is not None else None
         summary.update(self._summary_extra())
@@ -1201,7 +1211,19 @@ class FlightControllerApp:
             self._cpu_at_first_tick_s = time.process_time()
             self.say(f"FC_READY t={t_us * 1e-6:.3f}s controller={self.cfg.controller} lockstep={self.lockstep}")
         out = core.tick(t_us, self.state, fresh=not stale, wall_s=self._mono() if self.gcs is not None else None, accel_frd=self.accel_frd)
-        act = self._actuator_packet(t_us, out)
+        made = None
+        enc = self._answer_encoder
+        if enc is not None:
+            f = core.flight
+            if out.pipeline is f.held_out and f.diag_mask[:3] == enc.has:  # (this tick's outputs are the compiled tick's)
+                made = enc.encode(f.held_io, t_us, self.sim.peek_seq(), _ARMED if out.armed else 0, self._logmav.seq, out.flags,
+                                  out.mode, f.target, f.yaw_target_rad)  # fmt: skip
+        if made is not None:  # the same bytes as below, made compiled in one call (fc.state_kernel)
+            act, smc = made
+            self.sim.take_seq()
+        else:
+            act = self._actuator_packet(t_us, out)
+            smc = None
         self._answer_sim((act,))
         self._last_actuator = act
         self._last_tick_ms = self._state_ms
@@ -1210,9 +1232,10 @@ class FlightControllerApp:
         tlog = self.tlog
         if tlog is not None:
             tlog.write(self.clock.now_us(), act)
-            data = telemetry.smc_record(core, out)
             lm = self._logmav
-            tlog.write(t_us, self._records.smc(lm.seq, t_us, data))
+            if smc is None:
+                smc = self._records.smc(lm.seq, t_us, telemetry.smc_record(core, out))
+            tlog.write(t_us, smc)
             lm.seq = (lm.seq + 1) & 0xFF
             self._unflushed_ticks += 1
             if self._unflushed_ticks >= self._flush_ticks:

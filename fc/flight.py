@@ -94,6 +94,8 @@ class FlightControl:
         self.mixer = Mixer(vehicle)
         #: the compiled tick with the state it holds (:mod:`fc.compiled_pipeline`; None: CPython).
         self._held: Any = None
+        #: the last output the compiled tick gave (its values are in ``self._held.io`` until the next tick).
+        self.held_out: PipelineOutput | None = None
         self._set_law(config)
         self.armed = False
         self.landing = False
@@ -149,6 +151,17 @@ class FlightControl:
             self._ps = ps
         else:
             held.set_state(ps)
+
+    @property
+    def held_io(self) -> Any:
+        """The compiled tick's inputs and outputs (:data:`fc.compiled_pipeline.IO_STATE` …; None in CPython)."""
+        held = self._held
+        return None if held is None else held.io
+
+    @property
+    def diag_mask(self) -> tuple[bool, bool, bool, bool]:
+        """Which diagnostics the law reports: S, sigma, chi-hat, u-dot (the others are None)."""
+        return self._diag_mask  # type: ignore[return-value]
 
     @property
     def compiled(self) -> bool:
@@ -298,10 +311,11 @@ class FlightControl:
         )  # fmt: skip
         if o[40] != 0.0:
             self.disarm()
-        return PipelineOutput(
+        out = self.held_out = PipelineOutput(
             (o[0], o[1], o[2], o[3]), (o[4], o[5], o[6], o[7]), (o[8] != 0.0, o[9] != 0.0, o[10] != 0.0, o[11] != 0.0), diag,
             (o[32], o[33], o[34], o[35]), (o[36], o[37], o[38], o[39]),
         )  # fmt: skip
+        return out
 
     def _law_fault(self, why: str) -> None:
         self.law_faults += 1

@@ -18,13 +18,14 @@ entry point, or None, and the caller then keeps the CPython pair.
 from __future__ import annotations
 
 import math
+import os
 from typing import Any
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from smcpilot.framing import FRAMING_FUNCTIONS, HEADER_BYTES, crc_x25, get_byte, get_f32, get_u32, get_u64
-from smcpilot.protocol import SIM_COMPONENT_ID
+from smcpilot.framing import FRAMING_FUNCTIONS, HEADER_BYTES, crc_x25, frame, get_byte, get_f32, get_u32, get_u64, put_f32, put_u64
+from smcpilot.protocol import FC_COMPONENT_ID, SIM_COMPONENT_ID, SMC_ARRAY_ID
 from smcpilot.wire import paper_of_wire
 
 #: the float outputs: the paper-frame state (:class:`fc.pipeline.VehicleState`'s 12 values), then
@@ -140,6 +141,120 @@ def _finite_or_nan(v):  # type: ignore[no-untyped-def]
     return _NAN, (1 if v != v else 2)
 
 
+# -- the tick's answer and log record ---------------------------------------------------------------
+#: the answer's constants (``consts``, int64): the simulator's system id (the answer's source
+#: system), this FC's (the log record's), the answer's flags (HIL_ACTUATOR_CONTROLS ``flags``), and
+#: whether the law reports S, sigma and chi-hat (1/0: the record's NaN where not).
+C_SIM_SYSID = 0
+C_SYSID = 1
+C_ACT_FLAGS = 2
+C_HAS_S = 3
+C_HAS_SIGMA = 4
+C_HAS_CHI = 5
+C_SIZE = 6
+#: the compiled pipeline's outputs in its ``io`` array (:data:`fc.compiled_pipeline.IO_OUT` on):
+#: motors, realised inputs, limited, S, sigma, chi-hat, ... references.
+O_MOTORS = 0
+O_U = 4
+O_LIMITED = 8
+O_S = 12
+O_SIGMA = 16
+O_CHI = 20
+O_REF = 32
+#: the answer and the record together, at most (two frames of at most 12 + 255 bytes).
+ANSWER_BYTES = 2 * (12 + 255)
+_ID_HIL = int(mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS)
+_X_HIL = int(mavlink.MAVLink_hil_actuator_controls_message.crc_extra)
+_ID_DFA = int(mavlink.MAVLINK_MSG_ID_DEBUG_FLOAT_ARRAY)
+_X_DFA = int(mavlink.MAVLink_debug_float_array_message.crc_extra)
+_FC_COMPONENT = int(FC_COMPONENT_ID)
+_SMC_ID = int(SMC_ARRAY_ID)
+
+
+def encode_answer(io, o, t_us, act_seq, act_mode, log_seq, flags, mode, tx, ty, tz, yaw_t, consts, name, out, bits, f32):  # type: ignore[no-untyped-def]
+    """The tick's HIL_ACTUATOR_CONTROLS (to the simulator) and its ``SMC`` DEBUG_FLOAT_ARRAY (to the
+    log), as :class:`smcpilot.fastcodec.TickRecords` makes them of :func:`fc.telemetry.smc_record`,
+    from the compiled pipeline's outputs (``io`` from ``o``: see :data:`O_MOTORS` …) and the tick's
+    set-point (``tx``, ``ty``, ``tz`` m, ``yaw_t`` rad), flags and mode, into ``out`` (uint8,
+    :data:`ANSWER_BYTES`); ``name``: the record's 10-byte name. Returns ``len(answer) |
+    len(record) << 16``, or 0 when a value does not fit a float32 (CPython makes both then)."""
+    ok = True
+    # HIL_ACTUATOR_CONTROLS: time_usec, flags, controls[16] (our four rotors, then zeros), mode
+    put_u64(out, 10, t_us)
+    put_u64(out, 18, consts[C_ACT_FLAGS])
+    for k in range(4):
+        ok = put_f32(out, 26 + 4 * k, io[o + O_MOTORS + k], bits, f32) and ok
+    for j in range(42, 90):
+        out[j] = 0
+    out[90] = act_mode
+    n1 = frame(out, 0, 81, _ID_HIL, _X_HIL, act_seq, consts[C_SIM_SYSID], _FC_COMPONENT)
+    # DEBUG_FLOAT_ARRAY "SMC": time_usec, array_id, name, data[58] (fc.telemetry.smc_data)
+    s = n1
+    put_u64(out, s + 10, t_us)
+    out[s + 18] = _SMC_ID & 0xFF
+    out[s + 19] = (_SMC_ID >> 8) & 0xFF
+    for k in range(10):
+        out[s + 20 + k] = name[k]
+    d = s + 30
+    for k in range(4):
+        ok = put_f32(out, d + 4 * k, io[o + O_CHI + k] if consts[C_HAS_CHI] else _NAN, bits, f32) and ok
+        ok = put_f32(out, d + 16 + 4 * k, io[o + O_SIGMA + k] if consts[C_HAS_SIGMA] else _NAN, bits, f32) and ok
+        ok = put_f32(out, d + 32 + 4 * k, io[o + O_S + k] if consts[C_HAS_S] else _NAN, bits, f32) and ok
+        ok = put_f32(out, d + 48 + 4 * k, io[o + O_U + k], bits, f32) and ok
+        ok = put_f32(out, d + 64 + 4 * k, io[o + O_REF + k], bits, f32) and ok
+        ok = put_f32(out, d + 80 + 4 * k, io[o + O_MOTORS + k], bits, f32) and ok
+    ok = put_f32(out, d + 96, tx, bits, f32) and ok
+    ok = put_f32(out, d + 100, ty, bits, f32) and ok
+    ok = put_f32(out, d + 104, tz, bits, f32) and ok
+    ok = put_f32(out, d + 108, yaw_t, bits, f32) and ok
+    lim = 0
+    for k in range(4):
+        if io[o + O_LIMITED + k] != 0.0:
+            lim += 1 << k
+    ok = put_f32(out, d + 112, float(lim), bits, f32) and ok
+    ok = put_f32(out, d + 116, float(flags), bits, f32) and ok
+    ok = put_f32(out, d + 120, float(mode), bits, f32) and ok
+    for j in range(d + 124, d + 232):
+        out[j] = 0
+    n2 = frame(out, s, 252, _ID_DFA, _X_DFA, log_seq, consts[C_SYSID], _FC_COMPONENT) - n1
+    if not ok:
+        return 0
+    return n1 | (n2 << 16)
+
+
+class AnswerEncoder:
+    """:func:`encode_answer`'s compiled entry point with its arrays, for one FC."""
+
+    def __init__(self, entry: Any, sim_sysid: int, sysid: int, act_flags: int, has: tuple[bool, bool, bool]) -> None:
+        from smcpilot.fastcodec import SMC_NAME
+
+        self._entry = entry
+        #: the law reports S, sigma, chi-hat (the records' NaN where not).
+        self.has = tuple(bool(h) for h in has)
+        self.consts = np.array([sim_sysid, sysid, act_flags, int(has[0]), int(has[1]), int(has[2])], dtype=np.int64)
+        self.name = np.frombuffer(SMC_NAME.ljust(10, b"\0"), dtype=np.uint8).copy()
+        self.out = np.zeros(ANSWER_BYTES, dtype=np.uint8)
+        self._bits = np.zeros(1, dtype=np.uint32)
+        self._f32 = self._bits.view(np.float32)
+        #: answers made.
+        self.made = 0
+
+    def encode(self, io: Any, t_us: int, act_seq: int, act_mode: int, log_seq: int, flags: int, mode: int,
+               target: tuple[float, float, float], yaw_t: float) -> tuple[bytes, bytes] | None:  # fmt: skip
+        """(the answer, the record) of the compiled pipeline's outputs in ``io``; None when a value
+        does not fit a float32 (make them in CPython)."""
+        from fc.compiled_pipeline import IO_OUT
+
+        n = self._entry(io, IO_OUT, t_us, act_seq, act_mode, log_seq, flags, mode, target[0], target[1], target[2], yaw_t,
+                        self.consts, self.name, self.out, self._bits, self._f32)  # fmt: skip
+        if not n:
+            return None
+        self.made += 1
+        n1 = n & 0xFFFF
+        b = self.out[: n1 + (n >> 16)].tobytes()
+        return b[:n1], b[n1:]
+
+
 class StateDecoder:
     """:func:`decode_state`'s compiled entry point with the arrays it fills.
 
@@ -172,8 +287,26 @@ def _twins() -> dict[Any, Any]:
 
     wire, problems = pure_closure((paper_of_wire,))  # (the wire's conversion and what it calls)
     assert not problems, problems
-    _TWINS.update(compile_pure((decode_state, _finite_or_nan, *FRAMING_FUNCTIONS, *wire)))
+    _TWINS.update(compile_pure((decode_state, _finite_or_nan, encode_answer, *FRAMING_FUNCTIONS, *wire)))
     return _TWINS
+
+
+def compiled_answer_encoder(sim_sysid: int, sysid: int, act_flags: int, has: tuple[bool, bool, bool], *,
+                            compile_new: bool) -> AnswerEncoder | None:  # fmt: skip
+    """The compiled :func:`encode_answer` for an FC (``has``: the law reports S, sigma, chi-hat), as
+    :func:`compiled_decoder` has it (None when it cannot be had)."""
+    from smcpilot.jit import cache_index, jit_unavailable_reason, numba_module
+
+    if jit_unavailable_reason() is not None:
+        return None
+    fn = _twins()[encode_answer]
+    index = cache_index(fn)
+    if not compile_new and (index is None or not os.path.exists(index)):
+        return None
+    t = numba_module().types
+    sig = (t.float64[::1], *(t.int64,) * 7, *(t.float64,) * 4, t.int64[::1], t.uint8[::1], t.uint8[::1], t.uint32[::1], t.float32[::1])
+    fn.compile(sig)
+    return AnswerEncoder(fn.overloads[sig].entry_point, sim_sysid, sysid, act_flags, has)
 
 
 def compiled_decoder(*, compile_new: bool) -> StateDecoder | None:
@@ -184,8 +317,6 @@ def compiled_decoder(*, compile_new: bool) -> StateDecoder | None:
 
     if jit_unavailable_reason() is not None:
         return None
-    import os
-
     twins = _twins()
     fn = twins[decode_state]
     index = cache_index(fn)

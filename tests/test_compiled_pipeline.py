@@ -139,8 +139,9 @@ def test_the_fc_process_writes_the_same_log_compiled_and_in_cpython(tmp_path) ->
     sitl_p, _ = fly_sitl(tmp_path, "cpython", 12.0, plan=plan, fc_args=("--jit", "off"))
     pc, pp = sitl_c.fc_summary["pipeline"], sitl_p.fc_summary["pipeline"]
     assert pc["compiled"] and pc["compiled_ticks"] > 1000, pc
-    assert pc["states_decoded_compiled"] > 1000, pc  # (fc.state_kernel: the same log from its states too)
-    assert not pp["compiled"] and pp["why_not"] == "--jit off" and pp["states_decoded_compiled"] == 0, pp
+    # (fc.state_kernel: the same log from its decoded states and its encoded answers and records too)
+    assert pc["states_decoded_compiled"] > 1000 and pc["answers_encoded_compiled"] > 1000, pc
+    assert not pp["compiled"] and pp["why_not"] == "--jit off" and pp["states_decoded_compiled"] == pp["answers_encoded_compiled"] == 0, pp
     log_c = (tmp_path / "compiled" / "compiled.tlog").read_bytes()
     log_p = (tmp_path / "cpython" / "cpython.tlog").read_bytes()
     assert len(log_c) > 100_000

@@ -154,3 +154,57 @@ def test_the_decoder_counts_what_it_decoded() -> None:
 def test_without_the_jit_there_is_no_decoder(monkeypatch) -> None:  # type: ignore[no-untyped-def]
     monkeypatch.setenv("SMCPILOT_JIT", "0")
     assert sk.compiled_decoder(compile_new=True) is None
+
+
+# -- the tick's answer and record ----------------------------------------------------------------------
+_OUT = st.one_of(st.floats(-1e3, 1e3), st.floats(allow_nan=True, allow_infinity=True), st.sampled_from([0.0, -0.0, math.nan, 3.5e38]))
+
+
+def _answer_cpython(io: list[float], t_us: int, act_seq: int, armed: bool, log_seq: int, flags: int, mode: int,
+                    target: tuple[float, float, float], yaw_t: float, has: tuple[bool, bool, bool]) -> tuple[bytes, bytes] | None:  # fmt: skip
+    """What the FC's tick makes in CPython of the compiled pipeline's outputs ``io`` (from IO_OUT on):
+    ``fc.flight.FlightControl._held_output``'s PipelineOutput, ``fc.telemetry.smc_data``, TickRecords."""
+    from fc.control.base import Diagnostics
+    from fc.flight import PipelineOutput
+    from fc.telemetry import smc_data
+    from smcpilot.protocol import ACTUATOR_FLAG_LOCKSTEP
+
+    o = io
+    diag = Diagnostics(tuple(o[12:16]) if has[0] else None, tuple(o[16:20]) if has[1] else None, tuple(o[20:24]) if has[2] else None,
+                       tuple(o[24:28]), None)  # fmt: skip
+    out = PipelineOutput(tuple(o[0:4]), tuple(o[4:8]), tuple(v != 0.0 for v in o[8:12]), diag, tuple(o[32:36]), tuple(o[36:40]))
+    try:
+        act = fastcodec.TickRecords(7).actuators(act_seq, t_us, out.motors, mavlink.MAV_MODE_FLAG_SAFETY_ARMED if armed else 0,
+                                                 ACTUATOR_FLAG_LOCKSTEP)  # fmt: skip
+        smc = fastcodec.TickRecords(9).smc(log_seq, t_us, smc_data(out, target, yaw_t, flags, mode))
+    except OverflowError:
+        return None
+    return act, smc
+
+
+@needs_jit
+@settings(max_examples=300, deadline=None)
+@given(st.lists(_OUT, min_size=41, max_size=41), st.integers(0, 2**53), st.integers(0, 255), st.booleans(), st.integers(0, 255),
+       st.integers(0, 2**16), st.integers(0, 20), st.tuples(_OUT, _OUT, _OUT), _OUT, st.tuples(st.booleans(), st.booleans(), st.booleans()))  # fmt: skip
+@example([0.0] * 41, 0, 0, False, 0, 0, 0, (0.0, 0.0, 0.0), 0.0, (True, True, True))
+def test_the_compiled_answer_and_record_are_the_cpython_bytes(io_out, t_us, act_seq, armed, log_seq, flags, mode, target, yaw_t, has) -> None:  # type: ignore[no-untyped-def]
+    from fc.compiled_pipeline import IO_OUT, IO_SIZE
+
+    enc = sk.compiled_answer_encoder(7, 9, 1, has, compile_new=True)
+    assert enc is not None
+    io = np.zeros(IO_SIZE)
+    io[IO_OUT : IO_OUT + 41] = io_out
+    got = enc.encode(io, t_us, act_seq, mavlink.MAV_MODE_FLAG_SAFETY_ARMED if armed else 0, log_seq, flags, mode, target, yaw_t)
+    assert got == _answer_cpython(io_out, t_us, act_seq, armed, log_seq, flags, mode, target, yaw_t, has)
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.lists(_OUT, min_size=41, max_size=41), st.integers(0, 2**40), st.integers(0, 255), st.tuples(_OUT, _OUT, _OUT))
+def test_the_answers_pure_function_in_cpython_gives_the_same(io_out, t_us, seq, target) -> None:  # type: ignore[no-untyped-def]
+    from fc.compiled_pipeline import IO_OUT, IO_SIZE
+
+    io = np.zeros(IO_SIZE)
+    io[IO_OUT : IO_OUT + 41] = io_out
+    enc = sk.AnswerEncoder(sk.encode_answer, 7, 9, 1, (True, False, True))  # (the pure function itself, run by CPython)
+    got = enc.encode(io, t_us, seq, 128, seq, 3, 4, target, 0.5)
+    assert got == _answer_cpython(io_out, t_us, seq, True, seq, 3, 4, target, 0.5, (True, False, True))
