@@ -1,4 +1,4 @@
-"""The simulator's per-tick state datagram, decoded compiled: bytes to the flight core's inputs in one call.
+"""The FC's per-tick datagrams, compiled: the simulator's state decoded, the tick's answer and record made.
 
 A lockstep flight controller receives one datagram a tick from the simulator (ATTITUDE, HIGHRES_IMU,
 ODOMETRY, LOCAL_POSITION_NED, as :class:`smcpilot.fastcodec.TickRecords` writes them). In CPython,
@@ -10,9 +10,15 @@ conversion), infinite values made NaN and counted as ``state_from_wire`` counts 
 into two arrays the caller owns (:data:`F_STATE` …, :data:`I_STAMP` …): nothing crosses the boundary
 as a tuple. A datagram of any other shape gives 0 and the caller parses it the ordinary way.
 
-Same values as the CPython pair, bit for bit (``tests/test_state_kernel.py``). Run in CPython the
-function is correct but slow (a loop over the bytes): :func:`compiled_decoder` gives the compiled
-entry point, or None, and the caller then keeps the CPython pair.
+Same values as the CPython pair, bit for bit (``tests/test_state_kernel.py``; the sign of a NaN
+aside, which nothing reads). Run in CPython the function is correct but slow (a loop over the
+bytes): :func:`compiled_decoder` gives the compiled entry point, or None, and the caller then keeps
+the CPython pair.
+
+The other way, :func:`encode_answer` makes the tick's HIL_ACTUATOR_CONTROLS and its ``SMC`` log
+record from the compiled pipeline's outputs in one call (:func:`compiled_answer_encoder`), the
+bytes :class:`smcpilot.fastcodec.TickRecords` makes of :func:`fc.telemetry.smc_record`. The
+framing both use is :mod:`smcpilot.framing`.
 """
 
 from __future__ import annotations
