@@ -506,8 +506,14 @@ class SimBridgeApp:
             for v in self.vehicles:
                 if v.fast_states_ok():
                     v.encoder = compiled_encoder(v.system_id, compile_new=self.jit == "wait")
-            if self.jit == "auto" and any(v.encoder is None for v in self.vehicles if v.fast_states_ok()):
-                compile_in_background("sim_bridge.plants.compiled_physics")  # (it caches the encoder too)
+            missing = any(v.encoder is None for v in self.vehicles if v.fast_states_ok())
+            if self.proximity is not None:  # (the separation check's distances, compiled: the same values)
+                from sim_bridge.proximity import compiled_pair_distances
+
+                self.proximity.kernel = compiled_pair_distances(compile_new=self.jit == "wait")
+                missing = missing or self.proximity.kernel is None
+            if self.jit == "auto" and missing:
+                compile_in_background("sim_bridge.plants.compiled_physics")  # (it caches the encoder and the distances too)
         if why is None or why == "no rigid-body plant":
             return
         note = f"sim: the physics is stepped in Python: {why}"

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -34,6 +35,10 @@ class Proximity:
     _close: set[tuple[int, int]] = field(default_factory=set)
     _touched: set[tuple[int, int]] = field(default_factory=set)
     _iu: tuple[np.ndarray, np.ndarray] | None = None
+    #: :func:`pair_distances` compiled (:func:`compiled_pair_distances`; None: numpy does it).
+    kernel: Any = None
+    _d: np.ndarray | None = None
+    _row_min: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if not self.per_vehicle_min_m:
@@ -50,23 +55,38 @@ class Proximity:
         if n < 2:
             return []
         pos = np.array(positions_ned_m, dtype=np.float64)
-        x, y, z = pos[:, 0], pos[:, 1], pos[:, 2]
-        dx, dy, dz = x[:, None] - x[None, :], y[:, None] - y[None, :], z[:, None] - z[None, :]
-        d = np.sqrt(dx * dx + dy * dy + dz * dz)
-        d[np.isnan(d)] = np.inf
-        np.fill_diagonal(d, np.inf)
         per = self.per_vehicle_min_m
-        for i, row_min in enumerate(d.min(axis=1).tolist()):
-            if row_min < per[i]:
-                per[i] = row_min
-        iu = self._pairs(n)
-        dist = d[iu]
-        k = int(np.argmin(dist))  # (the first pair of the smallest distance, as a pair-by-pair scan finds it)
-        if dist[k] < self.min_separation_m:
-            self.min_separation_m = float(dist[k])
-            self.min_at_s, self.min_pair = t_s, (int(iu[0][k]), int(iu[1][k]))
         sep, contact = self.separation_m, self.contact_m
         close = self._close
+        kernel = self.kernel
+        if kernel is not None:  # compiled: the same distances, mins and first smallest pair, one call
+            d, row_min = self._d_rows(n)
+            best, bi, bj, below = kernel(pos, d, row_min, max(sep, contact))
+            for i, m in enumerate(row_min.tolist()):
+                if m < per[i]:
+                    per[i] = m
+            if best < self.min_separation_m:
+                self.min_separation_m = best
+                self.min_at_s, self.min_pair = t_s, (bi, bj)
+            if not below and not close:
+                return []
+            iu = self._pairs(n)
+            dist = d[iu]
+        else:
+            x, y, z = pos[:, 0], pos[:, 1], pos[:, 2]
+            dx, dy, dz = x[:, None] - x[None, :], y[:, None] - y[None, :], z[:, None] - z[None, :]
+            d = np.sqrt(dx * dx + dy * dy + dz * dz)
+            d[np.isnan(d)] = np.inf
+            np.fill_diagonal(d, np.inf)
+            for i, row_min_i in enumerate(d.min(axis=1).tolist()):
+                if row_min_i < per[i]:
+                    per[i] = row_min_i
+            iu = self._pairs(n)
+            dist = d[iu]
+            k = int(np.argmin(dist))  # (the first pair of the smallest distance, as a pair-by-pair scan finds it)
+            if dist[k] < self.min_separation_m:
+                self.min_separation_m = float(dist[k])
+                self.min_at_s, self.min_pair = t_s, (int(iu[0][k]), int(iu[1][k]))
         for pair in [p for p in close if not d[p] < sep]:  # apart again: the next approach is a new event
             close.discard(pair)
         out: list[tuple[str, int, int, float]] = []
@@ -83,6 +103,14 @@ class Proximity:
                 self.contacts.append((t_s, i, j, dk))
                 out.append(("contact", i, j, dk))
         return out
+
+    def _d_rows(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """The compiled kernel's distance matrix and row minimums (kept: ``n`` is the swarm's)."""
+        if self._d is None or self._d.shape[0] != n:
+            self._d = np.empty((n, n))
+            self._row_min = np.empty(n)
+        assert self._row_min is not None
+        return self._d, self._row_min
 
     def _pairs(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """The pairs i < j of ``n`` vehicles, row by row (kept: ``n`` is the swarm's)."""
@@ -109,3 +137,64 @@ class Proximity:
             "events": rows(self.events),
             "contacts": rows(self.contacts),
         }
+
+
+def pair_distances(pos, d, row_min, thr):  # type: ignore[no-untyped-def]
+    """Every pair's distance of the positions ``pos`` (n x 3) into ``d`` (n x n; inf on the diagonal
+    and for a NaN distance), each vehicle's smallest into ``row_min``: ``sqrt(dx * dx + dy * dy + dz *
+    dz)`` as :meth:`Proximity.check`'s numpy computes it, the same values. Returns (the smallest
+    distance, the first pair (i, j), i < j, in the order (0, 1), (0, 2) ... (1, 2) ... that has it,
+    how many pairs are closer than ``thr``)."""
+    n = pos.shape[0]
+    best = math.inf
+    bi = 0
+    bj = 1
+    below = 0
+    for i in range(n):
+        row_min[i] = math.inf
+    for i in range(n):
+        d[i, i] = math.inf
+        for j in range(i + 1, n):
+            dx = pos[i, 0] - pos[j, 0]
+            dy = pos[i, 1] - pos[j, 1]
+            dz = pos[i, 2] - pos[j, 2]
+            v = math.sqrt(dx * dx + dy * dy + dz * dz)
+            if v != v:
+                v = math.inf
+            d[i, j] = v
+            d[j, i] = v
+            if v < row_min[i]:
+                row_min[i] = v
+            if v < row_min[j]:
+                row_min[j] = v
+            if v < best:
+                best = v
+                bi = i
+                bj = j
+            if v < thr:
+                below += 1
+    return best, bi, bj, below
+
+
+def compiled_pair_distances(*, compile_new: bool) -> Any:
+    """:func:`pair_distances` compiled (loaded from numba's on-disk cache, or compiled first when
+    ``compile_new``), its entry point; None when it cannot be had (no numba, JIT off, not cached)."""
+    import os
+
+    from smcpilot.jit import cache_index, compile_pure, jit_unavailable_reason, numba_module
+
+    if jit_unavailable_reason() is not None:
+        return None
+    if not _TWINS:
+        _TWINS.update(compile_pure((pair_distances,)))
+    fn = _TWINS[pair_distances]
+    index = cache_index(fn)
+    if not compile_new and (index is None or not os.path.exists(index)):
+        return None
+    t = numba_module().types
+    sig = (t.float64[:, ::1], t.float64[:, ::1], t.float64[::1], t.float64)
+    fn.compile(sig)
+    return fn.overloads[sig].entry_point
+
+
+_TWINS: dict[Any, Any] = {}

@@ -7,7 +7,8 @@ import random
 
 import pytest
 
-from sim_bridge.proximity import Proximity
+from sim_bridge.proximity import Proximity, compiled_pair_distances, pair_distances
+from smcpilot.jit import jit_enabled
 
 
 def scan(p: Proximity, t_s: float, positions: list[tuple[float, float, float]]) -> list[tuple[str, int, int, float]]:
@@ -42,12 +43,20 @@ def scan(p: Proximity, t_s: float, positions: list[tuple[float, float, float]]) 
     return out
 
 
+@pytest.mark.parametrize("way", ["numpy", "compiled"])
 @pytest.mark.parametrize("seed", range(12))
-def test_every_pair_at_once_matches_the_pair_by_pair_scan(seed: int) -> None:
+def test_every_pair_at_once_matches_the_pair_by_pair_scan(seed: int, way: str) -> None:
+    """numpy's matrix, and the compiled kernel the simulator loads with its compiled physics
+    (sim_bridge.proximity.pair_distances): the same events, distances and minimums as the scan."""
     rng = random.Random(seed)
     n = rng.choice([2, 3, 5, 16])
     sep, contact = rng.choice([(2.0, 0.5), (1.0, 1.5), (3.0, 0.0)])
     fast, slow = Proximity(n, sep, contact), Proximity(n, sep, contact)
+    if way == "compiled":
+        if not jit_enabled(say=False):
+            pytest.skip("compiled paths are off here (SMCPILOT_JIT=0 or no numba)")
+        fast.kernel = compiled_pair_distances(compile_new=True)
+        assert fast.kernel is not None
     pos = [(rng.uniform(-4, 4), rng.uniform(-4, 4), rng.uniform(-3, 0)) for _ in range(n)]
     for step in range(200):
         t_s = step * 0.002
@@ -61,3 +70,15 @@ def test_every_pair_at_once_matches_the_pair_by_pair_scan(seed: int) -> None:
     for name in ("min_separation_m", "min_at_s", "min_pair", "per_vehicle_min_m", "events", "contacts", "_close", "_touched"):
         assert getattr(fast, name) == getattr(slow, name), name
     assert fast.events or fast.contacts  # (the walk does bring vehicles together)
+
+
+def test_the_kernels_pure_function_in_cpython_gives_the_same() -> None:
+    """One source: the function numba compiles, run by CPython, gives the scan's values."""
+    rng = random.Random(5)
+    fast, slow = Proximity(6, 2.0, 0.5), Proximity(6, 2.0, 0.5)
+    fast.kernel = pair_distances
+    pos = [(rng.uniform(-2, 2), rng.uniform(-2, 2), rng.uniform(-1, 0)) for _ in range(6)]
+    pos[3] = (math.nan, 0.0, 0.0)
+    pos[5] = pos[1]
+    assert fast.check(0.0, pos) == scan(slow, 0.0, pos)
+    assert (fast.min_separation_m, fast.min_pair, fast.per_vehicle_min_m) == (slow.min_separation_m, slow.min_pair, slow.per_vehicle_min_m)

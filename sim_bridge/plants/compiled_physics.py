@@ -318,9 +318,11 @@ def main(argv: list[str] | None = None) -> int:
     if phys is None:
         print(f"python -m sim_bridge.plants.compiled_physics: not compiled: {why}", file=sys.stderr)
         return 1
+    from sim_bridge.proximity import compiled_pair_distances
     from sim_bridge.state_encoder import compiled_encoder
 
     compiled_encoder(1, compile_new=True)  # (the state datagram's encoder, loaded with the physics)
+    compiled_pair_distances(compile_new=True)  # (a swarm's separation check, likewise)
     print("the simulator's physics is compiled and cached")
     return 0
 
