@@ -503,7 +503,7 @@ class FlightControllerApp:
             self._state_decoder = compiled_decoder(compile_new=wait)
             flight = self.core.flight
             self._answer_encoder = compiled_answer_encoder(
-                self._sim_records.sysid, self._records.sysid, ACTUATOR_FLAG_LOCKSTEP if self.lockstep else 0, flight.diag_mask[:3],
+                self._sim_records.sysid, self._records.sysid, ACTUATOR_FLAG_LOCKSTEP if self.lockstep else 0, flight.diag_mask,
                 compile_new=wait,
             )  # fmt: skip
             missing = self._state_decoder is None or self._answer_encoder is None
@@ -1215,7 +1215,7 @@ class FlightControllerApp:
         enc = self._answer_encoder
         if enc is not None:
             f = core.flight
-            if out.pipeline is f.held_out and f.diag_mask[:3] == enc.has:  # (this tick's outputs are the compiled tick's)
+            if out.pipeline is f.held_out and f.diag_mask == enc.mask:  # (this tick's outputs are the compiled tick's)
                 made = enc.encode(f.held_io, t_us, self.sim.peek_seq(), _ARMED if out.armed else 0, self._logmav.seq, out.flags,
                                   out.mode, f.target, f.yaw_target_rad)  # fmt: skip
         if made is not None:  # the same bytes as below, made compiled in one call (fc.state_kernel)

@@ -24,13 +24,29 @@ framing both use is :mod:`smcpilot.framing`.
 from __future__ import annotations
 
 import math
-import os
 from typing import Any
 
 import numpy as np
-from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from smcpilot.framing import FRAMING_FUNCTIONS, HEADER_BYTES, crc_x25, frame, get_byte, get_f32, get_u32, get_u64, put_f32, put_u64
+from fc.compiled_pipeline import IO_OUT as _IO_OUT
+from smcpilot.framing import (
+    ATTITUDE,
+    DEBUG_FLOAT_ARRAY,
+    FRAMING_FUNCTIONS,
+    HEADER_BYTES,
+    HIGHRES_IMU,
+    HIL_ACTUATOR_CONTROLS,
+    LOCAL_POSITION_NED,
+    ODOMETRY,
+    crc_x25,
+    frame,
+    get_byte,
+    get_f32,
+    get_u32,
+    get_u64,
+    put_f32,
+    put_u64,
+)
 from smcpilot.protocol import FC_COMPONENT_ID, SIM_COMPONENT_ID, SMC_ARRAY_ID
 from smcpilot.wire import paper_of_wire
 
@@ -51,20 +67,21 @@ I_ODO_USEC = 4
 I_ENDS = 5
 I_SIZE = 9
 
-_ID_ATT = int(mavlink.MAVLINK_MSG_ID_ATTITUDE)
-_ID_IMU = int(mavlink.MAVLINK_MSG_ID_HIGHRES_IMU)
-_ID_ODO = int(mavlink.MAVLINK_MSG_ID_ODOMETRY)
-_ID_LPN = int(mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED)
-_IDS = (_ID_ATT, _ID_IMU, _ID_ODO, _ID_LPN)
-_EXTRAS = (
-    int(mavlink.MAVLink_attitude_message.crc_extra), int(mavlink.MAVLink_highres_imu_message.crc_extra),
-    int(mavlink.MAVLink_odometry_message.crc_extra), int(mavlink.MAVLink_local_position_ned_message.crc_extra),
-)  # fmt: skip
+_IDS = (ATTITUDE[0], HIGHRES_IMU[0], ODOMETRY[0], LOCAL_POSITION_NED[0])
+_EXTRAS = (ATTITUDE[1], HIGHRES_IMU[1], ODOMETRY[1], LOCAL_POSITION_NED[1])
 _COMPONENT = int(SIM_COMPONENT_ID)
 #: HIGHRES_IMU's fields_updated: after time_usec (8 bytes) and 13 floats.
 _IMU_FIELDS_AT = 8 + 13 * 4
 _NAN = math.nan
 _isfinite = math.isfinite
+
+
+def _six_f32(data, j, end, bits, f32):  # type: ignore[no-untyped-def]
+    """The six float32 from ``data[j]`` (ATTITUDE's and LOCAL_POSITION_NED's after their stamp), widened."""
+    return (
+        get_f32(data, j, end, bits, f32), get_f32(data, j + 4, end, bits, f32), get_f32(data, j + 8, end, bits, f32),
+        get_f32(data, j + 12, end, bits, f32), get_f32(data, j + 16, end, bits, f32), get_f32(data, j + 20, end, bits, f32),
+    )  # fmt: skip
 
 
 def decode_state(data, system, fo, io, bits, f32):  # type: ignore[no-untyped-def]
@@ -89,12 +106,7 @@ def decode_state(data, system, fo, io, bits, f32):  # type: ignore[no-untyped-de
         p = i + HEADER_BYTES
         if k == 0:
             t_ms = get_u32(data, p, body)
-            roll = get_f32(data, p + 4, body, bits, f32)
-            pitch = get_f32(data, p + 8, body, bits, f32)
-            yaw = get_f32(data, p + 12, body, bits, f32)
-            ps = get_f32(data, p + 16, body, bits, f32)
-            qs = get_f32(data, p + 20, body, bits, f32)
-            rs = get_f32(data, p + 24, body, bits, f32)
+            roll, pitch, yaw, ps, qs, rs = _six_f32(data, p + 4, body, bits, f32)
         elif k == 1:
             io[I_IMU_USEC] = get_u64(data, p, body)
             fo[F_ACCEL] = get_f32(data, p + 8, body, bits, f32)
@@ -106,12 +118,7 @@ def decode_state(data, system, fo, io, bits, f32):  # type: ignore[no-untyped-de
         else:
             if get_u32(data, p, body) != t_ms:
                 return 0
-            xn = get_f32(data, p + 4, body, bits, f32)
-            yn = get_f32(data, p + 8, body, bits, f32)
-            zn = get_f32(data, p + 12, body, bits, f32)
-            vxn = get_f32(data, p + 16, body, bits, f32)
-            vyn = get_f32(data, p + 20, body, bits, f32)
-            vzn = get_f32(data, p + 24, body, bits, f32)
+            xn, yn, zn, vxn, vyn, vzn = _six_f32(data, p + 4, body, bits, f32)
         io[I_ENDS + k] = end
         i = end
     if i != size:
@@ -169,10 +176,8 @@ O_CHI = 20
 O_REF = 32
 #: the answer and the record together, at most (two frames of at most 12 + 255 bytes).
 ANSWER_BYTES = 2 * (12 + 255)
-_ID_HIL = int(mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS)
-_X_HIL = int(mavlink.MAVLink_hil_actuator_controls_message.crc_extra)
-_ID_DFA = int(mavlink.MAVLINK_MSG_ID_DEBUG_FLOAT_ARRAY)
-_X_DFA = int(mavlink.MAVLink_debug_float_array_message.crc_extra)
+_ID_HIL, _X_HIL = HIL_ACTUATOR_CONTROLS
+_ID_DFA, _X_DFA = DEBUG_FLOAT_ARRAY
 _FC_COMPONENT = int(FC_COMPONENT_ID)
 _SMC_ID = int(SMC_ARRAY_ID)
 
@@ -231,13 +236,14 @@ def encode_answer(io, o, t_us, act_seq, act_mode, log_seq, flags, mode, tx, ty, 
 class AnswerEncoder:
     """:func:`encode_answer`'s compiled entry point with its arrays, for one FC."""
 
-    def __init__(self, entry: Any, sim_sysid: int, sysid: int, act_flags: int, has: tuple[bool, bool, bool]) -> None:
+    def __init__(self, entry: Any, sim_sysid: int, sysid: int, act_flags: int, mask: tuple[bool, ...]) -> None:
         from smcpilot.fastcodec import SMC_NAME
 
         self._entry = entry
-        #: the law reports S, sigma, chi-hat (the records' NaN where not).
-        self.has = tuple(bool(h) for h in has)
-        self.consts = np.array([sim_sysid, sysid, act_flags, int(has[0]), int(has[1]), int(has[2])], dtype=np.int64)
+        #: the law's diagnostics mask it was made for (:attr:`fc.flight.FlightControl.diag_mask`: S,
+        #: sigma, chi-hat, u-dot reported; the record has NaN for the first three where not).
+        self.mask = tuple(mask)
+        self.consts = np.array([sim_sysid, sysid, act_flags, int(mask[0]), int(mask[1]), int(mask[2])], dtype=np.int64)
         self.name = np.frombuffer(SMC_NAME.ljust(10, b"\0"), dtype=np.uint8).copy()
         self.out = np.zeros(ANSWER_BYTES, dtype=np.uint8)
         self._bits = np.zeros(1, dtype=np.uint32)
@@ -249,9 +255,7 @@ class AnswerEncoder:
                target: tuple[float, float, float], yaw_t: float) -> tuple[bytes, bytes] | None:  # fmt: skip
         """(the answer, the record) of the compiled pipeline's outputs in ``io``; None when a value
         does not fit a float32 (make them in CPython)."""
-        from fc.compiled_pipeline import IO_OUT
-
-        n = self._entry(io, IO_OUT, t_us, act_seq, act_mode, log_seq, flags, mode, target[0], target[1], target[2], yaw_t,
+        n = self._entry(io, _IO_OUT, t_us, act_seq, act_mode, log_seq, flags, mode, target[0], target[1], target[2], yaw_t,
                         self.consts, self.name, self.out, self._bits, self._f32)  # fmt: skip
         if not n:
             return None
@@ -293,45 +297,36 @@ def _twins() -> dict[Any, Any]:
 
     wire, problems = pure_closure((paper_of_wire,))  # (the wire's conversion and what it calls)
     assert not problems, problems
-    _TWINS.update(compile_pure((decode_state, _finite_or_nan, encode_answer, *FRAMING_FUNCTIONS, *wire)))
+    _TWINS.update(compile_pure((decode_state, _six_f32, _finite_or_nan, encode_answer, *FRAMING_FUNCTIONS, *wire)))
     return _TWINS
 
 
-def compiled_answer_encoder(sim_sysid: int, sysid: int, act_flags: int, has: tuple[bool, bool, bool], *,
+def compiled_answer_encoder(sim_sysid: int, sysid: int, act_flags: int, mask: tuple[bool, ...], *,
                             compile_new: bool) -> AnswerEncoder | None:  # fmt: skip
-    """The compiled :func:`encode_answer` for an FC (``has``: the law reports S, sigma, chi-hat), as
+    """The compiled :func:`encode_answer` for an FC (``mask``: the law's diagnostics mask), as
     :func:`compiled_decoder` has it (None when it cannot be had)."""
-    from smcpilot.jit import cache_index, jit_unavailable_reason, numba_module
+    from smcpilot.jit import cached_entry, jit_unavailable_reason, numba_module
 
     if jit_unavailable_reason() is not None:
         return None
-    fn = _twins()[encode_answer]
-    index = cache_index(fn)
-    if not compile_new and (index is None or not os.path.exists(index)):
-        return None
     t = numba_module().types
     sig = (t.float64[::1], *(t.int64,) * 7, *(t.float64,) * 4, t.int64[::1], t.uint8[::1], t.uint8[::1], t.uint32[::1], t.float32[::1])
-    fn.compile(sig)
-    return AnswerEncoder(fn.overloads[sig].entry_point, sim_sysid, sysid, act_flags, has)
+    entry = cached_entry(_twins()[encode_answer], sig, compile_new=compile_new)
+    return None if entry is None else AnswerEncoder(entry, sim_sysid, sysid, act_flags, mask)
 
 
 def compiled_decoder(*, compile_new: bool) -> StateDecoder | None:
     """The compiled :func:`decode_state` (loaded from numba's on-disk cache, or compiled first when
     ``compile_new``: a few seconds, once), or None when it cannot be had (no numba, JIT off, not
     cached and not ``compile_new``)."""
-    from smcpilot.jit import cache_index, jit_unavailable_reason, numba_module
+    from smcpilot.jit import cached_entry, jit_unavailable_reason, numba_module
 
     if jit_unavailable_reason() is not None:
-        return None
-    twins = _twins()
-    fn = twins[decode_state]
-    index = cache_index(fn)
-    if not compile_new and (index is None or not os.path.exists(index)):
         return None
     types = numba_module().types
     sig = (
         types.Bytes(types.uint8, 1, "C", readonly=True), types.int64, types.float64[::1], types.uint64[::1],
         types.uint32[::1], types.float32[::1],
     )  # fmt: skip
-    fn.compile(sig)
-    return StateDecoder(fn.overloads[sig].entry_point)
+    entry = cached_entry(_twins()[decode_state], sig, compile_new=compile_new)
+    return None if entry is None else StateDecoder(entry)

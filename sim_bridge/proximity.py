@@ -179,22 +179,14 @@ def pair_distances(pos, d, row_min, thr):  # type: ignore[no-untyped-def]
 def compiled_pair_distances(*, compile_new: bool) -> Any:
     """:func:`pair_distances` compiled (loaded from numba's on-disk cache, or compiled first when
     ``compile_new``), its entry point; None when it cannot be had (no numba, JIT off, not cached)."""
-    import os
-
-    from smcpilot.jit import cache_index, compile_pure, jit_unavailable_reason, numba_module
+    from smcpilot.jit import cached_entry, compile_pure, jit_unavailable_reason, numba_module
 
     if jit_unavailable_reason() is not None:
         return None
     if not _TWINS:
         _TWINS.update(compile_pure((pair_distances,)))
-    fn = _TWINS[pair_distances]
-    index = cache_index(fn)
-    if not compile_new and (index is None or not os.path.exists(index)):
-        return None
     t = numba_module().types
-    sig = (t.float64[:, ::1], t.float64[:, ::1], t.float64[::1], t.float64)
-    fn.compile(sig)
-    return fn.overloads[sig].entry_point
+    return cached_entry(_TWINS[pair_distances], (t.float64[:, ::1], t.float64[:, ::1], t.float64[::1], t.float64), compile_new=compile_new)
 
 
 _TWINS: dict[Any, Any] = {}

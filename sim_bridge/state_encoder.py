@@ -17,11 +17,9 @@ The FC's side decodes these datagrams the same way: :mod:`fc.state_kernel`.
 
 from __future__ import annotations
 
-import os
 from typing import Any
 
 import numpy as np
-from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from sim_bridge.sensors import specific_force_frd
 from smcpilot.fastcodec import TickRecords
@@ -34,7 +32,7 @@ from smcpilot.frames import (
     quat_rotate_inverse,
     rates_flu_to_frd,
 )
-from smcpilot.framing import FRAMING_FUNCTIONS, frame, put_f32, put_u32, put_u64
+from smcpilot.framing import ATTITUDE, FRAMING_FUNCTIONS, HIGHRES_IMU, LOCAL_POSITION_NED, ODOMETRY, frame, put_f32, put_u32, put_u64
 from smcpilot.protocol import IMU_FIELDS_UPDATED, SIM_COMPONENT_ID
 from smcpilot.wire import wire_of_paper
 
@@ -53,14 +51,10 @@ OUT_BYTES = 4 * (12 + 255)
 #: 12 bytes of header and CRC each.
 DATAGRAM_MAX_BYTES = 4 * 12 + 28 + 63 + 233 + 28
 
-_ID_ATT = int(mavlink.MAVLINK_MSG_ID_ATTITUDE)
-_ID_IMU = int(mavlink.MAVLINK_MSG_ID_HIGHRES_IMU)
-_ID_ODO = int(mavlink.MAVLINK_MSG_ID_ODOMETRY)
-_ID_LPN = int(mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED)
-_X_ATT = int(mavlink.MAVLink_attitude_message.crc_extra)
-_X_IMU = int(mavlink.MAVLink_highres_imu_message.crc_extra)
-_X_ODO = int(mavlink.MAVLink_odometry_message.crc_extra)
-_X_LPN = int(mavlink.MAVLink_local_position_ned_message.crc_extra)
+_ID_ATT, _X_ATT = ATTITUDE
+_ID_IMU, _X_IMU = HIGHRES_IMU
+_ID_ODO, _X_ODO = ODOMETRY
+_ID_LPN, _X_LPN = LOCAL_POSITION_NED
 _COMPONENT = int(SIM_COMPONENT_ID)
 _IMU_FIELDS = int(IMU_FIELDS_UPDATED)
 
@@ -177,16 +171,12 @@ def compiled_encoder(sysid: int, *, compile_new: bool) -> StateEncoder | None:
     """The compiled :func:`encode_state` for vehicle ``sysid`` (loaded from numba's on-disk cache, or
     compiled first when ``compile_new``: a few seconds, once), or None when it cannot be had (no
     numba, JIT off, not cached and not ``compile_new``)."""
-    from smcpilot.jit import cache_index, jit_unavailable_reason, numba_module
+    from smcpilot.jit import cached_entry, jit_unavailable_reason, numba_module
 
     if jit_unavailable_reason() is not None:
-        return None
-    fn = _twins()[encode_state]
-    index = cache_index(fn)
-    if not compile_new and (index is None or not os.path.exists(index)):
         return None
     types = numba_module().types
     sig = (types.float64[::1], types.int64, types.int64, types.int64, types.uint8[::1], types.uint8[::1], types.uint32[::1],
            types.float32[::1])  # fmt: skip
-    fn.compile(sig)
-    return StateEncoder(fn.overloads[sig].entry_point, sysid)
+    entry = cached_entry(_twins()[encode_state], sig, compile_new=compile_new)
+    return None if entry is None else StateEncoder(entry, sysid)

@@ -17,9 +17,24 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 #: MAVLink 2 header bytes (magic, length, flags, seq, system, component, id).
 HEADER_BYTES = 10
+
+
+def _id_extra(cls: type) -> tuple[int, int]:
+    return int(cls.id), int(cls.crc_extra)  # type: ignore[attr-defined]
+
+
+#: (message id, CRC_EXTRA) of the per-tick messages: the simulator's state datagram in its order
+#: (ATTITUDE, HIGHRES_IMU, ODOMETRY, LOCAL_POSITION_NED), the FC's answer and its SMC record.
+ATTITUDE = _id_extra(mavlink.MAVLink_attitude_message)
+HIGHRES_IMU = _id_extra(mavlink.MAVLink_highres_imu_message)
+ODOMETRY = _id_extra(mavlink.MAVLink_odometry_message)
+LOCAL_POSITION_NED = _id_extra(mavlink.MAVLink_local_position_ned_message)
+HIL_ACTUATOR_CONTROLS = _id_extra(mavlink.MAVLink_hil_actuator_controls_message)
+DEBUG_FLOAT_ARRAY = _id_extra(mavlink.MAVLink_debug_float_array_message)
 _F32_MAX = 3.4028234663852886e38
 
 

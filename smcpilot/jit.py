@@ -188,6 +188,17 @@ def cache_index(dispatcher: Any) -> str | None:
         return None
 
 
+def cached_entry(dispatcher: Any, sig: Any, *, compile_new: bool) -> Any:
+    """``dispatcher``'s compiled entry point for ``sig`` (called without numba's dispatch on the
+    argument types): loaded from the on-disk cache, or compiled first when ``compile_new``; None
+    when it is not cached and not ``compile_new``."""
+    index = cache_index(dispatcher)
+    if not compile_new and (index is None or not os.path.exists(index)):
+        return None
+    dispatcher.compile(sig)
+    return dispatcher.overloads[sig].entry_point
+
+
 def _lock_path() -> str:
     import tempfile
 

@@ -204,14 +204,16 @@ def _same(a: object, b: object) -> bool:
     return a == b
 
 
-def _state_datagram(sysid: int, seq: int, t_us: int, v: list[float]) -> bytes:
+def state_datagram(sysid: int, seq: int, t_us: int, v: list[float], lpn_t_ms: int | None = None) -> bytes:
+    """The simulator's state datagram (as ``sim_bridge`` writes it) of 31 values (``lpn_t_ms``:
+    LOCAL_POSITION_NED stamped otherwise than ATTITUDE)."""
     rec = fastcodec.TickRecords(sysid)
     t_ms = (t_us // 1000) & 0xFFFFFFFF
     return b"".join((
         rec.attitude(seq, t_ms, *v[0:6]),
         rec.highres_imu((seq + 1) & 0xFF, t_us, *v[6:12]),
         rec.odometry((seq + 2) & 0xFF, t_us, *v[12:25]),
-        rec.local_position_ned((seq + 3) & 0xFF, t_ms, *v[25:31]),
+        rec.local_position_ned((seq + 3) & 0xFF, t_ms if lpn_t_ms is None else lpn_t_ms, *v[25:31]),
     ))  # fmt: skip
 
 
@@ -219,7 +221,7 @@ def _state_datagram(sysid: int, seq: int, t_us: int, v: list[float]) -> bytes:
 @given(st.integers(1, 255), st.integers(0, 255), st.integers(0, 2**42), st.lists(_F32, min_size=31, max_size=31))
 @example(1, 0, 0, [0.0] * 31)  # every payload trimmed to one byte
 def test_the_simulators_datagram_decodes_to_pymavlinks_values(sysid: int, seq: int, t_us: int, v: list[float]) -> None:
-    data = _state_datagram(sysid, seq, t_us, v)
+    data = state_datagram(sysid, seq, t_us, v)
     d = fastcodec.decode_state_datagram(data, sysid)
     assert d is not None
     msgs = mavlink.MAVLink(None).parse_buffer(data)
@@ -237,7 +239,7 @@ def test_the_simulators_datagram_decodes_to_pymavlinks_values(sysid: int, seq: i
 
 def test_anything_but_the_simulators_datagram_goes_to_the_full_parse() -> None:
     v = [0.1 * i for i in range(31)]
-    good = _state_datagram(3, 7, 123_456_789, v)
+    good = state_datagram(3, 7, 123_456_789, v)
     assert fastcodec.decode_state_datagram(good, 3) is not None
     att_len = 12 + good[1]
     cases = {

@@ -20,6 +20,7 @@ from fc import state_kernel as sk
 from fc.app import state_from_wire
 from smcpilot import fastcodec
 from smcpilot.jit import jit_enabled
+from tests.test_fastcodec import state_datagram
 
 _F32 = st.one_of(st.floats(width=32), st.sampled_from([0.0, -0.0, math.nan, math.inf, -math.inf, 3.4028234663852886e38]))
 
@@ -33,18 +34,6 @@ def _bits(v: float) -> bytes:
     more than NaN-ness there: such a state is "attitude lost" to the estimate (:mod:`fc.estimate`),
     never flown, never logged (the log has the packets as they came)."""
     return b"nan" if v != v else struct.pack("<d", v)
-
-
-def _datagram(sysid: int, seq: int, t_us: int, v: list[float], lpn_t_ms: int | None = None) -> bytes:
-    """The simulator's state datagram (as ``sim_bridge`` writes it) of 31 values."""
-    rec = fastcodec.TickRecords(sysid)
-    t_ms = (t_us // 1000) & 0xFFFFFFFF
-    return b"".join((
-        rec.attitude(seq, t_ms, *v[0:6]),
-        rec.highres_imu((seq + 1) & 0xFF, t_us, *v[6:12]),
-        rec.odometry((seq + 2) & 0xFF, t_us, *v[12:25]),
-        rec.local_position_ned((seq + 3) & 0xFF, t_ms if lpn_t_ms is None else lpn_t_ms, *v[25:31]),
-    ))  # fmt: skip
 
 
 def _cpython(data: bytes, sysid: int) -> tuple | None:
@@ -95,7 +84,7 @@ def _same(a: tuple | None, b: tuple | None) -> bool:
 @example(1, 0, 0, [0.0] * 31)  # every payload trimmed to one byte
 @example(7, 255, 2**32 * 1000 + 5, [math.inf] + [0.5] * 30)  # the stamp's milliseconds wrapped; an infinite roll
 def test_the_compiled_decoder_gives_the_cpython_pairs_values(compiled, sysid: int, seq: int, t_us: int, v: list[float]) -> None:  # type: ignore[no-untyped-def]
-    data = _datagram(sysid, seq, t_us, v)
+    data = state_datagram(sysid, seq, t_us, v)
     want = _cpython(data, sysid)
     assert want is not None
     got = _kernel(compiled, data, sysid)
@@ -107,14 +96,14 @@ def test_the_compiled_decoder_gives_the_cpython_pairs_values(compiled, sysid: in
 def test_the_pure_function_in_cpython_gives_the_same(sysid: int, t_us: int, v: list[float]) -> None:
     """One source: the function numba compiles is correct as CPython runs it (SMCPILOT_JIT=0 flies
     the CPython pair instead, for speed)."""
-    data = _datagram(sysid, 3, t_us, v)
+    data = state_datagram(sysid, 3, t_us, v)
     with np.errstate(all="ignore"):  # (numpy scalars in CPython: NaN and overflow are what is tested)
         assert _same(_kernel(sk.decode_state, data, sysid), _cpython(data, sysid))
 
 
 def _refusals() -> dict[str, tuple[bytes, int]]:
     v = [0.1 * i for i in range(31)]
-    good = _datagram(3, 7, 123_456_789, v)
+    good = state_datagram(3, 7, 123_456_789, v)
     att_len = 12 + good[1]
     statustext = mavlink.MAVLink(None, srcSystem=3, srcComponent=200).statustext_encode(4, b"SIM: hello")
     return {
@@ -128,7 +117,7 @@ def _refusals() -> dict[str, tuple[bytes, int]]:
         "a signed packet": (good[:2] + b"\x01" + good[3:], 3),
         "another component": (good[:6] + b"\x01" + good[7:], 3),
         "a STATUSTEXT after": (good + statustext.pack(mavlink.MAVLink(None, 3, 200)), 3),
-        "the stamps differ": (_datagram(3, 7, 123_456_789, v, lpn_t_ms=123_457), 3),
+        "the stamps differ": (state_datagram(3, 7, 123_456_789, v, lpn_t_ms=123_457), 3),
         "empty": (b"", 3),
     }
 
@@ -146,7 +135,7 @@ def test_anything_else_is_refused_as_the_cpython_pair_refuses_it(compiled, case:
 def test_the_decoder_counts_what_it_decoded() -> None:
     dec = sk.compiled_decoder(compile_new=True)
     assert dec is not None
-    good = _datagram(5, 0, 2_000_000, [0.25] * 31)
+    good = state_datagram(5, 0, 2_000_000, [0.25] * 31)
     assert dec.decode(good, 5) == 1 and dec.decode(good, 6) == 0 and dec.decode(good[:-2], 5) == 0
     assert dec.decoded == 1
     assert dec.io.tolist()[sk.I_STAMP] == 2000
