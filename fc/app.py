@@ -880,34 +880,32 @@ class FlightControllerApp:
             if fast and peer is not None:
                 # the simulator's per-tick datagram, decoded straight to values (anything else:
                 # the link's full parse below, which counts and checks it the same way)
+                taken = None
                 if dec is not None:  # compiled: decoded and converted in one call (fc.state_kernel)
                     if dec.decode(data, self._sim_sysid):
-                        sim.heard(addr, 4)
                         fo = dec.fo.tolist()
                         io = dec.io.tolist()
                         e0, e1, e2, e3 = io[5], io[6], io[7], io[8]
-                        self._att = None
-                        self._imu = self._truth = None
-                        if self._take_state(
+                        taken = (
                             io[0], (_tuple_new(VehicleState, fo[0:12]), (fo[12], fo[13], fo[14]), io[1]),
                             (io[2], io[3], fo[15], fo[16], fo[17], data[e0:e1], addr), (io[4], data[e1:e2], addr),
                             data[:e0], data[e2:e3], addr,
-                        ):  # fmt: skip
-                            got = True
-                        continue
+                        )  # fmt: skip
                 else:
                     d = decode_state_datagram(data, self._sim_sysid)
                     if d is not None and d[0][0] == d[3][0]:  # (stamps that differ: the full parse says so)
-                        sim.heard(addr, 4)
                         att, imu, odo, lpn, (p_att, p_imu, p_odo, p_lpn) = d
-                        self._att = None
-                        self._imu = self._truth = None
-                        if self._take_state(
+                        taken = (
                             lpn[0], state_from_wire((*att[1:7], *lpn[1:7])), (imu[0], imu[14], imu[1], imu[2], imu[3], p_imu, addr),
                             (odo[0], p_odo, addr), p_att, p_lpn, addr,
-                        ):  # fmt: skip
-                            got = True
-                        continue
+                        )  # fmt: skip
+                if taken is not None:
+                    sim.heard(addr, 4)
+                    self._att = None
+                    self._imu = self._truth = None
+                    if self._take_state(*taken):
+                        got = True
+                    continue
             for msg, src in sim.parse(data, addr):
                 if self._on_sim_message(msg, src):
                     got = True
