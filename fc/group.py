@@ -173,26 +173,41 @@ def fly_realtime(apps: Sequence[FlightControllerApp]) -> int:
     """Fly ``apps`` (built, real time) in one loop until each has ended; the exit code.
 
     Each flight controller keeps its own wall clock, watchdogs and ground-link budget (the steps
-    of its own real-time loop, :meth:`FlightControllerApp.realtime_due` and the rest), and they
-    share their deadlines: the first to have its first state sets them, the others tick on the same
-    beat from theirs. So the process wakes once a period for all of them, not once each.
+    of its own real-time loop, :meth:`FlightControllerApp.realtime_due` and the rest), and their
+    deadlines keep one beat, spread over the period: of ``K`` flight controllers the ``i``-th ticks
+    ``i / K`` of a period after the first (the first to have its first state sets the beat). One
+    process has one core: sixteen deadlines at the same instant would make the last FC wait for the
+    fifteen ticks before it, every period (measured: docs/swarms.md), where spread out each ticks
+    when due and the process sleeps between them.
     """
     mono = time.monotonic
+    n_apps = len(apps)
     for app in apps:
-        app.flights_per_process = len(apps)
+        app.flights_per_process = n_apps
     started: list[FlightControllerApp] = []
     finished: list[FlightControllerApp] = []
     codes: list[int] = []
-
-    def end(app: FlightControllerApp) -> None:
-        live.remove(app)
-        if app in waiting:
-            waiting.remove(app)
-        finished.append(app)
-        codes.append(app.finish())
+    # this FC's place on the beat, in periods
+    phases = {id(a): i / n_apps for i, a in enumerate(apps)}
 
     live: list[FlightControllerApp] = list(apps)
     waiting: list[FlightControllerApp] = list(apps)  # (no state yet: their loops have not begun)
+    flying: list[FlightControllerApp] = []  # (in the order of apps)
+    # the sockets to wait on and whose they are, while no flying FC has a ground link (else made
+    # each turn: each one's ground socket is watched only while its budget lasts); None: make anew
+    fixed: tuple[list[int], dict[int, FlightControllerApp]] | None = None
+
+    def end(app: FlightControllerApp) -> None:
+        nonlocal fixed
+        live.remove(app)
+        if app in waiting:
+            waiting.remove(app)
+        if app in flying:
+            flying.remove(app)
+        fixed = None
+        finished.append(app)
+        codes.append(app.finish())
+
     try:
         for app in apps:
             app.start(freeze_gc=False)
@@ -203,40 +218,50 @@ def fly_realtime(apps: Sequence[FlightControllerApp]) -> int:
             for app in apps:
                 timed.enter_context(app._gc_pauses)
             start = last_first = mono()
-            beat: float | None = None  # a deadline every FC shares (their periods alike)
+            beat: float | None = None  # when the first FC's deadlines fall (the others' follow theirs)
             while live:
                 now = mono()
-                flying = [a for a in live if a not in waiting]
-                due = sorted((a for a in flying if a.rt_deadline <= now), key=lambda a: a.rt_deadline)
-                if due:
-                    for app in due:
-                        if app._stop:
-                            continue
-                        try:
-                            if app.realtime_due(mono()):
-                                app._stop = True
-                        except (WatchdogError, RateMismatchError) as exc:
-                            app.ended_by(exc)
-                    for app in [a for a in live if a._stop]:
-                        end(app)
-                    continue
-                worked = False
-                for app in flying:
-                    if app.realtime_work(now):
-                        worked = True
-                if worked:
-                    continue
-                owners: dict[int, FlightControllerApp] = {}
-                for app in flying:
-                    for fd in app.realtime_fds():
-                        owners[fd] = app
-                for app in waiting:
-                    for fd in app._fds():
-                        owners[fd] = app
-                wait_s = min((a.rt_deadline for a in flying), default=now + 0.1) - now
+                if flying:
+                    first = min(flying, key=_deadline)
+                    if first.rt_deadline <= now:
+                        due = [first] if n_apps == 1 else sorted((a for a in flying if a.rt_deadline <= now), key=_deadline)
+                        for app in due:
+                            if app._stop:
+                                continue
+                            try:
+                                if app.realtime_due(mono()):
+                                    app._stop = True
+                            except (WatchdogError, RateMismatchError) as exc:
+                                app.ended_by(exc)
+                        for app in [a for a in live if a._stop]:
+                            end(app)
+                        continue
+                    worked = False
+                    for app in flying:
+                        # (without a ground link an FC has ground work only when something came on
+                        # its simulator port from elsewhere; its sockets are the same either way)
+                        if (app.gcs is not None or app.intake) and app.realtime_work(now):
+                            worked = True
+                    if worked:
+                        continue
+                    wait_s = first.rt_deadline - now
+                else:
+                    wait_s = 0.1
+                if fixed is None or any(a.gcs is not None for a in flying):
+                    owners: dict[int, FlightControllerApp] = {}
+                    for app in flying:
+                        for fd in app.realtime_fds():
+                            owners[fd] = app
+                    for app in waiting:
+                        for fd in app._fds():
+                            owners[fd] = app
+                    fixed = (list(owners), owners)
+                fds, owners = fixed
                 if waiting:
                     wait_s = min(wait_s, 0.1)
-                readable, _, _ = select.select(list(owners), (), (), max(0.0, wait_s))
+                readable, _, _ = select.select(fds, (), (), max(0.0, wait_s))
+                if not readable and not waiting:
+                    continue
                 now = mono()
                 first_turn = bool(waiting) and (readable or now - last_first >= 0.1)
                 if first_turn:
@@ -250,11 +275,11 @@ def fly_realtime(apps: Sequence[FlightControllerApp]) -> int:
                             if app.state is not None and not app._stop:
                                 period = app.cfg.period_s
                                 if beat is None:
-                                    beat = now + period
-                                    app.realtime_begin(now, beat)
-                                else:  # the shared beat's next deadline after now
-                                    app.realtime_begin(now, beat + (math.floor((now - beat) / period) + 1) * period)
+                                    beat = now + period - phases[id(app)] * period
+                                app.realtime_begin(now, beat_deadline(now, beat, phases[id(app)], period))
                                 waiting.remove(app)
+                                flying[:] = [a for a in apps if a in live and a not in waiting]
+                                fixed = None
                         else:
                             app.realtime_readable(mine)
                     except (WatchdogError, RateMismatchError) as exc:
@@ -271,6 +296,17 @@ def fly_realtime(apps: Sequence[FlightControllerApp]) -> int:
                 else:
                     app.close()
     return next((c for c in codes if c != EXIT_OK), EXIT_OK)
+
+
+def _deadline(app: FlightControllerApp) -> float:
+    return app.rt_deadline
+
+
+def beat_deadline(now_s: float, beat_s: float, phase: float, period_s: float) -> float:
+    """The first deadline after ``now_s`` of a flight controller ``phase`` periods (0 <= phase < 1)
+    after the beat: the deadlines ``beat_s + (phase + n) period_s`` for whole ``n`` (wall s)."""
+    at = beat_s + phase * period_s
+    return at + (math.floor((now_s - at) / period_s) + 1) * period_s
 
 
 def main(argv: Sequence[str] | None = None) -> int:

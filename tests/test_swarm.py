@@ -401,6 +401,26 @@ def test_fc_groups_split_the_vehicles_evenly() -> None:
         fc_groups(3, 0)
 
 
+def test_a_real_time_group_spreads_its_deadlines_over_the_period() -> None:
+    """Of K FCs in one real-time loop the i-th ticks i/K of a period after the first, whenever
+    it starts: the next deadline after now at its place on the beat (never now, never later than a period)."""
+    from fc.group import beat_deadline
+
+    period = 0.002
+    beat = 100.0
+    for k in (1, 3, 16):
+        for start in (99.0, 100.0, 100.0007, 100.0013 + 1e-12, 123.4567):
+            deadlines = [beat_deadline(start, beat, i / k, period) for i in range(k)]
+            for i, d in enumerate(deadlines):
+                assert start < d <= start + period + 1e-12
+                n = (d - beat - i / k * period) / period  # on its own beat: a whole number of periods
+                assert abs(n - round(n)) < 1e-6, (k, start, i, n)
+            # one of each place on the beat, a period between a place and the same place again
+            offsets = sorted(((d - beat) / period) % 1.0 for d in deadlines)
+            assert all(abs(o - round(o * k) / k) < 1e-6 for o in offsets) and len({round(o * k) % k for o in offsets}) == k
+    assert beat_deadline(beat, beat, 0.0, period) == pytest.approx(beat + period)  # the first FC: a period from its first state
+
+
 @pytest.mark.parametrize(
     ("content", "needle"),
     [
