@@ -302,6 +302,7 @@ class FlightControllerApp:
         signing: Signing | None = None,
         gcs_trusted: bool = False,
         jit: str = "auto",
+        tick_phase: float | None = None,
     ) -> None:
         #: MAVLink 2 signing of the ground link (key None: off until a SETUP_SIGNING sets one).
         self.signing = signing if signing is not None else Signing(None)
@@ -315,6 +316,10 @@ class FlightControllerApp:
         self.startup_timeout_s = startup_timeout_s
         #: lockstep: busy-poll this long after each tick before blocking (0: always block).
         self.spin_s = spin_s
+        #: real time: the ticks fall this fraction of a period (0 <= phase < 1) after the beat of
+        #: one period from the first state; a swarm's FCs each their own, spread over the period
+        #: (None: 0, and in :mod:`fc.group` the FC's place among the group's).
+        self.tick_phase = tick_phase
         #: the compiled pipeline: ``auto``, ``wait`` or ``off`` (:data:`smcpilot.jit.JIT_POLICIES`).
         self.jit = jit
         #: why the pipeline flies in CPython (None: compiled).
@@ -737,7 +742,8 @@ class FlightControllerApp:
         while not self._stop and self.state is None:
             readable, _, _ = select.select(fds, (), (), 0.1)
             self.realtime_wait_first(readable, mono() - start)
-        self.realtime_begin(mono())
+        now = mono()
+        self.realtime_begin(now, now + (1.0 + (self.tick_phase or 0.0)) * self.cfg.period_s)
         while not self._stop:
             now = mono()
             wait = self.rt_deadline - now

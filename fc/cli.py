@@ -74,6 +74,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--spin-s", type=float, default=0.002, metavar="S",
                    help="lockstep: busy-poll this long for the next state before blocking (default 0.002; 0: always"
                    " block, best when more processes than cores share the machine, as in a swarm)")  # fmt: skip
+    p.add_argument("--tick-phase", type=float, default=None, metavar="F",
+                   help="real time: tick F of a period later (0 <= F < 1) than the beat of one period from the first"
+                   " state: a swarm's launcher spreads its FCs' ticks over the period (the i-th of K: i/K) so that they"
+                   " do not all wake at once (default 0; in a group of FCs, each one's place among them)")  # fmt: skip
     p.add_argument("--startup-timeout-s", type=float, default=30.0, metavar="S",
                    help="exit if no simulator state arrives within this many wall seconds (default 30)")
     p.add_argument("--param-file", type=Path, metavar="PATH",
@@ -191,6 +195,8 @@ def build_app(argv: Sequence[str] | None = None, *, out: TextIO | None = None) -
             plan = load_plan(args.plan)
         else:
             plan = scenario.plan if scenario is not None else ()
+        if args.tick_phase is not None and not (math.isfinite(args.tick_phase) and 0.0 <= args.tick_phase < 1.0):
+            raise SmcpilotError(f"--tick-phase must be a fraction of the period in [0, 1), got {args.tick_phase}")
         if not (math.isfinite(args.spin_s) and 0.0 <= args.spin_s <= 1.0):
             raise SmcpilotError(f"--spin-s must be a number of seconds in [0, 1], got {args.spin_s}")
         if args.duration is not None and not args.duration > 0:
@@ -223,6 +229,7 @@ def build_app(argv: Sequence[str] | None = None, *, out: TextIO | None = None) -
             duration_s=args.duration,
             startup_timeout_s=args.startup_timeout_s,
             spin_s=args.spin_s,
+            tick_phase=args.tick_phase,
             jit=args.jit,
             sim_system_id=args.sysid if args.sysid is not None else 1,
             gcs_port=gcs_port,

@@ -175,7 +175,8 @@ def fly_realtime(apps: Sequence[FlightControllerApp]) -> int:
     Each flight controller keeps its own wall clock, watchdogs and ground-link budget (the steps
     of its own real-time loop, :meth:`FlightControllerApp.realtime_due` and the rest), and their
     deadlines keep one beat, spread over the period: of ``K`` flight controllers the ``i``-th ticks
-    ``i / K`` of a period after the first (the first to have its first state sets the beat). One
+    ``i / K`` of a period after the first (or at its ``--tick-phase``, which the launcher gives every FC
+    of a swarm: the i-th of the swarm's K; the first to have its first state sets the beat). One
     process has one core: sixteen deadlines at the same instant would make the last FC wait for the
     fifteen ticks before it, every period (measured: docs/swarms.md), where spread out each ticks
     when due and the process sleeps between them.
@@ -188,7 +189,7 @@ def fly_realtime(apps: Sequence[FlightControllerApp]) -> int:
     finished: list[FlightControllerApp] = []
     codes: list[int] = []
     # this FC's place on the beat, in periods
-    phases = {id(a): i / n_apps for i, a in enumerate(apps)}
+    phases = {id(a): i / n_apps if a.tick_phase is None else a.tick_phase for i, a in enumerate(apps)}
 
     live: list[FlightControllerApp] = list(apps)
     waiting: list[FlightControllerApp] = list(apps)  # (no state yet: their loops have not begun)

@@ -341,7 +341,7 @@ class Sitl:
         return self
 
     def _fc_args(self, scenario_file: Path, tlog: Path, gcs: str, gcs_port: int | None, param_file: Path | None,
-                 signing_timestamps: Path, sysid: int | None = None) -> list[str]:  # fmt: skip
+                 signing_timestamps: Path, sysid: int | None = None, tick_phase: float | None = None) -> list[str]:  # fmt: skip
         o = self.options
         timed = ["--duration", repr(o.scenario.duration_s)] if o.timed else []
         fc_args = ["fc", "--sim", o.sim_url or "udpin:127.0.0.1:0", "--gcs", gcs, "--scenario", str(scenario_file),
@@ -359,6 +359,8 @@ class Sitl:
                 fc_args += ["--jit", "off"]
         if o.lockstep:
             fc_args.append("--lockstep")
+        elif tick_phase is not None:  # real time, a swarm: its FCs' ticks spread over the period (docs/swarms.md)
+            fc_args += ["--tick-phase", repr(tick_phase)]
         if param_file is not None:  # else the FC starts from defaults with a file of its own (NAME.parm)
             fc_args += ["--param-file", str(param_file)]
         fc_args += ["--signing-timestamps", str(signing_timestamps)]
@@ -408,7 +410,8 @@ class Sitl:
             vfile = v.scenario.save(vlog.with_name(vlog.stem + ".scenario.toml"))
             param_file = None if o.param_file is None else o.param_file.with_name(f"{o.param_file.stem}-v{v.sysid}{o.param_file.suffix}")
             gcs_port = (fc_ground_port(v.index) if default_ground else 0) if o.gcs else None
-            every_args.append(self._fc_args(vfile, vlog, fc_gcs, gcs_port, param_file, tlog.parent / f"signing-timestamp-v{v.sysid}", v.sysid))
+            every_args.append(self._fc_args(vfile, vlog, fc_gcs, gcs_port, param_file, tlog.parent / f"signing-timestamp-v{v.sysid}", v.sysid,
+                                            v.index / len(fleet) if len(fleet) > 1 else None))  # fmt: skip
             self.sysids.append(v.sysid)
             self.tlogs.append(vlog)
         if self._grouped():

@@ -7,6 +7,7 @@ one; real UDP sockets and real processes throughout.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
@@ -387,6 +388,19 @@ def test_flight_controllers_in_a_group_fly_a_real_time_swarm(tmp_path: Path) -> 
         assert s["rx_rejected"]["total"] == 0
     for tlog, sysid in zip(sitl.tlogs, (1, 2, 3)):  # each log its own vehicle's
         assert {m.get_srcSystem() for _, m in read_tlog(tlog) if m.get_type() == "ATTITUDE"} == {sysid}
+    # the launcher spread the FCs' ticks over the period: the i-th of 3 a third of a period after the one before
+    (group_file,) = tmp_path.glob("*fc-group1.json")
+    phases = [float(args[args.index("--tick-phase") + 1]) for args in json.loads(group_file.read_text())]
+    assert phases == pytest.approx([0.0, 1 / 3, 2 / 3], abs=1e-12)
+
+
+@pytest.mark.parametrize("phase", ["1", "-0.1", "nan", "2.5"])
+def test_fc_refuses_a_tick_phase_outside_the_period_in_one_line(tmp_path: Path, phase: str) -> None:
+    r = subprocess.run([sys.executable, "-m", "fc", "--sim", "udpin:127.0.0.1:0", "--gcs", "none", "--log-dir", str(tmp_path),
+                        "--tick-phase", phase], capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert r.returncode == 2, r
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--tick-phase must be a fraction of the period in [0, 1)" in lines[0], r.stderr
 
 
 def test_fc_groups_split_the_vehicles_evenly() -> None:
