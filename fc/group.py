@@ -260,6 +260,7 @@ def fly_realtime(apps: Sequence[FlightControllerApp]) -> int:
                 fds, owners = fixed
                 if waiting:
                     wait_s = min(wait_s, 0.1)
+                # (select, not epoll: epoll's timeout counts whole milliseconds, a deadline needs finer)
                 readable, _, _ = select.select(fds, (), (), max(0.0, wait_s))
                 if not readable and not waiting:
                     continue

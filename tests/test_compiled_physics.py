@@ -10,17 +10,15 @@ import subprocess
 import sys
 
 import pytest
+from bits_helpers import needs_jit
 
 from sim_bridge.build import plant_for
 from sim_bridge.plants import compiled_physics as cp
 from sim_bridge.plants.rigid_body import RigidBodyPlant
 from smcpilot.errors import DivergenceError
 from smcpilot.faults import FaultSpec
-from smcpilot.jit import jit_enabled
 from smcpilot.scenario import EnvironmentSpec, Scenario
 from tests.sitl_helpers import fly_sitl
-
-needs_jit = pytest.mark.skipif(not jit_enabled(say=False), reason="numba is off (SMCPILOT_JIT=0) or not installed")
 
 DT_US = 1000
 DT_S = 1.0 / 1000.0

@@ -15,17 +15,15 @@ import math
 import random
 
 import pytest
+from bits_helpers import needs_jit
 
 from fc.compiled_pipeline import attach_compiled
 from fc.config import FcConfig
 from fc.flight import FlightControl, LawFault
 from fc.pipeline import VehicleState
 from smcpilot import jit
-from smcpilot.jit import jit_enabled
 from smcpilot.vehicle import DEFAULT_VEHICLE
 from tests.sitl_helpers import fly_sitl
-
-needs_jit = pytest.mark.skipif(not jit_enabled(say=False), reason="compiled paths are off here (SMCPILOT_JIT=0 or no numba)")
 
 HOVER = VehicleState(0.1, -0.2, 1.0, 0.0, 0.0, 0.0, 0.01, -0.02, 0.3, 0.0, 0.0, 0.0)
 

@@ -13,6 +13,7 @@ import random
 
 import numpy as np
 import pytest
+from bits_helpers import needs_jit
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
@@ -23,11 +24,8 @@ from sim_bridge.plants.rigid_body import RigidBodyPlant
 from sim_bridge.sensors import SensorNoiseParams, specific_force_frd
 from smcpilot.fastcodec import TickRecords
 from smcpilot.frames import quat_nwu_flu_to_ned_frd
-from smcpilot.jit import jit_enabled
 from smcpilot.vehicle import DEFAULT_VEHICLE
 from smcpilot.wire import wire_of_paper
-
-needs_jit = pytest.mark.skipif(not jit_enabled(say=False), reason="compiled paths are off here (SMCPILOT_JIT=0 or no numba)")
 
 _VALUE = st.one_of(
     st.floats(-20.0, 20.0), st.floats(allow_nan=True, allow_infinity=True),

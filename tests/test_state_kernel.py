@@ -12,6 +12,7 @@ import struct
 
 import numpy as np
 import pytest
+from bits_helpers import needs_jit
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -19,12 +20,10 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from fc import state_kernel as sk
 from fc.app import state_from_wire
 from smcpilot import fastcodec
-from smcpilot.jit import jit_enabled
 from tests.test_fastcodec import state_datagram
 
 _F32 = st.one_of(st.floats(width=32), st.sampled_from([0.0, -0.0, math.nan, math.inf, -math.inf, 3.4028234663852886e38]))
 
-needs_jit = pytest.mark.skipif(not jit_enabled(say=False), reason="compiled paths are off here (SMCPILOT_JIT=0 or no numba)")
 
 
 def _bits(v: float) -> bytes:
