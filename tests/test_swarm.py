@@ -134,6 +134,19 @@ def test_bad_vehicle_tables_name_the_key(tmp_path: Path, extra: str, needle: str
     assert needle in str(info.value), str(info.value)
 
 
+def test_sitl_says_when_a_swarm_would_fly_faster_in_fewer_processes() -> None:
+    from ground.sitl_cmd import layout_hint
+
+    assert layout_hint(1, None, 2, True) is None  # one vehicle
+    assert layout_hint(3, 1, 2, True) is None  # grouped already
+    assert layout_hint(3, None, 8, False) is None  # they fit the cores
+    line = layout_hint(16, None, 2, False)
+    assert line is not None and "--fc-processes 1 flies them in one loop" in line and "real time" in line
+    line = layout_hint(16, None, 4, True)
+    assert line is not None and "--fc-processes 3 flies them in 3 loops" in line and "lockstep" in line
+    assert "\n" not in line
+
+
 def test_count_limits() -> None:
     check_count(MAX_VEHICLES)
     for bad in (0, -1, MAX_VEHICLES + 1):
