@@ -179,7 +179,9 @@ def fly_realtime(apps: Sequence[FlightControllerApp]) -> int:
     of a swarm: the i-th of the swarm's K; the first to have its first state sets the beat). One
     process has one core: sixteen deadlines at the same instant would make the last FC wait for the
     fifteen ticks before it, every period (measured: docs/swarms.md), where spread out each ticks
-    when due and the process sleeps between them.
+    when due and the process sleeps between them. Of the FCs with something to read, the one due
+    soonest is read first, and a deadline that falls due meanwhile is ticked before the others are
+    read (they stay readable): a burst of states does not hold up the ticks due while it is read.
     """
     mono = time.monotonic
     n_apps = len(apps)
@@ -245,8 +247,10 @@ def fly_realtime(apps: Sequence[FlightControllerApp]) -> int:
                             worked = True
                     if worked:
                         continue
-                    wait_s = first.rt_deadline - now
+                    next_due = first.rt_deadline
+                    wait_s = next_due - now
                 else:
+                    next_due = math.inf
                     wait_s = 0.1
                 if fixed is None or any(a.gcs is not None for a in flying):
                     owners: dict[int, FlightControllerApp] = {}
@@ -269,7 +273,10 @@ def fly_realtime(apps: Sequence[FlightControllerApp]) -> int:
                 if first_turn:
                     last_first = now
                 ready = {owners[fd] for fd in readable}
-                for app in [a for a in live if a in ready or (first_turn and a in waiting)]:
+                turn = [a for a in live if a in ready or (first_turn and a in waiting)]
+                if flying and len(turn) > 1:  # those not begun first, then the one due soonest (its fresh state before its tick)
+                    turn.sort(key=lambda a: -math.inf if a in waiting else a.rt_deadline)
+                for app in turn:
                     mine = [fd for fd in readable if owners[fd] is app]
                     try:
                         if app in waiting:
@@ -286,6 +293,8 @@ def fly_realtime(apps: Sequence[FlightControllerApp]) -> int:
                             app.realtime_readable(mine)
                     except (WatchdogError, RateMismatchError) as exc:
                         app.ended_by(exc)
+                    if next_due <= mono() and app not in waiting:
+                        break  # a deadline first; the rest stays readable for the next turn, in deadline order
                 for app in [a for a in live if a._stop]:
                     end(app)
     finally:  # whatever ended the loop: every log closed, every summary said

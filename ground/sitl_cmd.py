@@ -107,7 +107,7 @@ def layout_hint(count: int, fc_processes: int | None, cores: int, lockstep: bool
         return None
     n = max(1, cores - 1)
     gain = ("16 vehicles on 2 cores flew 1.7-2.2x faster in lockstep that way" if lockstep
-            else "16 vehicles on 2 cores missed 0.1-1.7 % of their deadlines in real time that way, against 14-16 %")  # fmt: skip
+            else "16 vehicles on 2 cores missed 0.1-0.6 % of their deadlines in real time that way, against 14-16 %")  # fmt: skip
     return (f"sitl: {count} flight controllers, a process each, on {cores} cores; --fc-processes {n} flies them in"
             f" {'one loop' if n == 1 else f'{n} loops'} (measured: {gain}; docs/swarms.md)")  # fmt: skip
 
