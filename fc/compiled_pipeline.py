@@ -33,6 +33,7 @@ from fc.control.purity import pure_closure
 from fc.pipeline import PipelineInputs, VehicleState, pipeline_step_full_sensed, pipeline_step_sensed
 from smcpilot.jit import addressed, cache_index, compile_lock, compile_pure, jit_unavailable_reason, numba_module, say_once
 from smcpilot.jit import compile_in_background as background_compile
+from smcpilot.jit import entry_point as _entry
 
 #: the ``io`` array: inputs (the estimate: 12 floats of :class:`fc.pipeline.VehicleState`; the
 #: commander's :class:`fc.pipeline.PipelineInputs`, bools as 0/1; dt in s; the IMU's acceleration,
@@ -249,13 +250,6 @@ class HeldPipeline:
             return None
         self.ticks += 1
         return io[IO_OUT : IO_TOUCHDOWN + 1].tolist()  # type: ignore[no-any-return]
-
-
-def _entry(dispatcher: Any, sig: tuple) -> Any:
-    """``dispatcher`` compiled (or loaded from the cache) for ``sig``: its entry point, called
-    without numba's dispatch on the argument types."""
-    dispatcher.compile(sig)
-    return dispatcher.overloads[sig].entry_point
 
 
 def law_key(flight: Any) -> tuple:

@@ -196,9 +196,10 @@ def fly_realtime(apps: Sequence[FlightControllerApp]) -> int:
     live: list[FlightControllerApp] = list(apps)
     waiting: list[FlightControllerApp] = list(apps)  # (no state yet: their loops have not begun)
     flying: list[FlightControllerApp] = []  # (in the order of apps)
-    # the sockets to wait on and whose they are, while no flying FC has a ground link (else made
+    # the sockets to wait on and whose they are, while no FC has a ground link (else made
     # each turn: each one's ground socket is watched only while its budget lasts); None: make anew
     fixed: tuple[list[int], dict[int, FlightControllerApp]] | None = None
+    grounded = any(a.gcs is not None for a in apps)  # (an FC's ground link is made before the loop, for good)
 
     def end(app: FlightControllerApp) -> None:
         nonlocal fixed
@@ -252,7 +253,7 @@ def fly_realtime(apps: Sequence[FlightControllerApp]) -> int:
                 else:
                     next_due = math.inf
                     wait_s = 0.1
-                if fixed is None or any(a.gcs is not None for a in flying):
+                if fixed is None or grounded:
                     owners: dict[int, FlightControllerApp] = {}
                     for app in flying:
                         for fd in app.realtime_fds():

@@ -188,15 +188,20 @@ def cache_index(dispatcher: Any) -> str | None:
         return None
 
 
+def entry_point(dispatcher: Any, sig: Any) -> Any:
+    """``dispatcher`` compiled (or loaded from the cache) for ``sig``: its entry point, called
+    without numba's dispatch on the argument types."""
+    dispatcher.compile(sig)
+    return dispatcher.overloads[sig].entry_point
+
+
 def cached_entry(dispatcher: Any, sig: Any, *, compile_new: bool) -> Any:
-    """``dispatcher``'s compiled entry point for ``sig`` (called without numba's dispatch on the
-    argument types): loaded from the on-disk cache, or compiled first when ``compile_new``; None
-    when it is not cached and not ``compile_new``."""
+    """:func:`entry_point` when it is in the on-disk cache, or compiled first when ``compile_new``;
+    None when it is not cached and not ``compile_new``."""
     index = cache_index(dispatcher)
     if not compile_new and (index is None or not os.path.exists(index)):
         return None
-    dispatcher.compile(sig)
-    return dispatcher.overloads[sig].entry_point
+    return entry_point(dispatcher, sig)
 
 
 def _lock_path() -> str:

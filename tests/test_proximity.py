@@ -6,9 +6,9 @@ import math
 import random
 
 import pytest
+from bits_helpers import needs_jit
 
 from sim_bridge.proximity import Proximity, compiled_pair_distances, pair_distances
-from smcpilot.jit import jit_enabled
 
 
 def scan(p: Proximity, t_s: float, positions: list[tuple[float, float, float]]) -> list[tuple[str, int, int, float]]:
@@ -43,7 +43,7 @@ def scan(p: Proximity, t_s: float, positions: list[tuple[float, float, float]]) 
     return out
 
 
-@pytest.mark.parametrize("way", ["numpy", "compiled"])
+@pytest.mark.parametrize("way", ["numpy", pytest.param("compiled", marks=needs_jit)])
 @pytest.mark.parametrize("seed", range(12))
 def test_every_pair_at_once_matches_the_pair_by_pair_scan(seed: int, way: str) -> None:
     """numpy's matrix, and the compiled kernel the simulator loads with its compiled physics
@@ -53,8 +53,6 @@ def test_every_pair_at_once_matches_the_pair_by_pair_scan(seed: int, way: str) -
     sep, contact = rng.choice([(2.0, 0.5), (1.0, 1.5), (3.0, 0.0)])
     fast, slow = Proximity(n, sep, contact), Proximity(n, sep, contact)
     if way == "compiled":
-        if not jit_enabled(say=False):
-            pytest.skip("compiled paths are off here (SMCPILOT_JIT=0 or no numba)")
         fast.kernel = compiled_pair_distances(compile_new=True)
         assert fast.kernel is not None
     pos = [(rng.uniform(-4, 4), rng.uniform(-4, 4), rng.uniform(-3, 0)) for _ in range(n)]

@@ -42,7 +42,7 @@ from sim_bridge.plants.rigid_body import (
     rotor_lag,
 )
 from smcpilot.errors import DivergenceError
-from smcpilot.jit import cache_index, compile_pure, jit_unavailable_reason, say_once
+from smcpilot.jit import cache_index, compile_pure, entry_point, jit_unavailable_reason, say_once
 
 #: a vehicle's row of the ``io`` array: the 17 states (in and out), the motor commands (4, in [0, 1]),
 #: armed (0/1), active (0: not stepped), the force (world NWU, N) and torque (body FLU, N m) held
@@ -266,11 +266,6 @@ def _sig() -> tuple:
     return (arr2, arr2, types.int64, types.int64, types.float64, types.int64, types.float64[::1])
 
 
-def _entry_of(dispatcher: Any, sig: tuple) -> Any:
-    dispatcher.compile(sig)
-    return dispatcher.overloads[sig].entry_point
-
-
 def is_cached() -> bool:
     """Whether the compiled span is in numba's cache (loading it then takes about half a second)."""
     if jit_unavailable_reason() is not None:
@@ -297,7 +292,7 @@ def load(plants: Sequence[Any], *, compile_new: bool) -> tuple[CompiledPhysics |
         t0 = time.perf_counter()
         if not cached:
             say_once("compiling the simulator's physics (once after an install or a change; cached on disk)...")
-        entry = _entry_of(fn, _sig())
+        entry = entry_point(fn, _sig())
         if not cached:
             say_once(f"compiled the simulator's physics in {time.perf_counter() - t0:.1f} s")
         return CompiledPhysics(entry, plants), None
