@@ -274,6 +274,28 @@ class SimVehicle:
         )
         self.last_state = packets
 
+    def fly_and_make(self, phys: CompiledPhysics, t_us0: int, dt_us: int, dt_s: float, n_steps: int) -> bool:
+        """Fly the plant ``n_steps`` physics steps of ``dt_s`` s from ``t_us0`` µs (``dt_us`` apart) and
+        make its state (stamped with the clock, which already reads the end of the span) in one
+        compiled call (:meth:`CompiledPhysics.fly_state`): what ``phys.fly`` then :meth:`make_state`
+        leave, the same bytes. False: not flown (nothing changed; fly and make it as before).
+        Raises :class:`DivergenceError` as ``phys.fly``."""
+        enc = self.encoder
+        if enc is None:
+            return False
+        link = self.link
+        got = phys.fly_state(self.plant, self.commands, self.armed, t_us0, dt_us, dt_s, n_steps, enc, self._gravity, self._clock_us(),
+                             link.peek_seq())  # fmt: skip
+        if got is None:  # flown and observed; the datagram is CPython's to make (a sensor fault, float32)
+            self.make_state()
+        elif got.__class__ is str:
+            return False
+        else:
+            for _ in range(4):
+                link.take_seq()
+            self.last_state = (got,)  # type: ignore[assignment]
+        return True
+
     def say_goodbye(self) -> None:
         """A clean end: HEARTBEAT with MAV_STATE_POWEROFF (a few copies: the link may lose some), so
         the FC stops cleanly instead of taking the closed port for a dead simulator."""
@@ -462,6 +484,8 @@ class SimBridgeApp:
         self.physics: CompiledPhysics | None = None
         self.physics_why: str | None = "not started"
         self.physics_python_steps = 0
+        #: lockstep swarm: the states made with their physics span in one call (:mod:`sim_bridge.fused_state`).
+        self.states_fused = 0
         #: lockstep, a swarm sent states ahead (:meth:`_run_lockstep_swarm`): the states sent while
         #: another vehicle was a period behind, and the answers held until it caught up.
         self.ahead_counts: dict[str, int] | None = None
@@ -507,6 +531,12 @@ class SimBridgeApp:
                 if v.fast_states_ok():
                     v.encoder = compiled_encoder(v.system_id, compile_new=self.jit == "wait")
             missing = any(v.encoder is None for v in self.vehicles if v.fast_states_ok())
+            if self.physics is not None and tm.lockstep and tm.spin_s > 0.0 and len(self.vehicles) > 1 and any(v.encoder is not None for v in self.vehicles):
+                # (a lockstep swarm flies each vehicle and makes its state in one call: the same bytes)
+                from sim_bridge.fused_state import compiled_fused
+
+                self.physics.fused = compiled_fused(compile_new=self.jit == "wait")
+                missing = missing or self.physics.fused is None
             if self.proximity is not None:  # (the separation check's distances, compiled: the same values)
                 from sim_bridge.proximity import compiled_pair_distances
 
@@ -631,7 +661,8 @@ class SimBridgeApp:
                              "cpu_sys_s": round(os.times().system, 3),
                              "physics": {"compiled": self.physics is not None, "compiled_steps": self.physics.steps if self.physics else 0,
                                          "python_steps": self.physics_python_steps, "why_not": self.physics_why,
-                                         "states_encoded_compiled": sum(v.encoder.made for v in self.vehicles if v.encoder is not None)}}  # fmt: skip
+                                         "states_encoded_compiled": sum(v.encoder.made for v in self.vehicles if v.encoder is not None),
+                                         "states_fused": self.states_fused}}  # fmt: skip
             if len(self.vehicles) == 1:
                 summary.update(v0.summary())
                 del summary["system_id"], summary["crashed"]
@@ -775,9 +806,12 @@ class SimBridgeApp:
         # last send (wall s): the loop busy-polls for spin_s after it]
         resend = [tm.resend_s, mono()]
 
-        def send(v: SimVehicle) -> None:
+        def send(v: SimVehicle, made: bool = False) -> None:
             self._t_us = v.t_us
-            v.send_state()
+            if made:
+                v.send_made()
+            else:
+                v.send_state()
             v.sent_at = v.first_sent = v.last_answer = resend[1] = mono()
             v.resend_after = resend[0]
             pending.add(v)
@@ -803,6 +837,28 @@ class SimBridgeApp:
                 t_us += dt_us
             v.t_us = t_us
 
+        def fly_and_send(v: SimVehicle) -> bool:
+            """:func:`integrate` and :func:`send` in one compiled call (:meth:`SimVehicle.fly_and_make`);
+            False: not flown, nothing done."""
+            phys = self.physics
+            if phys is None or phys.fused is None or v.encoder is None:
+                return False
+            t_us = v.t_us
+            t_end = t_us + substeps * dt_us
+            self._t_us = t_end  # (the state's stamp)
+            try:
+                flown = v.fly_and_make(phys, t_us, dt_us, dt_s, substeps)
+            except DivergenceError as exc:
+                self._t_us = t_us + exc.steps_done * dt_us  # type: ignore[attr-defined]
+                raise
+            if not flown:
+                return False
+            v.t_us = t_end
+            flew[0] = True
+            self.states_fused += 1
+            send(v, made=True)
+            return True
+
         counts = self.ahead_counts = {"states": 0, "held": 0}
 
         def fly_on(v: SimVehicle, msgs: list) -> None:
@@ -817,8 +873,9 @@ class SimBridgeApp:
             if final(v):
                 done.add(v)
                 return
-            integrate(v)
-            send(v)
+            if not fly_and_send(v):
+                integrate(v)
+                send(v)
             if behind:
                 counts["states"] += 1
             if rest:

@@ -152,6 +152,13 @@ class StateEncoder:
         return self.out[:n].tobytes()
 
 
+#: :func:`encode_state` and every function it calls, compiled together (also with the simulator's
+#: fused physics and state, :mod:`sim_bridge.fused_state`).
+ENCODER_FUNCTIONS = (
+    encode_state, _put_f32_nan, _floats, *FRAMING_FUNCTIONS, wire_of_paper, specific_force_frd,
+    quat_nwu_flu_to_ned_frd, euler_flu_to_frd, rates_flu_to_frd, nwu_to_ned, flu_to_frd, quat_rotate_inverse, quat_rotate,
+)  # fmt: skip
+
 _TWINS: dict[Any, Any] = {}
 
 
@@ -160,10 +167,7 @@ def _twins() -> dict[Any, Any]:
     if not _TWINS:
         from smcpilot.jit import compile_pure
 
-        _TWINS.update(compile_pure((
-            encode_state, _put_f32_nan, _floats, *FRAMING_FUNCTIONS, wire_of_paper, specific_force_frd,
-            quat_nwu_flu_to_ned_frd, euler_flu_to_frd, rates_flu_to_frd, nwu_to_ned, flu_to_frd, quat_rotate_inverse, quat_rotate,
-        )))  # fmt: skip
+        _TWINS.update(compile_pure(ENCODER_FUNCTIONS))
     return _TWINS
 
 

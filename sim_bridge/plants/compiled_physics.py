@@ -17,6 +17,11 @@ says so and the caller steps the plants in Python, as before. A span whose physi
 non-finite is handed back with the step and vehicle that failed; the caller raises as the plant
 would have (``tests/test_compiled_physics.py``).
 
+A lockstep swarm flies one vehicle a call, and then makes its state datagram:
+:meth:`CompiledPhysics.fly_state` does both in one compiled call (:mod:`sim_bridge.fused_state`)
+when the observation is the truth (:func:`plain_observation`), leaving the plant as :meth:`fly`
+and :meth:`PlantBase.observe` would (``tests/test_fused_state.py``).
+
 The compiled code is cached on disk (numba's cache, named after a hash of every source it was
 compiled from): :func:`load` uses it when it is cached or compiles it first (a few seconds once)
 when asked to; ``python -m sim_bridge.plants.compiled_physics`` compiles it ahead.
@@ -31,6 +36,8 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
+from sim_bridge.environment import Environment
+from sim_bridge.faults import SimFaults
 from sim_bridge.plants import rigid_body as rb
 from sim_bridge.plants.rigid_body import (
     RigidBodyParams,
@@ -41,6 +48,7 @@ from sim_bridge.plants.rigid_body import (
     rigid_body_targets,
     rotor_lag,
 )
+from sim_bridge.sensors import SensorNoise, VehicleObservation
 from smcpilot.errors import DivergenceError
 from smcpilot.jit import cache_index, compile_pure, entry_point, jit_unavailable_reason, say_once
 
@@ -48,7 +56,9 @@ from smcpilot.jit import cache_index, compile_pure, entry_point, jit_unavailable
 #: armed (0/1), active (0: not stepped), the force (world NWU, N) and torque (body FLU, N m) held
 #: over the span, the rotor efficiencies (4), the paper's disturbances (0/1), the heading's whole
 #: turns and its value at the start (rad; both in and out), the last step's acceleration (world,
-#: m/s^2; out), the sub-steps a physics step and their length (s).
+#: m/s^2; out), the sub-steps a physics step and their length (s); the truth's Euler angles at the
+#: end (ZYX of FLU in NWU, rad, roll and yaw in [-pi, pi); out, of the fused call only:
+#: :mod:`sim_bridge.fused_state`).
 IO_STATE = 0
 IO_CMD = 17
 IO_ARMED = 21
@@ -62,7 +72,8 @@ IO_PSI = 35
 IO_ACCEL = 36
 IO_NSUB = 39
 IO_H = 40
-IO_SIZE = 41
+IO_EULER = 41
+IO_SIZE = 44
 #: a vehicle's row of the constants: :class:`RigidBodyParams` with ground contact as 0/1 and its
 #: ``deriv`` tuple (12 floats) after the first 13 fields.
 PP_SIZE = 25
@@ -156,6 +167,24 @@ def steady(plant: Any, t_end_s: float) -> str | None:
     return None
 
 
+#: a :class:`VehicleObservation` from its 8 fields (what its ``__new__`` does, without the call's argument handling).
+_new_observation = tuple.__new__
+
+
+def plain_observation(plant: Any) -> str | None:
+    """Why ``plant``'s next observation might not be its truth (None: it is, unless a sensor fault
+    starts at that very observation, which :meth:`CompiledPhysics.fly_state` checks after): only
+    an :class:`Environment` without sensor noise, and no faults or :class:`SimFaults` with no
+    sensor fault acting."""
+    env = plant.env
+    if type(env) is not Environment or type(env.sensors) is not SensorNoise or env.sensors.enabled:
+        return "the environment's sensors add noise"
+    faults = plant.faults
+    if faults is not None and (type(faults) is not SimFaults or faults.sensing):
+        return "a sensor fault acts"
+    return None
+
+
 _TWINS: dict[str, Any] = {}
 
 
@@ -179,7 +208,7 @@ class CompiledPhysics:
         #: the per-vehicle rows (:data:`IO_STATE` ...) and the constants (:func:`params_row`).
         self.io = np.zeros((n, IO_SIZE))
         self.pp = np.zeros((n, PP_SIZE))
-        self.out = np.zeros(OUT_SIZE)
+        self.out = np.zeros(OUT_SIZE + 1)  # (the fused call's steps completed after OUT_SIZE)
         self._rows = {id(p): i for i, p in enumerate(self.plants)}
         #: per row: (state, step input, force, torque, dt) as the last span left them (None: reload
         #: the row from the plant); the rows flown last time.
@@ -190,6 +219,9 @@ class CompiledPhysics:
                 self.pp[i] = params_row(p.params)
         #: physics steps flown compiled (each counts once however many vehicles it stepped).
         self.steps = 0
+        #: the fused physics and state datagram's entry point (:mod:`sim_bridge.fused_state`; None:
+        #: not loaded, :meth:`fly_state` declines).
+        self.fused: Any = None
 
     def fly(self, plants: Sequence[Any], commands: Sequence[Sequence[float]], armed: Sequence[bool],
             t_us0: int, dt_us: int, dt_s: float, n_steps: int, *, count: bool = True) -> str | None:  # fmt: skip
@@ -205,6 +237,57 @@ class CompiledPhysics:
             why = steady(p, t_end)
             if why is not None:
                 return why
+        inputs = self._load(plants, commands, armed, dt_s)
+        done = self._entry(self.io, self.pp, t_us0, dt_us, dt_s, n_steps, self.out)
+        if count:
+            self.steps += done
+        self._store(inputs, done, t_us0, dt_us, dt_s, n_steps)
+        return None
+
+    def fly_state(self, plant: Any, command: Sequence[float], armed: bool, t_us0: int, dt_us: int, dt_s: float, n_steps: int,
+                  enc: Any, gravity_mps2: float, t_us: int, seq: int) -> bytes | str | None:  # fmt: skip
+        """:meth:`fly` for one plant (not counted in :attr:`steps`) and its state datagram, stamped
+        ``t_us`` (µs), its packets numbered from ``seq``, in one compiled call (:attr:`fused`) with
+        the encoder ``enc`` (:class:`sim_bridge.state_encoder.StateEncoder`; gravity in m/s^2).
+
+        Returns why it did not fly (a str: nothing changed, fly and make the state as before); the
+        datagram (flown, and the plant's observation made as :meth:`PlantBase.observe` makes it:
+        the truth, its memo and the observation cache, the faults' observation bookkeeping); or
+        None (flown and observed so, but the datagram is for CPython to make,
+        :meth:`sim_bridge.app.SimVehicle.make_state`: a sensor fault started at this
+        observation, or a value is beyond float32). Raises :class:`DivergenceError` as :meth:`fly`."""
+        fused = self.fused
+        if fused is None:
+            return "the fused physics and state is not loaded"
+        why = plain_observation(plant)
+        if why is None:
+            why = steady(plant, (t_us0 + n_steps * dt_us) * 1e-6)
+        if why is not None:
+            return why
+        inputs = self._load((plant,), (command,), (armed,), dt_s, put_commands=False)
+        out = self.out
+        n: int = fused(self.io, self.pp, t_us0, dt_us, dt_s, n_steps, out, inputs[0][0], command[0], command[1], command[2], command[3],
+                       1.0 if armed else 0.0, enc.vin, gravity_mps2, t_us, seq, enc.sysid, enc._tail, enc.out, enc._bits, enc._f32)  # fmt: skip
+        row = self._store(inputs, int(out[2]), t_us0, dt_us, dt_s, n_steps)
+        # the truth as RigidBodyPlant.truth() makes it (the same floats, its Euler angles compiled),
+        # then observed as PlantBase.observe() does (no sensor noise: the environment gives it back)
+        s, t_s, accel = plant._s, plant._t_s, plant._accel
+        tru = _new_observation(VehicleObservation, (t_s, (s[0], s[1], s[2]), (s[3], s[4], s[5]), (row[IO_EULER], row[IO_EULER + 1], row[IO_EULER + 2]),
+                                                    (s[10], s[11], s[12]), accel, (s[13], s[14], s[15], s[16]), (s[6], s[7], s[8], s[9])))  # fmt: skip
+        plant._truth_memo = (s, t_s, accel, tru)
+        faults = plant.faults
+        obs = tru if faults is None else faults.observe(tru)
+        plant._obs_cache = obs
+        if obs is not tru or not n:
+            return None
+        enc.made += 1
+        return enc.out[:n].tobytes()
+
+    def _load(self, plants: Sequence[Any], commands: Sequence[Sequence[float]], armed: Sequence[bool], dt_s: float, *,
+              put_commands: bool = True) -> list[tuple]:  # fmt: skip
+        """Put ``plants``' rows in :attr:`io` (only the commands when a row holds what the last span
+        left; not even those unless ``put_commands``: the fused call puts them), the others
+        inactive: (row, plant, step input, force, torque) of each."""
         io = self.io
         rows = self._rows
         known = self._known
@@ -216,13 +299,14 @@ class CompiledPhysics:
             k = known[i]
             if k is not None and k[0] is p._s and k[1] == u and k[2] == force and k[3] == torque and k[4] == dt_s:
                 # the row holds this plant's state as the last span left it: only the commands change
-                io[i, IO_CMD : IO_ACTIVE + 1] = (cmd[0], cmd[1], cmd[2], cmd[3], 1.0 if on else 0.0, 1.0)
+                if put_commands:
+                    io[i, IO_CMD : IO_ACTIVE + 1] = (cmd[0], cmd[1], cmd[2], cmd[3], 1.0 if on else 0.0, 1.0)
             else:
                 n = math.ceil(dt_s / p.max_step_s - 1e-9)
                 if n < 1:
                     n = 1
-                io[i, :IO_SIZE] = (*p._s, cmd[0], cmd[1], cmd[2], cmd[3], 1.0 if on else 0.0, 1.0, *force, *torque, *u.motor_eff,
-                                   1.0 if u.paper_disturbance else 0.0, u.psi_turns, p._psi, *p._accel, n, dt_s / n)  # fmt: skip
+                io[i, :IO_EULER] = (*p._s, cmd[0], cmd[1], cmd[2], cmd[3], 1.0 if on else 0.0, 1.0, *force, *torque, *u.motor_eff,
+                                    1.0 if u.paper_disturbance else 0.0, u.psi_turns, p._psi, *p._accel, n, dt_s / n)  # fmt: skip
             inputs.append((i, p, u, force, torque))
             active.append(i)
         if active != self._active:  # the rows flown last time that are not flown now
@@ -230,10 +314,16 @@ class CompiledPhysics:
                 if i not in active:
                     io[i, IO_ACTIVE] = 0.0
             self._active = active
-        done = self._entry(io, self.pp, t_us0, dt_us, dt_s, n_steps, self.out)
-        if count:
-            self.steps += done
+        return inputs
+
+    def _store(self, inputs: list[tuple], done: int, t_us0: int, dt_us: int, dt_s: float, n_steps: int) -> list[float]:
+        """Put what the span left in :attr:`io` (``done`` steps of ``n_steps`` completed) back in
+        the plants of ``inputs`` (:meth:`_load`), as their steps would have; raise
+        :class:`DivergenceError` for a failed span. The last row stored, as floats."""
+        io = self.io
+        known = self._known
         failed = int(self.out[0]) if done < n_steps else -1
+        row: list[float] = []
         for i, p, u, force, torque in inputs:
             # the steps this vehicle completed: in the failing step, those before the failing one flew it
             flown = n_steps if failed < 0 else done + 1 if i < failed else done
@@ -256,7 +346,7 @@ class CompiledPhysics:
             exc.steps_done = done  # type: ignore[attr-defined]
             exc.vehicle = failed  # type: ignore[attr-defined]
             raise exc
-        return None
+        return row
 
 
 def _sig() -> tuple:
@@ -317,6 +407,9 @@ def main(argv: list[str] | None = None) -> int:
     from sim_bridge.state_encoder import compiled_encoder
 
     compiled_encoder(1, compile_new=True)  # (the state datagram's encoder, loaded with the physics)
+    from sim_bridge.fused_state import compiled_fused
+
+    compiled_fused(compile_new=True)  # (the lockstep swarm's physics and state datagram in one call)
     compiled_pair_distances(compile_new=True)  # (a swarm's separation check, likewise)
     print("the simulator's physics is compiled and cached")
     return 0
