@@ -58,16 +58,19 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from fc import telemetry
+from fc.compiled_pipeline import IO_OUT as _IO_OUT
+from fc.compiled_pipeline import IO_TOUCHDOWN as _IO_TOUCHDOWN
 from fc.config import FcConfig
 from fc.core import FlightCore, TickOutput
 from fc.flight import VehicleState
 from fc.gcs import GcsHandler
 from fc.intake import OTHER, Intake, classify
+from fc.lockstep_kernel import KI_LENGTHS, KI_REC_BYTES, KI_T_MS
 from fc.mission import MissionProtocol
 from fc.params import ParamStore, param_messages
 from fc.streams import StreamScheduler
@@ -94,6 +97,9 @@ from smcpilot.tlog import TlogWriter
 from smcpilot.vehicle import VehicleParams
 from smcpilot.wire import paper_of_wire
 
+if TYPE_CHECKING:
+    from fc.lockstep_kernel import PlainLockstep
+
 FC_COMPONENT = FC_COMPONENT_ID
 
 EXIT_OK = 0
@@ -102,6 +108,7 @@ EXIT_WATCHDOG = 3
 
 _isfinite = math.isfinite
 _NAN = math.nan
+_INF = math.inf
 _F32 = struct.Struct("<f")
 _STATUSTEXT = mavlink.MAVLink_statustext_message
 _ATTITUDE_ID = mavlink.MAVLINK_MSG_ID_ATTITUDE
@@ -361,6 +368,8 @@ class FlightControllerApp:
         #: (:mod:`fc.state_kernel`; None: CPython's), loaded with the compiled pipeline.
         self._state_decoder: Any = None
         self._answer_encoder: Any = None
+        #: lockstep: plain ticks flown in one compiled call (fc.lockstep_kernel; None: every tick the ordinary way).
+        self._plain: PlainLockstep | None = None
         gcs = self.gcs
         #: the flight core: the one control tick (plan, modes, failsafes, pipeline, events).
         self.core = FlightCore(
@@ -512,6 +521,11 @@ class FlightControllerApp:
                 compile_new=wait,
             )  # fmt: skip
             missing = self._state_decoder is None or self._answer_encoder is None
+            if self.lockstep and not missing and os.environ.get("SMCPILOT_LOCKSTEP_KERNEL", "1") != "0":
+                from fc.compiled_pipeline import plain_entry
+
+                self._plain = plain_entry(flight, self.core._est, self.core._est_params, compile_new=wait)
+                missing = self._plain is None
             if missing and self.jit == "auto" and not _DECODER_COMPILE_STARTED:
                 _DECODER_COMPILE_STARTED.append(True)  # (once a process: a group's FCs all come here)
                 compile_in_background(self.cfg.controller)  # (it caches the decoder with the pipeline)
@@ -593,7 +607,8 @@ class FlightControllerApp:
         dec, enc = self._state_decoder, self._answer_encoder
         summary["pipeline"] = {"compiled": flight.compiled, "compiled_ticks": flight.compiled_ticks, "why_not": self.jit_why,
                                "states_decoded_compiled": 0 if dec is None else dec.decoded,
-                               "answers_encoded_compiled": 0 if enc is None else enc.made}  # fmt: skip
+                               "answers_encoded_compiled": 0 if enc is None else enc.made,
+                               "lockstep_kernel_ticks": 0 if self._plain is None else self._plain.flown}  # fmt: skip
         summary["sim_bad"] = dict(self.sim_complaints.counts)
         summary["tlog"] = str(self.tlog.path) if self.tlog is not None else None
         summary.update(self._summary_extra())
@@ -884,6 +899,10 @@ class FlightControllerApp:
                 self.intake.put(OTHER, (sim, data, addr), self._period_no)
                 continue
             if fast and peer is not None:
+                # a plain tick, flown in one compiled call (fc.lockstep_kernel)
+                if self._plain is not None and self._fly_plain(self._plain, data, addr):
+                    got = True
+                    continue
                 # the simulator's per-tick datagram, decoded straight to values (anything else:
                 # the link's full parse below, which counts and checks it the same way)
                 taken = None
@@ -968,6 +987,69 @@ class FlightControllerApp:
             self.say("fc: the simulator has ended; stopping")
             self._stop = True
         return False
+
+    def _fly_plain(self, plain: PlainLockstep, data: bytes, addr: Address) -> bool:
+        """Lockstep: fly the simulator's datagram ``data`` in one compiled call when its tick is
+        plain (:mod:`fc.lockstep_kernel`), then bring everything up to date as :meth:`_take_state`
+        and :meth:`_tick` would have; False when it is not (nothing changed: fly it the ordinary way)."""
+        core = self.core
+        watch = core.plain_watch()
+        if watch is None:
+            return False
+        f = core.flight
+        enc = self._answer_encoder
+        c = core.commander
+        wall_s = self._mono() if self.gcs is not None else None
+        if enc is None or f.diag_mask != enc.mask or self._last_tick_ms < 0 or (wall_s is not None and c.gcs_loss_may_act(wall_s)):
+            return False
+        held = f._held
+        cfg = core.config
+        plan = core.plan
+        plan_s = plan.steps[plan._i].t_s if not plan.finished else _INF
+        kf = plain.kf
+        kf[:] = (self._last_tick_ms, self.cfg.period_us, cfg.period_s, core.t0_us, plan_s, cfg.disarm_delay_s, c.ground_armed_s,
+                 *watch, f.yaw_target_rad)  # fmt: skip
+        held.io[12:20] = f.pipeline_inputs()  # type: ignore[union-attr]
+        ki = plain.ki
+        flags = core.flags()
+        mode = int(c.current.number)
+        ki[:6] = (self.sim.peek_seq(), self._logmav.seq, _ARMED, flags, mode, self.clock.now_us())
+        dec = self._state_decoder
+        flown, est = plain.call(data, self._sim_sysid, held, core._est, core._est_params, dec.fo, enc)  # type: ignore[union-attr]
+        if not flown:
+            return False
+        # the state as _take_state takes it
+        plain.flown += 1
+        dec.decoded += 1  # type: ignore[union-attr]
+        fo = dec.fo.tolist()  # type: ignore[union-attr]
+        t_ms = int(ki[KI_T_MS])
+        sim = self.sim
+        sim.heard(addr, 4)
+        self._att = None
+        self._imu = self._truth = None
+        self._rejected_ms, self._rejected_repeats = -1, 0
+        stats = self.stats
+        stats.imu_msgs += 1
+        stats.truth_msgs += 1
+        self.accel_frd = (fo[15], fo[16], fo[17])
+        state = _tuple_new(VehicleState, fo[0:12])
+        self.state = state
+        self.body_rates = (fo[12], fo[13], fo[14])
+        self._state_ms = t_ms
+        self._state_wall_s = self._mono()
+        t_us = t_ms * 1000
+        self.clock.set_us(t_us)  # type: ignore[union-attr]
+        # the tick as core.tick and _tick do it
+        out = core.flown_plain(t_us, state, est, float(kf[6]), held.io[_IO_OUT:_IO_TOUCHDOWN + 1].tolist(), flags, mode)  # type: ignore[union-attr]
+        n1 = int(ki[KI_LENGTHS]) & 0xFFFF
+        act = enc.out[:n1].tobytes()
+        enc.made += 1
+        sim.take_seq()
+        sim.send_datagram_to(act, self._sim_peer)  # type: ignore[arg-type]
+        self._answered(t_us, out, act, None, plain.rec[: int(ki[KI_REC_BYTES])].tobytes())
+        if self.duration_s is not None and t_ms * 1e-3 >= self.duration_s:
+            self._stop = True
+        return True
 
     def _take_state(self, t_ms: int, taken: tuple[VehicleState, tuple[float, float, float], int], imu: tuple | None,
                     truth: tuple | None, att_packet: bytes, lpn_packet: bytes, addr: Address) -> bool:  # fmt: skip
@@ -1229,17 +1311,26 @@ class FlightControllerApp:
             act = self._actuator_packet(t_us, out)
             smc = None
         self._answer_sim((act,))
+        self._answered(t_us, out, act, smc)
+
+    def _answered(self, t_us: int, out: TickOutput, act: bytes, smc: bytes | None, records: bytes | None = None) -> None:
+        """The rest of the tick at ``t_us`` once its answer ``act`` is sent to the simulator: its
+        log records (``smc``, or made here of ``out``; or ``records``: the tick's six, made by the
+        lockstep kernel), the ground's telemetry."""
         self._last_actuator = act
         self._last_tick_ms = self._state_ms
         if self._sim_pending:
             self._check_sim_answers(self._mono())
         tlog = self.tlog
         if tlog is not None:
-            tlog.write(self.clock.now_us(), act)
             lm = self._logmav
-            if smc is None:
-                smc = self._records.smc(lm.seq, t_us, telemetry.smc_record(core, out))
-            tlog.write(t_us, smc)
+            if records is not None:
+                tlog.write_records(records, 6)
+            else:
+                tlog.write(self.clock.now_us(), act)
+                if smc is None:
+                    smc = self._records.smc(lm.seq, t_us, telemetry.smc_record(self.core, out))
+                tlog.write(t_us, smc)
             lm.seq = (lm.seq + 1) & 0xFF
             self._unflushed_ticks += 1
             if self._unflushed_ticks >= self._flush_ticks:

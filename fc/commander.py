@@ -343,6 +343,11 @@ class Commander:
             self._gcs_failsafe = False
             self.say("GCS link back")
 
+    def gcs_loss_may_act(self, now_s: float) -> bool:
+        """:meth:`check_gcs` at wall time ``now_s`` might act (False: it would certainly do nothing)."""
+        last = self._gcs_last_hb_s
+        return not (self.config.fs_gcs_enable == 0 or last is None or self._gcs_failsafe or now_s - last <= self.config.fs_gcs_timeout_s)
+
     def check_gcs(self, now_s: float) -> None:
         cfg = self.config
         last = self._gcs_last_hb_s

@@ -86,11 +86,27 @@ def held_tick(ps_box, pp_box, io, law):  # type: ignore[no-untyped-def]
     """One pipeline tick on the held state ``ps_box[0]`` and parameters ``pp_box[0]``, the inputs
     in ``io`` (see :data:`IO_STATE`); writes the outputs to ``io`` and keeps the new state when
     they are finite. Returns 1 when kept, 0 when not (the state is then unchanged)."""
+    new, out = held_step(ps_box, pp_box, io, law)
+    if held_write(io, out):
+        ps_box[0] = new
+        return 1
+    return 0
+
+
+def held_step(ps_box, pp_box, io, law):  # type: ignore[no-untyped-def]
+    """The pipeline's tick on the held state and parameters and the inputs in ``io``: (new state,
+    outputs), nothing written or kept (:func:`held_tick` does both; :mod:`fc.lockstep_kernel`
+    keeps the state only once the tick's answer is made)."""
     st = VehicleState(
         io[0], io[1], io[2], io[3], io[4], io[5], io[6], io[7], io[8], io[9], io[10], io[11]
     )  # fmt: skip
     cmd = PipelineInputs(io[12], io[13], io[14], io[15], io[16] != 0.0, io[17] != 0.0, io[18] != 0.0, io[19])
-    new, out = _step(ps_box[0], st, cmd, pp_box[0], io[IO_DT], law, _no_sensed(io))
+    return _step(ps_box[0], st, cmd, pp_box[0], io[IO_DT], law, _no_sensed(io))
+
+
+def held_write(io, out):  # type: ignore[no-untyped-def]
+    """The pipeline's outputs ``out`` into ``io`` (:data:`IO_OUT` on, touchdown, kept); 1 when
+    they are finite (the tick may be kept), else 0."""
     motors, u, limited, s, sigma, chi, u_law, u_dot, ref, touchdown, d_hat = out
     o = IO_OUT
     for i in range(4):
@@ -106,12 +122,8 @@ def held_tick(ps_box, pp_box, io, law):  # type: ignore[no-untyped-def]
         io[o + 36 + i] = d_hat[i]
     io[IO_TOUCHDOWN] = 1.0 if touchdown else 0.0
     kept = _isfinite(motors[0] + motors[1] + motors[2] + motors[3]) and _isfinite(u_law[0] + u_law[1] + u_law[2] + u_law[3])
-    if kept:
-        ps_box[0] = new
-        io[IO_KEPT] = 1.0
-        return 1
-    io[IO_KEPT] = 0.0
-    return 0
+    io[IO_KEPT] = 1.0 if kept else 0.0
+    return 1 if kept else 0
 
 
 def held_new(value):  # type: ignore[no-untyped-def]
@@ -135,7 +147,7 @@ def held_set(box, value):  # type: ignore[no-untyped-def]
 
 
 #: the functions compiled here beside the pipeline's own (:data:`fc.pipeline.PURE_FUNCTIONS`).
-HELD_FUNCTIONS = (pipeline_tick_held, held_tick, _step, _step_full, _no_sensed, _imu_sensed, held_new, held_get, held_set)
+HELD_FUNCTIONS = (pipeline_tick_held, held_tick, held_step, held_write, _step, _step_full, _no_sensed, _imu_sensed, held_new, held_get, held_set)
 
 
 class NotPure(Exception):
@@ -193,14 +205,24 @@ def _twins(flight: Any) -> dict[Any, Any]:
     if found is None:
         from numba.typed import List
 
+        from fc import estimate as estimate_mod
+        from fc import lockstep_kernel as plain_mod
+        from fc import state_kernel as state_mod
+        from fc.modes.base import watch_holds
+
+        # the lockstep kernel calls the same compiled step (fc.lockstep_kernel), with the state's
+        # decoder, the answer's encoder and the estimate
+        plain = (*plain_mod.PLAIN_FUNCTIONS, *state_mod.KERNEL_FUNCTIONS, *estimate_mod.PURE_FUNCTIONS, watch_holds)
         fns, problems = pure_closure((*HELD_FUNCTIONS, *pipeline_mod.PURE_FUNCTIONS, *flight.law_functions))
+        more, _more_problems = pure_closure(plain)  # (byte and array work, as fc.state_kernel's: tests/test_lockstep_kernel.py)
+        fns = (*fns, *(f for f in more if f not in fns))
         own = tuple(f"{f.__name__} " for f in HELD_FUNCTIONS)  # (this module's use range and typed lists, compiled only)
         problems = [p for p in problems if not p.startswith(own)]
         if problems:  # (the pipeline's functions are pure: these are the law's)
             raise NotPure(f"the law {flight.law.name} is not in the pure style ({problems[0]})")
         step = _step_full if flight.law.full_stack else _step
         sensed = _imu_sensed if flight.measures_accel else _no_sensed
-        twins = compile_pure(fns, rebind={held_tick: {"_step": step, "_no_sensed": sensed}, pipeline_tick_held: {}})
+        twins = compile_pure(fns, rebind={held_step: {"_step": step, "_no_sensed": sensed}, pipeline_tick_held: {}})
         found = _TWINS[key] = twins
     return found
 
@@ -226,6 +248,9 @@ class HeldPipeline:
         self.io = np.zeros(IO_SIZE)
         #: ticks flown compiled.
         self.ticks = 0
+        #: numba's types of the held state's, the parameters' and the law's boxes (for
+        #: :func:`plain_entry`, compiled with the same ones).
+        self.box_types: tuple = ()
 
     def state(self) -> Any:
         return self._get_ps(self._ps)
@@ -295,8 +320,37 @@ def attach_compiled(flight: Any, *, compile_new: bool) -> str | None:
         return str(exc)
     except Exception as exc:  # numba cannot type this law (its state changes shape, say)
         return f"the law {law.name} could not be compiled ({first_line(exc)})"
-    flight.attach_held(HeldPipeline(entry, ps_box, pp_box, law_box, law_key(flight), access))
+    held = HeldPipeline(entry, ps_box, pp_box, law_box, law_key(flight), access)
+    held.box_types = (box_t(ps_t), box_t(pp_t), box_t(law_t))
+    flight.attach_held(held)
     return None
+
+
+def plain_entry(flight: Any, est_state: Any, est_params: Any, *, compile_new: bool) -> Any:
+    """:func:`fc.lockstep_kernel.plain_state` compiled for ``flight``'s held pipeline (attached by
+    :func:`attach_compiled`) and the estimate's state and parameters: a
+    :class:`fc.lockstep_kernel.PlainLockstep`, or None (not cached and not ``compile_new``, or
+    not compilable: the FC flies every tick the ordinary way)."""
+    from fc.lockstep_kernel import PlainLockstep, plain_state
+    from smcpilot.jit import cached_entry
+
+    held = flight._held
+    if held is None or not held.box_types or jit_unavailable_reason() is not None:
+        return None
+    try:
+        t = numba_module().types
+        typeof = numba_module().typeof
+        ps_t, pp_t, law_t = held.box_types
+        sig = (
+            t.Bytes(t.uint8, 1, "C", readonly=True), t.int64, ps_t, pp_t, t.float64[::1], law_t, typeof(est_state),
+            typeof(est_params), t.float64[::1], t.int64[::1], t.float64[::1], t.uint64[::1], t.uint32[::1], t.float32[::1],
+            t.int64[::1], t.uint8[::1], t.uint8[::1], t.uint8[::1],
+        )  # fmt: skip
+        entry = cached_entry(_twins(flight)[plain_state], sig, compile_new=compile_new)
+    except Exception as exc:  # numba's typing or lowering errors: the ordinary path flies, said once
+        say_once(f"fc: the lockstep kernel could not be compiled ({first_line(exc)}); every tick flies the ordinary way")
+        return None
+    return None if entry is None else PlainLockstep(entry)
 
 
 def compile_in_background(controller: str) -> int | None:
@@ -321,11 +375,17 @@ def main(argv: list[str] | None = None) -> int:
     if compile_lock(blocking=False) is None:
         print("another process is compiling; nothing done")
         return 0
-    why = attach_compiled(FlightControl(FcConfig(controller=args.law), DEFAULT_VEHICLE), compile_new=True)
+    config = FcConfig(controller=args.law)
+    flight = FlightControl(config, DEFAULT_VEHICLE)
+    why = attach_compiled(flight, compile_new=True)
     if why is None:
-        from fc.state_kernel import compiled_decoder
+        from fc.estimate import ESTIMATOR_START, EstimatorConfig, estimator_params
+        from fc.state_kernel import compiled_answer_encoder, compiled_decoder
 
-        compiled_decoder(compile_new=True)  # (the state datagram's decoder, which the FC loads with it)
+        # what a lockstep FC loads with it: the state datagram's decoder, the answer's encoder, the kernel
+        compiled_decoder(compile_new=True)
+        compiled_answer_encoder(1, 1, 0, flight.diag_mask, compile_new=True)
+        plain_entry(flight, ESTIMATOR_START, estimator_params(EstimatorConfig(), config.period_s), compile_new=True)
     print("compiled" if why is None else f"not compiled: {why}")
     return 0 if why is None else 1
 

@@ -50,6 +50,7 @@ from fc.estimate import (
     estimator_params,
 )
 from fc.flight import FlightControl, LawFault, PipelineOutput, VehicleState
+from fc.modes.base import WATCH_ALWAYS
 from smcpilot.geo import Home
 from smcpilot.plan import PlanRunner, PlanStep
 from smcpilot.protocol import FLAG_ARMED, FLAG_FAILSAFE, FLAG_LANDING, FLAG_POSITION_HOLD
@@ -217,6 +218,40 @@ class FlightCore:
         mode = int(self.commander.current.number)
         result = TickOutput(out.motors, f.armed, self.flags(), mode, out, tick_events)
         self.last = result
+        return result
+
+    # -- ticks flown by a compiled kernel (fc.lockstep_kernel) ---------------------------------------
+    def plain_watch(self) -> tuple[float, float, float, float, float] | None:
+        """The mode's watch (:class:`fc.modes.base.Watch`) when the next tick may be flown by the
+        lockstep kernel (:mod:`fc.lockstep_kernel`, which checks the rest itself), else None: a
+        tick after the first, armed, no failsafe, the law not failed, the estimate "everything
+        measured", no event waiting, a compiled pipeline, a mode whose per-tick work is a
+        watched condition."""
+        f = self.flight
+        if self.ticks == 0 or not f.armed or self.failsafe or self.law_failed or self.estimate_status != EST_OK or self._events or f._held is None:
+            return None
+        watch = self.commander.current.watch()
+        return None if watch.kind == WATCH_ALWAYS else watch
+
+    def flown_plain(self, t_us: int, state: VehicleState, est: EstimatorState, ground_armed_s: float, outputs: list[float],
+                    flags: int, mode: int) -> TickOutput:  # fmt: skip
+        """The lockstep kernel flew the tick at ``t_us`` on ``state`` (everything measured: the
+        estimate is the state itself; ``est``: the estimator's new state; ``ground_armed_s``: the
+        disarm delay's count; ``outputs``: the compiled pipeline's, :data:`fc.compiled_pipeline.IO_OUT`
+        on, its new state held already; ``flags`` and ``mode`` as before the tick, which changed
+        neither): the core as :meth:`tick` would have left it."""
+        self.ticks += 1
+        self.t_us = t_us
+        self._est = est
+        self._est_missing = 0
+        self.state = state
+        c = self.commander
+        c.observe(CommanderInput(state, True, False, est, True))
+        c.resume((t_us - self.t0_us) * 1e-6, ground_armed_s)
+        f = self.flight
+        f._held.ticks += 1  # type: ignore[union-attr]
+        out = f._held_output(outputs)
+        result = self.last = TickOutput(out.motors, True, flags, mode, out, _NO_EVENTS)
         return result
 
     def _estimate(self, state: VehicleState, fresh: bool) -> tuple[VehicleState | None, int]:

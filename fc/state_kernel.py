@@ -285,6 +285,10 @@ class StateDecoder:
         return ok
 
 
+#: the decoder's and the encoder's functions (with :func:`smcpilot.wire.paper_of_wire`'s closure:
+#: compiled, also into :mod:`fc.lockstep_kernel`).
+KERNEL_FUNCTIONS = (decode_state, _six_f32, _finite_or_nan, encode_answer, *FRAMING_FUNCTIONS)
+
 _TWINS: dict[Any, Any] = {}
 
 
@@ -297,7 +301,7 @@ def _twins() -> dict[Any, Any]:
 
     wire, problems = pure_closure((paper_of_wire,))  # (the wire's conversion and what it calls)
     assert not problems, problems
-    _TWINS.update(compile_pure((decode_state, _six_f32, _finite_or_nan, encode_answer, *FRAMING_FUNCTIONS, *wire)))
+    _TWINS.update(compile_pure((*KERNEL_FUNCTIONS, *wire)))
     return _TWINS
 
 

@@ -340,6 +340,17 @@ class MavlinkUdp:
             raise self._closed_error()
         self._transmit(packets, (addr,))
 
+    def send_datagram_to(self, packet: bytes, addr: Address) -> None:
+        """:meth:`send_packets_to` of one packet (numbered with :meth:`take_seq`), without the
+        general path where nothing of it applies (a link that signs nothing and logs nothing)."""
+        if self._closed:
+            raise self._closed_error()
+        signing = self._signing
+        if self._tap is not None or (signing is not None and signing.enabled):
+            self._transmit((packet,), (addr,))
+        else:
+            self._send_datagram(packet, addr)
+
     def peek_seq(self) -> int:
         """The sequence number :meth:`take_seq` gives next (not consumed)."""
         return int(self._encoder.mav.seq)

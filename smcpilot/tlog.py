@@ -125,6 +125,17 @@ class TlogWriter:
         if len(buffer) >= self._buffer_limit_bytes:
             self._drain()
 
+    def write_records(self, records: bytes | bytearray, count: int) -> None:
+        """Append ``count`` records already made (each a big-endian uint64 stamp in µs, then a raw
+        MAVLink packet: e.g. a compiled tick's, :mod:`fc.lockstep_kernel`)."""
+        if self._fd < 0:
+            raise TlogError(f"tlog {self._path} is closed")
+        buffer = self._buffer
+        buffer += records
+        self._records_written += count
+        if len(buffer) >= self._buffer_limit_bytes:
+            self._drain()
+
     def flush(self, *, fsync: bool = False) -> None:
         """Hand every buffered record to the OS; with ``fsync`` also wait until it is on disk."""
         if self._fd < 0:

@@ -129,16 +129,22 @@ def test_the_jit_switch_off_flies_cpython(monkeypatch: pytest.MonkeyPatch) -> No
 
 
 @needs_jit
-def test_the_fc_process_writes_the_same_log_compiled_and_in_cpython(tmp_path) -> None:  # type: ignore[no-untyped-def]
-    _pair("adaptive_pid_smc")  # compiles and caches the FC's pipeline for the default law
+@pytest.mark.parametrize("controller", ["adaptive_pid_smc", "se3_geometric", "indi"])
+def test_the_fc_process_writes_the_same_log_compiled_and_in_cpython(tmp_path, controller: str) -> None:  # type: ignore[no-untyped-def]
+    _pair(controller)  # compiles and caches the FC's pipeline for the law
     plan = ({"t_s": 0.0, "action": "takeoff", "alt_m": 2.0}, {"t_s": 4.0, "action": "goto", "north_m": 1.0, "east_m": 1.0, "alt_m": 2.0, "yaw_deg": 90.0},
             {"t_s": 8.0, "action": "land"})  # fmt: skip
-    sitl_c, _ = fly_sitl(tmp_path, "compiled", 12.0, plan=plan, fc_args=("--jit", "wait"))
-    sitl_p, _ = fly_sitl(tmp_path, "cpython", 12.0, plan=plan, fc_args=("--jit", "off"))
+    sitl_c, _ = fly_sitl(tmp_path, "compiled", 12.0, plan=plan, controller=controller, fc_args=("--jit", "wait"))
+    sitl_p, _ = fly_sitl(tmp_path, "cpython", 12.0, plan=plan, controller=controller, fc_args=("--jit", "off"))
     pc, pp = sitl_c.fc_summary["pipeline"], sitl_p.fc_summary["pipeline"]
     assert pc["compiled"] and pc["compiled_ticks"] > 1000, pc
     # (fc.state_kernel: the same log from its decoded states and its encoded answers and records too)
     assert pc["states_decoded_compiled"] > 1000 and pc["answers_encoded_compiled"] > 1000, pc
+    # (fc.lockstep_kernel: most ticks flown in one compiled call each; the take-off, the goto's
+    # arrival and the touchdown are not plain and fly the ordinary way, in the same log; INDI
+    # measures acceleration: the kernel gives it the IMU's)
+    assert pc["lockstep_kernel_ticks"] > 1000 and pc["lockstep_kernel_ticks"] < pc["compiled_ticks"], pc
+    assert pp["lockstep_kernel_ticks"] == 0, pp
     assert not pp["compiled"] and pp["why_not"] == "--jit off" and pp["states_decoded_compiled"] == pp["answers_encoded_compiled"] == 0, pp
     log_c = (tmp_path / "compiled" / "compiled.tlog").read_bytes()
     log_p = (tmp_path / "cpython" / "cpython.tlog").read_bytes()

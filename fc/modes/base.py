@@ -28,6 +28,7 @@ gets); only the ground edge (:mod:`fc.gcs`) turns it into ``COMMAND_ACK`` + ``ST
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING, ClassVar, NamedTuple, Protocol
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -66,6 +67,34 @@ class Watch(NamedTuple):
     b: float = 0.0
     c: float = 0.0
     r: float = 0.0
+
+
+#: the margin :func:`watch_holds` keeps from a condition's boundary.
+_MARGIN = 1e-9
+
+
+def watch_holds(kind: int, a: float, b: float, c: float, r: float, x: float, y: float, z: float, t_s: float) -> bool:
+    """The mode's watched condition (:class:`Watch`: ``kind``, ``a``, ``b``, ``c``, ``r``) holds now at the
+    estimated position ``x``, ``y``, ``z`` (paper frame, m) and ``t_s`` s after the first tick, or
+    is too close to call (Python decides: ``math.dist`` and ``math.hypot`` round differently from
+    a plain square root). Pure: compiled flights (:mod:`lab.fast`, :mod:`fc.lockstep_kernel`) check
+    it every tick without calling the mode."""
+    if kind == WATCH_NONE:
+        return False
+    if kind == WATCH_Z_NEAR:
+        return abs(z - a) < r
+    if kind == WATCH_DIST3:
+        dx = x - a
+        dy = y - b
+        dz = z - c
+        return math.sqrt(dx * dx + dy * dy + dz * dz) < r * (1.0 + _MARGIN) + _MARGIN
+    if kind == WATCH_DIST2:
+        dx = x - a
+        dy = y - b
+        return math.sqrt(dx * dx + dy * dy) < r * (1.0 + _MARGIN) + _MARGIN
+    if kind == WATCH_TIME:
+        return t_s - a >= b - _MARGIN
+    return True
 
 
 WATCH_NOTHING = Watch(WATCH_NONE)

@@ -28,7 +28,7 @@ import math
 import numpy as np
 
 from fc.estimate import EST_DEAD_RECKONING, estimate_step
-from fc.modes.base import WATCH_DIST2, WATCH_DIST3, WATCH_NONE, WATCH_TIME, WATCH_Z_NEAR
+from fc.modes.base import watch_holds as _watch_holds
 from fc.pipeline import VehicleState, pipeline_step_sensed
 from lab.fast.mt import mt_gauss, mt_gauss_fill
 from sim_bridge.plants.rigid_body import heading, heading_turns, rigid_body_substep_lag, rigid_body_targets, rotor_lag
@@ -44,9 +44,6 @@ SPAN_DIVERGED = 2  # the physics became non-finite at ``io_f[0]`` seconds
 SPAN_OVERFLOW = 3  # the wire's float32 would overflow on the next tick; its observation is in ``obs``
 
 
-#: the conditions are checked with a margin: near the boundary, Python decides (math.dist and
-#: math.hypot round differently from a plain square root).
-_MARGIN = 1e-9
 _F32_MAX = 3.4028234663852886e38
 _exp = math.exp
 _sqrt = math.sqrt
@@ -108,26 +105,6 @@ def _sensed_imu(ok: bool, f0: float, f1: float, f2: float, phi: float, theta: fl
     if ok:
         return accel_of_specific_force(f0, f1, f2, phi, theta, psi, g)
     return (math.nan, math.nan, math.nan)
-
-
-def _watch_holds(kind: int, a: float, b: float, c: float, r: float, x: float, y: float, z: float, t_s: float) -> bool:
-    """The mode's watched condition holds now, or is too close to call (Python decides)."""
-    if kind == WATCH_NONE:
-        return False
-    if kind == WATCH_Z_NEAR:
-        return abs(z - a) < r
-    if kind == WATCH_DIST3:
-        dx = x - a
-        dy = y - b
-        dz = z - c
-        return _sqrt(dx * dx + dy * dy + dz * dz) < r * (1.0 + _MARGIN) + _MARGIN
-    if kind == WATCH_DIST2:
-        dx = x - a
-        dy = y - b
-        return _sqrt(dx * dx + dy * dy) < r * (1.0 + _MARGIN) + _MARGIN
-    if kind == WATCH_TIME:
-        return t_s - a >= b - _MARGIN
-    return True
 
 
 def fly_span(
