@@ -368,8 +368,10 @@ class FlightControllerApp:
         #: (:mod:`fc.state_kernel`; None: CPython's), loaded with the compiled pipeline.
         self._state_decoder: Any = None
         self._answer_encoder: Any = None
-        #: lockstep: plain ticks flown in one compiled call (fc.lockstep_kernel; None: every tick the ordinary way).
+        #: lockstep: plain ticks flown in one compiled call (fc.lockstep_kernel; None: every tick the ordinary way);
+        #: ``_plain_ready``: the kernel's inputs are as the last plain tick left them (nothing else has run since).
         self._plain: PlainLockstep | None = None
+        self._plain_ready = False
         gcs = self.gcs
         #: the flight core: the one control tick (plan, modes, failsafes, pipeline, events).
         self.core = FlightCore(
@@ -721,6 +723,7 @@ class FlightControllerApp:
         silent simulator (our last answer again), unanswered simulator parameters and the
         watchdog (raises :class:`WatchdogError`)."""
         gcs = self.gcs
+        self._plain_ready = False
         if readable:
             self._poll_ground()
         if gcs is not None:
@@ -896,6 +899,7 @@ class FlightControllerApp:
             peer = self._sim_peer
             if peer is not None and addr != peer:
                 # not the simulator: parsed (and counted) as ground work, least important
+                self._plain_ready = False
                 self.intake.put(OTHER, (sim, data, addr), self._period_no)
                 continue
             if fast and peer is not None:
@@ -903,6 +907,7 @@ class FlightControllerApp:
                 if self._plain is not None and self._fly_plain(self._plain, data, addr):
                     got = True
                     continue
+                self._plain_ready = False
                 # the simulator's per-tick datagram, decoded straight to values (anything else:
                 # the link's full parse below, which counts and checks it the same way)
                 taken = None
@@ -993,30 +998,40 @@ class FlightControllerApp:
         plain (:mod:`fc.lockstep_kernel`), then bring everything up to date as :meth:`_take_state`
         and :meth:`_tick` would have; False when it is not (nothing changed: fly it the ordinary way)."""
         core = self.core
-        watch = core.plain_watch()
-        if watch is None:
-            return False
-        f = core.flight
-        enc = self._answer_encoder
         c = core.commander
-        wall_s = self._mono() if self.gcs is not None else None
-        if enc is None or f.diag_mask != enc.mask or self._last_tick_ms < 0 or (wall_s is not None and c.gcs_loss_may_act(wall_s)):
-            return False
-        held = f._held
-        cfg = core.config
-        plan = core.plan
-        plan_s = plan.steps[plan._i].t_s if not plan.finished else _INF
         kf = plain.kf
-        kf[:] = (self._last_tick_ms, self.cfg.period_us, cfg.period_s, core.t0_us, plan_s, cfg.disarm_delay_s, c.ground_armed_s,
-                 *watch, f.yaw_target_rad)  # fmt: skip
-        held.io[12:20] = f.pipeline_inputs()  # type: ignore[union-attr]
         ki = plain.ki
-        flags = core.flags()
-        mode = int(c.current.number)
-        ki[:6] = (self.sim.peek_seq(), self._logmav.seq, _ARMED, flags, mode, self.clock.now_us())
+        if not self._plain_ready:  # the inputs that change only when Python does something else
+            watch = core.plain_watch()
+            if watch is None:
+                return False
+            f = core.flight
+            enc = self._answer_encoder
+            if enc is None or f.diag_mask != enc.mask or self._last_tick_ms < 0:
+                return False
+            cfg = core.config
+            plan = core.plan
+            plan_s = plan.steps[plan._i].t_s if not plan.finished else _INF
+            kf[:] = (self._last_tick_ms, self.cfg.period_us, cfg.period_s, core.t0_us, plan_s, cfg.disarm_delay_s, c.ground_armed_s,
+                     *watch, f.yaw_target_rad)  # fmt: skip
+            f._held.io[12:20] = f.pipeline_inputs()  # type: ignore[union-attr]
+            plain.flags = core.flags()
+            plain.mode = int(c.current.number)
+            ki[2:5] = (_ARMED, plain.flags, plain.mode)
+        else:
+            kf[0] = self._last_tick_ms
+        if self.gcs is not None and c.gcs_loss_may_act(self._mono()):
+            self._plain_ready = False
+            return False
+        ki[0] = self.sim.peek_seq()
+        ki[1] = self._logmav.seq
+        ki[5] = self.clock.now_us()
+        held = core.flight._held
+        enc = self._answer_encoder
         dec = self._state_decoder
         flown, est = plain.call(data, self._sim_sysid, held, core._est, core._est_params, dec.fo, enc)  # type: ignore[union-attr]
         if not flown:
+            self._plain_ready = False
             return False
         # the state as _take_state takes it
         plain.flown += 1
@@ -1040,13 +1055,16 @@ class FlightControllerApp:
         t_us = t_ms * 1000
         self.clock.set_us(t_us)  # type: ignore[union-attr]
         # the tick as core.tick and _tick do it
-        out = core.flown_plain(t_us, state, est, float(kf[6]), held.io[_IO_OUT:_IO_TOUCHDOWN + 1].tolist(), flags, mode)  # type: ignore[union-attr]
+        out = core.flown_plain(t_us, state, est, float(kf[6]), held.io[_IO_OUT:_IO_TOUCHDOWN + 1].tolist(), plain.flags, plain.mode)  # type: ignore[union-attr]
         n1 = int(ki[KI_LENGTHS]) & 0xFFFF
         act = enc.out[:n1].tobytes()
         enc.made += 1
         sim.take_seq()
         sim.send_datagram_to(act, self._sim_peer)  # type: ignore[arg-type]
         self._answered(t_us, out, act, None, plain.rec[: int(ki[KI_REC_BYTES])].tobytes())
+        # Nothing but this path changes the kernel's inputs until Python does something else: the
+        # next plain tick keeps them (_poll_ground, lockstep_between and any other datagram say so)
+        self._plain_ready = not self._sim_pending
         if self.duration_s is not None and t_ms * 1e-3 >= self.duration_s:
             self._stop = True
         return True
@@ -1275,6 +1293,7 @@ class FlightControllerApp:
     def _poll_ground(self) -> None:
         """What waits on the ground socket (up to GCS_DRAIN datagrams) and everything queued,
         handled now (lockstep, and before the first state)."""
+        self._plain_ready = False  # (a command may change what the lockstep kernel reads)
         self._take_gcs()
         if self.intake:
             self._work_intake(None)

@@ -197,6 +197,9 @@ class PlainLockstep:
         self.rec = np.zeros(REC_BYTES, dtype=np.uint8)
         #: ticks flown here.
         self.flown = 0
+        #: the record's flags and mode the inputs were made with (the tick changes neither).
+        self.flags = 0
+        self.mode = 0
 
     def call(self, data: bytes, system: int, held: Any, es: Any, ep: Any, fo: Any, enc: Any) -> tuple[int, Any]:
         """:func:`plain_state` on this FC's held pipeline (:class:`fc.compiled_pipeline.HeldPipeline`),

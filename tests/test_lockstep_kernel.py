@@ -15,6 +15,7 @@ import os
 import socket
 from pathlib import Path
 
+import numpy as np
 import pytest
 from bits_helpers import needs_jit
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -209,3 +210,41 @@ def _copy(m: mavlink.MAVLink_message) -> mavlink.MAVLink_message:
 @pytest.fixture(autouse=True)
 def _no_kernel_switch_left() -> None:
     assert "SMCPILOT_LOCKSTEP_KERNEL" not in os.environ
+
+
+@needs_jit
+def test_a_ground_command_acts_from_the_next_tick_with_the_kernel_flying(tmp_path: Path) -> None:
+    """Commands arrive between plain ticks: the kernel's inputs (which it keeps from one plain tick
+    to the next) must be made again, so the tick after a command flies it (the FC's log: the
+    command stamped with the last tick's time, the next tick's SMC record with its set-point)."""
+    from sitl_helpers import load_flight
+
+    from ground.client import Vehicle
+    from ground.sitl import Sitl, SitlOptions
+
+    tlog = tmp_path / "fc.tlog"
+    vehicle = Vehicle("udpin:127.0.0.1:0").open()
+    try:
+        opts = SitlOptions.of(gcs=f"udp:127.0.0.1:{vehicle.local_address[1]}", lockstep=True, log_dir=tmp_path, tlog=tlog,
+                              fc_args=("--jit", "wait"))  # fmt: skip
+        with Sitl(opts) as sitl:
+            vehicle.wait_heartbeat(20.0)
+            vehicle.arm()
+            vehicle.takeoff(2.0)
+            vehicle.wait_altitude(2.0, tol_m=0.3, timeout_sim_s=20.0)
+            vehicle.goto_ned(3.0, -2.0, -2.5)
+            vehicle.wait_position_ned(3.0, -2.0, -2.5, tol_m=0.3, timeout_sim_s=20.0)
+            vehicle.goto_ned(-1.0, 1.0, -1.5)
+            vehicle.wait_position_ned(-1.0, 1.0, -1.5, tol_m=0.3, timeout_sim_s=20.0)
+    finally:
+        vehicle.close()
+    assert sitl.fc_summary is not None
+    assert sitl.fc_summary["pipeline"]["lockstep_kernel_ticks"] > 1000, sitl.fc_summary["pipeline"]
+    commands = [(t, m) for t, m in read_tlog(tlog) if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED"]
+    assert len(commands) >= 2
+    flight = load_flight(tlog)
+    for t_us, m in commands:
+        k = int(np.searchsorted(flight.smc_t, t_us * 1e-6 + 1e-7))  # the first tick after it
+        want = (m.x, -m.y, -m.z)  # NED -> the paper's x north, y west, z up
+        got = tuple(float(flight.smc[f"target_{c}"][k]) for c in "xyz")
+        assert got == pytest.approx(want, abs=1e-6), (t_us, k, got, want)
