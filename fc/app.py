@@ -1001,7 +1001,8 @@ class FlightControllerApp:
         c = core.commander
         kf = plain.kf
         ki = plain.ki
-        if not self._plain_ready:  # the inputs that change only when Python does something else
+        ready = self._plain_ready
+        if not ready:  # the inputs that change only when Python does something else
             watch = core.plain_watch()
             if watch is None:
                 return False
@@ -1055,13 +1056,14 @@ class FlightControllerApp:
         t_us = t_ms * 1000
         self.clock.set_us(t_us)  # type: ignore[union-attr]
         # the tick as core.tick and _tick do it
-        out = core.flown_plain(t_us, state, est, float(kf[6]), held.io[_IO_OUT:_IO_TOUCHDOWN + 1].tolist(), plain.flags, plain.mode)  # type: ignore[union-attr]
+        core.flown_plain(t_us, state, est, float(kf[6]), held.io[_IO_OUT:_IO_TOUCHDOWN + 1].tolist(), plain.flags, plain.mode,  # type: ignore[union-attr]
+                         again=ready)  # fmt: skip
         n1 = int(ki[KI_LENGTHS]) & 0xFFFF
         act = enc.out[:n1].tobytes()
         enc.made += 1
         sim.take_seq()
         sim.send_datagram_to(act, self._sim_peer)  # type: ignore[arg-type]
-        self._answered(t_us, out, act, None, plain.rec[: int(ki[KI_REC_BYTES])].tobytes())
+        self._answered(t_us, None, act, None, plain.rec[: int(ki[KI_REC_BYTES])].tobytes())
         # Nothing but this path changes the kernel's inputs until Python does something else: the
         # next plain tick keeps them (_poll_ground, lockstep_between and any other datagram say so)
         self._plain_ready = not self._sim_pending
@@ -1332,7 +1334,7 @@ class FlightControllerApp:
         self._answer_sim((act,))
         self._answered(t_us, out, act, smc)
 
-    def _answered(self, t_us: int, out: TickOutput, act: bytes, smc: bytes | None, records: bytes | None = None) -> None:
+    def _answered(self, t_us: int, out: TickOutput | None, act: bytes, smc: bytes | None, records: bytes | None = None) -> None:
         """The rest of the tick at ``t_us`` once its answer ``act`` is sent to the simulator: its
         log records (``smc``, or made here of ``out``; or ``records``: the tick's six, made by the
         lockstep kernel), the ground's telemetry."""
@@ -1348,6 +1350,7 @@ class FlightControllerApp:
             else:
                 tlog.write(self.clock.now_us(), act)
                 if smc is None:
+                    assert out is not None
                     smc = self._records.smc(lm.seq, t_us, telemetry.smc_record(self.core, out))
                 tlog.write(t_us, smc)
             lm.seq = (lm.seq + 1) & 0xFF

@@ -115,7 +115,9 @@ class FlightCore:
         self.t0_us = 0
         #: simulated time of the latest tick, µs (events raised between ticks carry it too).
         self.t_us = 0
-        self.last: TickOutput | None = None
+        self._last: TickOutput | None = None
+        #: the lockstep kernel's last tick, not yet made a TickOutput (:attr:`last` makes it when read).
+        self._plain_last: tuple[list[float], int, int] | None = None
         self.estimator = estimator if estimator is not None else EstimatorConfig()
         self._est_params = estimator_params(self.estimator, config.period_s)
         self.commander.estimate_params = self._est_params
@@ -220,6 +222,22 @@ class FlightCore:
         self.last = result
         return result
 
+    @property
+    def last(self) -> TickOutput | None:
+        """What the latest tick produced (None before the first)."""
+        plain = self._plain_last
+        if plain is not None:  # (made when read: telemetry reads it a few times a second, not every tick)
+            self._plain_last = None
+            outputs, flags, mode = plain
+            out = self.flight._held_output(outputs)
+            self._last = TickOutput(out.motors, True, flags, mode, out, _NO_EVENTS)
+        return self._last
+
+    @last.setter
+    def last(self, value: TickOutput | None) -> None:
+        self._plain_last = None
+        self._last = value
+
     # -- ticks flown by a compiled kernel (fc.lockstep_kernel) ---------------------------------------
     def plain_watch(self) -> tuple[float, float, float, float, float] | None:
         """The mode's watch (:class:`fc.modes.base.Watch`) when the next tick may be flown by the
@@ -234,25 +252,27 @@ class FlightCore:
         return None if watch.kind == WATCH_ALWAYS else watch
 
     def flown_plain(self, t_us: int, state: VehicleState, est: EstimatorState, ground_armed_s: float, outputs: list[float],
-                    flags: int, mode: int) -> TickOutput:  # fmt: skip
+                    flags: int, mode: int, *, again: bool) -> None:  # fmt: skip
         """The lockstep kernel flew the tick at ``t_us`` on ``state`` (everything measured: the
         estimate is the state itself; ``est``: the estimator's new state; ``ground_armed_s``: the
         disarm delay's count; ``outputs``: the compiled pipeline's, :data:`fc.compiled_pipeline.IO_OUT`
         on, its new state held already; ``flags`` and ``mode`` as before the tick, which changed
-        neither): the core as :meth:`tick` would have left it."""
+        neither; ``again``: the tick before was the kernel's too, and nothing ran in between): the
+        core as :meth:`tick` would have left it (:attr:`last` made when read)."""
         self.ticks += 1
         self.t_us = t_us
         self._est = est
         self._est_missing = 0
         self.state = state
         c = self.commander
-        c.observe(CommanderInput(state, True, False, est, True))
+        if again:  # (its fresh, failsafe and estimate-ok are the last plain tick's)
+            c.state = state
+            c.estimate = est
+        else:
+            c.observe(CommanderInput(state, True, False, est, True))
         c.resume((t_us - self.t0_us) * 1e-6, ground_armed_s)
-        f = self.flight
-        f._held.ticks += 1  # type: ignore[union-attr]
-        out = f._held_output(outputs)
-        result = self.last = TickOutput(out.motors, True, flags, mode, out, _NO_EVENTS)
-        return result
+        self.flight._held.ticks += 1  # type: ignore[union-attr]
+        self._plain_last = (outputs, flags, mode)
 
     def _estimate(self, state: VehicleState, fresh: bool) -> tuple[VehicleState | None, int]:
         """The estimate of a received state: (the state to fly on, or None if it is unusable;

@@ -104,7 +104,9 @@ def _replay(run_dir: Path, datagrams: list[bytes], kernel: bool, name: str) -> t
                 answers.append(sim.recv(4096))
             except TimeoutError:
                 answers.append(b"")
-        pipeline = {"kernel": app._plain.flown if app._plain is not None else 0, "ticks": app.core.ticks}
+        # (what telemetry reads of the last tick: made from the kernel's outputs when read)
+        pipeline = {"kernel": app._plain.flown if app._plain is not None else 0, "ticks": app.core.ticks, "last": repr(app.core.last),
+                    "estimate": repr(app.core._est), "commander": repr((app.core.commander.state, app.core.commander.estimate))}
         app.close()
     return answers, (run_dir / f"{name}.tlog").read_bytes(), pipeline
 
@@ -120,6 +122,8 @@ def test_odd_states_fly_the_ordinary_way_with_the_same_answers_and_log(tmp_path:
     on, log_on, p_on = _replay(run_dir, datagrams, True, "on")
     off, log_off, p_off = _replay(run_dir, datagrams, False, "off")
     assert p_off["kernel"] == 0 and p_on["ticks"] == p_off["ticks"] >= 1990
+    assert p_on["last"] == p_off["last"] and "PipelineOutput" in p_on["last"]
+    assert p_on["estimate"] == p_off["estimate"] and p_on["commander"] == p_off["commander"]
     # every tick in the kernel but the first (the take-off), the plan's goto and the five odd
     # ones that are ticks (the NaN, the one after it that ends the dead reckoning, the IMU's two,
     # the truth's): the re-sent state and the other system's are no ticks
