@@ -108,7 +108,6 @@ EXIT_WATCHDOG = 3
 
 _isfinite = math.isfinite
 _NAN = math.nan
-_INF = math.inf
 _F32 = struct.Struct("<f")
 _STATUSTEXT = mavlink.MAVLink_statustext_message
 _ATTITUDE_ID = mavlink.MAVLINK_MSG_ID_ATTITUDE
@@ -1011,9 +1010,7 @@ class FlightControllerApp:
             if enc is None or f.diag_mask != enc.mask or self._last_tick_ms < 0:
                 return False
             cfg = core.config
-            plan = core.plan
-            plan_s = plan.steps[plan._i].t_s if not plan.finished else _INF
-            kf[:] = (self._last_tick_ms, self.cfg.period_us, cfg.period_s, core.t0_us, plan_s, cfg.disarm_delay_s, c.ground_armed_s,
+            kf[:] = (self._last_tick_ms, self.cfg.period_us, cfg.period_s, core.t0_us, core.plan.next_t_s, cfg.disarm_delay_s, c.ground_armed_s,
                      *watch, f.yaw_target_rad)  # fmt: skip
             f._held.io[12:20] = f.pipeline_inputs()  # type: ignore[union-attr]
             plain.flags = core.flags()

@@ -70,7 +70,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the pipeline compiled with numba (the same commands bit for bit): auto (when cached, in real time and"
                         " in lockstep flights of 60 s or more or open-ended; not cached: CPython, compiling it in the background"
                         " for the next runs), wait (always; compile it first if need be: 10-30 s once), off (CPython);"
-                        " SMCPILOT_JIT=0 also turns it off (default auto)")  # fmt: skip
+                        " SMCPILOT_JIT=0 also turns it off (default auto). In lockstep, each plain tick then flies in one"
+                        " compiled call (SMCPILOT_LOCKSTEP_KERNEL=0 turns that alone off)")  # fmt: skip
     p.add_argument("--spin-s", type=float, default=0.002, metavar="S",
                    help="lockstep: busy-poll this long for the next state before blocking (default 0.002; 0: always"
                    " block, best when more processes than cores share the machine, as in a swarm)")  # fmt: skip

@@ -346,7 +346,16 @@ def plain_entry(flight: Any, est_state: Any, est_params: Any, *, compile_new: bo
             typeof(est_params), t.float64[::1], t.int64[::1], t.float64[::1], t.uint64[::1], t.uint32[::1], t.float32[::1],
             t.int64[::1], t.uint8[::1], t.uint8[::1], t.uint8[::1],
         )  # fmt: skip
-        entry = cached_entry(_twins(flight)[plain_state], sig, compile_new=compile_new)
+        fn = _twins(flight)[plain_state]
+        index = cache_index(fn)
+        cached = index is not None and os.path.exists(index)
+        what = f"the FC's lockstep kernel for the law {flight.law.name}"
+        if not cached and compile_new:
+            say_once(f"compiling {what} (once after an install or a change; cached on disk)...")
+        t0 = time.perf_counter()
+        entry = cached_entry(fn, sig, compile_new=compile_new)
+        if not cached and entry is not None:
+            say_once(f"compiled {what} in {time.perf_counter() - t0:.1f} s")
     except Exception as exc:  # numba's typing or lowering errors: the ordinary path flies, said once
         say_once(f"fc: the lockstep kernel could not be compiled ({first_line(exc)}); every tick flies the ordinary way")
         return None

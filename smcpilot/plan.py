@@ -127,3 +127,8 @@ class PlanRunner:
     @property
     def finished(self) -> bool:
         return self._i >= len(self.steps)
+
+    @property
+    def next_t_s(self) -> float:
+        """When the next step is due (s from the first tick; ``inf``: none left)."""
+        return self.steps[self._i].t_s if self._i < len(self.steps) else math.inf

@@ -398,7 +398,7 @@ class _Bridge:
         io[:] = 0
         io[6] = core._est_missing
         plan = core.plan
-        plan_next = plan.steps[plan._i].t_s if not plan.finished else math.inf
+        plan_next = plan.next_t_s
         rec = self.record
         t_call = time.perf_counter()
         ps, es, out, est = self._call(
