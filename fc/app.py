@@ -1018,7 +1018,8 @@ class FlightControllerApp:
             ki[2:5] = (_ARMED, plain.flags, plain.mode)
         else:
             kf[0] = self._last_tick_ms
-        if self.gcs is not None and c.gcs_loss_may_act(self._mono()):
+        if self._sim_pending or (self.gcs is not None and c.gcs_loss_may_act(self._mono())):
+            # (a simulator parameter awaiting its answer may log a complaint between the state and the answer)
             self._plain_ready = False
             return False
         ki[0] = self.sim.peek_seq()
@@ -1063,7 +1064,7 @@ class FlightControllerApp:
         self._answered(t_us, None, act, None, plain.rec[: int(ki[KI_REC_BYTES])].tobytes())
         # Nothing but this path changes the kernel's inputs until Python does something else: the
         # next plain tick keeps them (_poll_ground, lockstep_between and any other datagram say so)
-        self._plain_ready = not self._sim_pending
+        self._plain_ready = True
         if self.duration_s is not None and t_ms * 1e-3 >= self.duration_s:
             self._stop = True
         return True
