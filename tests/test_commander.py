@@ -13,7 +13,7 @@ from fc.config import FcConfig
 from fc.core import FlightCore
 from fc.mission import MissionItem, validate
 from fc.modes import Refusal
-from fc.params import PARAMS, ParamError, ParamStore, defaults_table
+from fc.params import PARAMS, ParamError, ParamStore, defaults_table, param_table
 from fc.streams import StreamScheduler
 from lab.runner import wire_state
 from sim_bridge.environment import Environment, EnvironmentParams
@@ -72,7 +72,7 @@ def test_parameter_file_is_written_whole_and_loads_back(tmp_path: Path) -> None:
     store.set("SMC_R_NU", 0.7)
     store.set("ARMING_CHECK", 0)
     lines = [ln for ln in path.read_text().splitlines() if ln and not ln.startswith("#")]
-    assert len(lines) == len(PARAMS)  # every parameter, one per line
+    assert len(lines) == len(param_table().specs) >= len(PARAMS)  # every parameter of this process (plug-in laws loaded by other tests too), one per line
     assert "ARMING_CHECK 0" in lines
     assert not list(path.parent.glob("*.tmp"))  # no temporary file left behind
     fresh = ParamStore(FcConfig(), path)
