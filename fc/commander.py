@@ -35,6 +35,23 @@ from smcpilot.protocol import Mode, mode_name
 __all__ = ["Commander", "CommanderInput", "Refusal"]
 
 
+#: armed "on the ground": the estimate below this height (m, up) with the set-point's below
+#: :data:`ON_GROUND_TARGET_M` (MAV_LANDED_STATE_ON_GROUND; the disarm delay counts then).
+ON_GROUND_Z_M = 0.15
+ON_GROUND_TARGET_M = 0.3
+
+
+def ground_armed_count(ground_s: float, delay_s: float, z_m: float, target_z_m: float, landing: bool, dt_s: float) -> float:
+    """The disarm delay's count after an armed tick of ``dt_s`` s (s): grown while the vehicle sits on
+    the ground with nothing to do (height ``z_m`` and set-point ``target_z_m``, m up; not while
+    landing) and a delay ``delay_s`` > 0 is set (ArduCopter's DISARM_DELAY), else 0. The vehicle
+    disarms once it reaches ``delay_s``. Pure: the compiled flights (:mod:`lab.fast`,
+    :mod:`fc.lockstep_kernel`) count it as :meth:`Commander.on_tick` does."""
+    if delay_s > 0.0 and not landing and z_m < ON_GROUND_Z_M and target_z_m < ON_GROUND_TARGET_M:
+        return ground_s + dt_s
+    return 0.0
+
+
 class CommanderInput(NamedTuple):
     """What the flight core tells the commander about the vehicle (paper frame), in one value:
     every tick, and between ticks before a command is judged (:meth:`Commander.observe`)."""
@@ -160,7 +177,7 @@ class Commander:
         if f.landing:
             return mavlink.MAV_LANDED_STATE_LANDING
         tz = f.target[2]
-        if st.z_m < 0.15 and tz < 0.3:
+        if st.z_m < ON_GROUND_Z_M and tz < ON_GROUND_TARGET_M:
             return mavlink.MAV_LANDED_STATE_ON_GROUND
         if st.z_m < 0.5 and tz > st.z_m + 0.3:
             return mavlink.MAV_LANDED_STATE_TAKEOFF
@@ -345,15 +362,15 @@ class Commander:
 
     def gcs_loss_may_act(self, now_s: float) -> bool:
         """:meth:`check_gcs` at wall time ``now_s`` might act (False: it would certainly do nothing)."""
-        last = self._gcs_last_hb_s
-        return not (self.config.fs_gcs_enable == 0 or last is None or self._gcs_failsafe or now_s - last <= self.config.fs_gcs_timeout_s)
-
-    def check_gcs(self, now_s: float) -> None:
         cfg = self.config
         last = self._gcs_last_hb_s
-        if cfg.fs_gcs_enable == 0 or last is None or self._gcs_failsafe:
-            return
-        if now_s - last > cfg.fs_gcs_timeout_s and self.flying():
+        return cfg.fs_gcs_enable != 0 and last is not None and not self._gcs_failsafe and now_s - last > cfg.fs_gcs_timeout_s
+
+    def check_gcs(self, now_s: float) -> None:
+        """The GCS-loss failsafe (``FS_GCS_ENABLE``): no ground-station heartbeat for ``FS_GCS_TIMEOUT``
+        while flying: RTL or LAND."""
+        if self.gcs_loss_may_act(now_s) and self.flying():
+            cfg = self.config
             self._gcs_failsafe = True
             if cfg.fs_gcs_enable == 1:
                 self.say("Failsafe: GCS lost, RTL", mavlink.MAV_SEVERITY_CRITICAL)
@@ -372,13 +389,10 @@ class Commander:
             return
         # Armed on the ground with nothing to do: disarm after DISARM_DELAY (ArduCopter behaviour).
         delay = self.config.disarm_delay_s
-        if delay > 0.0 and self.landed_state() == mavlink.MAV_LANDED_STATE_ON_GROUND and not f.landing:
-            self._ground_armed_s += dt_s
-            if self._ground_armed_s >= delay:
-                self.disarm(reason="Disarming: no take-off")
-                return
-        else:
-            self._ground_armed_s = 0.0
+        self._ground_armed_s = ground_armed_count(self._ground_armed_s, delay, st.z_m, f.target[2], f.landing, dt_s)
+        if self._ground_armed_s >= delay > 0.0:
+            self.disarm(reason="Disarming: no take-off")
+            return
         self.current.run(st, t_s, dt_s)
 
     def on_touchdown(self) -> None:

@@ -208,11 +208,12 @@ def _twins(flight: Any) -> dict[Any, Any]:
         from fc import estimate as estimate_mod
         from fc import lockstep_kernel as plain_mod
         from fc import state_kernel as state_mod
+        from fc.commander import ground_armed_count
         from fc.modes.base import watch_holds
 
         # the lockstep kernel calls the same compiled step (fc.lockstep_kernel), with the state's
         # decoder, the answer's encoder and the estimate
-        plain = (*plain_mod.PLAIN_FUNCTIONS, *state_mod.KERNEL_FUNCTIONS, *estimate_mod.PURE_FUNCTIONS, watch_holds)
+        plain = (*plain_mod.PLAIN_FUNCTIONS, *state_mod.KERNEL_FUNCTIONS, *estimate_mod.PURE_FUNCTIONS, watch_holds, ground_armed_count)
         fns, problems = pure_closure((*HELD_FUNCTIONS, *pipeline_mod.PURE_FUNCTIONS, *flight.law_functions))
         more, _more_problems = pure_closure(plain)  # (byte and array work, as fc.state_kernel's: tests/test_lockstep_kernel.py)
         fns = (*fns, *(f for f in more if f not in fns))

@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from fc.commander import ground_armed_count
 from fc.compiled_pipeline import IO_CMD as _IO_CMD
 from fc.compiled_pipeline import IO_DT as _IO_DT
 from fc.compiled_pipeline import IO_OUT as _IO_OUT
@@ -137,13 +138,11 @@ def plain_state(data, system, ps_box, pp_box, io, law_box, es, ep, kf, ki, fo, d
     t_s = (t_us - _i64(kf[K_T0_US])) * 1e-6
     if kf[K_PLAN_S] <= t_s + 1e-9:
         return 0, es
-    # the commander's disarm delay (fc.commander.Commander.on_tick: landed, nothing to do)
-    ground_s = 0.0
+    # the commander's disarm delay (fc.commander.Commander.on_tick)
     delay = kf[K_DISARM_S]
-    if delay > 0.0 and est[2] < 0.15 and io[_IO_CMD + 2] < 0.3 and io[_IO_CMD + 5] == 0.0:
-        ground_s = kf[K_GROUND_S] + dt
-        if ground_s >= delay:
-            return 0, es
+    ground_s = ground_armed_count(kf[K_GROUND_S], delay, est[2], io[_IO_CMD + 2], io[_IO_CMD + 5] != 0.0, dt)
+    if ground_s >= delay > 0.0:
+        return 0, es
     w = K_WATCH
     if watch_holds(int(kf[w]), kf[w + 1], kf[w + 2], kf[w + 3], kf[w + 4], est[0], est[1], est[2], t_s):
         return 0, es

@@ -27,6 +27,7 @@ import math
 
 import numpy as np
 
+from fc.commander import ground_armed_count
 from fc.estimate import EST_DEAD_RECKONING, estimate_step
 from fc.modes.base import watch_holds as _watch_holds
 from fc.pipeline import VehicleState, pipeline_step_sensed
@@ -335,13 +336,10 @@ def fly_span(
         ez = est_new[2]
         new_ground = ground_s
         if armed:
-            if disarm_delay > 0.0 and ez < 0.15 and tz < 0.3 and not landing:
-                new_ground = ground_s + dt_ctrl
-                if new_ground >= disarm_delay:
-                    code = 1
-                    break
-            else:
-                new_ground = 0.0
+            new_ground = ground_armed_count(ground_s, disarm_delay, ez, tz, landing, dt_ctrl)
+            if new_ground >= disarm_delay > 0.0:
+                code = 1
+                break
             if _watch_holds(wkind, wa, wb, wc, wr, ex, ey, ez, t_s):
                 code = 1
                 break

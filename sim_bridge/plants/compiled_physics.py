@@ -48,7 +48,7 @@ from sim_bridge.plants.rigid_body import (
     rigid_body_targets,
     rotor_lag,
 )
-from sim_bridge.sensors import SensorNoise, VehicleObservation
+from sim_bridge.sensors import SensorNoise
 from smcpilot.errors import DivergenceError
 from smcpilot.jit import cache_index, compile_pure, entry_point, jit_unavailable_reason, say_once
 
@@ -167,10 +167,6 @@ def steady(plant: Any, t_end_s: float) -> str | None:
     return None
 
 
-#: a :class:`VehicleObservation` from its 8 fields (what its ``__new__`` does, without the call's argument handling).
-_new_observation = tuple.__new__
-
-
 def plain_observation(plant: Any) -> str | None:
     """Why ``plant``'s next observation might not be its truth (None: it is, unless a sensor fault
     starts at that very observation, which :meth:`CompiledPhysics.fly_state` checks after): only
@@ -269,12 +265,9 @@ class CompiledPhysics:
         n: int = fused(self.io, self.pp, t_us0, dt_us, dt_s, n_steps, out, inputs[0][0], command[0], command[1], command[2], command[3],
                        1.0 if armed else 0.0, enc.vin, gravity_mps2, t_us, seq, enc.sysid, enc._tail, enc.out, enc._bits, enc._f32)  # fmt: skip
         row = self._store(inputs, int(out[2]), t_us0, dt_us, dt_s, n_steps)
-        # the truth as RigidBodyPlant.truth() makes it (the same floats, its Euler angles compiled),
-        # then observed as PlantBase.observe() does (no sensor noise: the environment gives it back)
-        s, t_s, accel = plant._s, plant._t_s, plant._accel
-        tru = _new_observation(VehicleObservation, (t_s, (s[0], s[1], s[2]), (s[3], s[4], s[5]), (row[IO_EULER], row[IO_EULER + 1], row[IO_EULER + 2]),
-                                                    (s[10], s[11], s[12]), accel, (s[13], s[14], s[15], s[16]), (s[6], s[7], s[8], s[9])))  # fmt: skip
-        plant._truth_memo = (s, t_s, accel, tru)
+        # the truth as RigidBodyPlant.truth() makes it (its Euler angles compiled), then observed as
+        # PlantBase.observe() does (no sensor noise: the environment gives it back)
+        tru = plant.remember_truth((row[IO_EULER], row[IO_EULER + 1], row[IO_EULER + 2]))
         faults = plant.faults
         obs = tru if faults is None else faults.observe(tru)
         plant._obs_cache = obs

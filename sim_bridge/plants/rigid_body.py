@@ -90,6 +90,9 @@ from smcpilot.errors import ConfigError, DivergenceError
 from smcpilot.frames import euler_from_quat, quat_from_euler, wrap_pi
 from smcpilot.vehicle import VehicleParams
 
+#: a NamedTuple from its fields in order (what its ``__new__`` does, without the call's argument handling).
+_tuple_new = tuple.__new__
+
 __all__ = [
     "RigidBodyPlant", "RigidBodyParams", "StepInput", "NOMINAL_INPUT", "VehicleObservation", "STATE_NAMES",
     "DEFAULT_MAX_STEP_S", "rigid_body_params", "rigid_body_step", "rigid_body_substep", "rigid_body_substep_lag", "rotor_lag",
@@ -630,18 +633,18 @@ class RigidBodyPlant(PlantBase):
         memo = self._truth_memo
         if memo is not None and memo[0] is s and memo[1] == t_s and memo[2] is accel:
             return memo[3]
-        x, y, z, vx, vy, vz, qw, qx, qy, qz, p, q, r, w1, w2, w3, w4 = s
-        phi, theta, psi = euler_from_quat((qw, qx, qy, qz))
-        obs = VehicleObservation(
-            t_s=t_s,
-            position_m=(x, y, z),
-            velocity_mps=(vx, vy, vz),
-            euler_rad=(wrap_pi(phi), theta, wrap_pi(psi)),
-            body_rates_radps=(p, q, r),
-            accel_mps2=accel,
-            rotor_speed_radps=(w1, w2, w3, w4),
-            quaternion=(qw, qx, qy, qz),
-        )
+        phi, theta, psi = euler_from_quat((s[6], s[7], s[8], s[9]))
+        return self.remember_truth((wrap_pi(phi), theta, wrap_pi(psi)))
+
+    def remember_truth(self, euler_rad: tuple[float, float, float]) -> VehicleObservation:
+        """The truth of the current state given its Euler angles (ZYX of the FLU body in NWU, rad,
+        roll and yaw wrapped to [-pi, pi): :meth:`truth`'s, or the compiled span's,
+        :mod:`sim_bridge.fused_state`), kept as :meth:`truth`'s memo."""
+        s, t_s, accel = self._s, self._t_s, self._accel
+        obs: VehicleObservation = _tuple_new(VehicleObservation, (
+            t_s, (s[0], s[1], s[2]), (s[3], s[4], s[5]), euler_rad, (s[10], s[11], s[12]), accel, (s[13], s[14], s[15], s[16]),
+            (s[6], s[7], s[8], s[9]),
+        ))  # fmt: skip
         self._truth_memo = (s, t_s, accel, obs)
         return obs
 
