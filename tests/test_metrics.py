@@ -368,6 +368,35 @@ def test_low_pass_step_response_and_nan_restart() -> None:
         lowpass(t, x, 0.0)
 
 
+def test_low_pass_compiled_is_the_cpython_loop_bit_for_bit() -> None:
+    """A process that flies compiled scores compiled (``score_compiled``): the same floats."""
+    import ground.logs.metrics as metrics_mod
+    from smcpilot.jit import jit_enabled
+
+    if not jit_enabled(say=False):  # no numba, or the compiled path switched off: CPython stays
+        assert not metrics_mod.score_compiled() and metrics_mod._COMPILED[0] is None
+        return
+
+    rng = np.random.default_rng(7)
+    t = np.cumsum(rng.uniform(0.001, 0.02, 3000))
+    x = rng.normal(size=(3000, 4))
+    x[rng.integers(0, 3000, 40), rng.integers(0, 4, 40)] = np.nan
+    x[:5, 2] = np.nan  # a column that starts unmeasured
+    saved = metrics_mod._COMPILED[0]
+    try:
+        metrics_mod._COMPILED[0] = None
+        y_py = lowpass(t, x, 0.3)
+        assert metrics_mod.score_compiled()
+        assert metrics_mod._COMPILED[0] is not None
+        y_jit = lowpass(t, x, 0.3)
+        y_jit_1d = lowpass(t, x[:, 1], 0.3)
+    finally:
+        metrics_mod._COMPILED[0] = saved
+    assert y_py.tobytes() == y_jit.tobytes()
+    assert y_jit_1d.tobytes() == y_py[:, 1].tobytes()
+    assert np.isnan(y_py[:5, 2]).all() and np.isfinite(y_py[5:, 0]).sum() > 2900
+
+
 def test_sigma_window_is_the_last_seconds_of_flight_before_landing() -> None:
     t = np.arange(0.0, 20.0, 0.01)
     sig = np.where(t < 14.0, 0.2, 3.0)[:, None] * np.ones((1, 4))

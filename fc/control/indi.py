@@ -52,6 +52,7 @@ finite difference, since the pipeline initialises a law with the rates zeroed).
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, fields
@@ -168,6 +169,7 @@ def _expm(m: list[list[float]]) -> list[list[float]]:
     return out
 
 
+@functools.lru_cache(maxsize=256)  # a campaign builds the same filters flight after flight
 def filter2_zoh(wn_radps: float, zeta: float, dt_s: float) -> Filter2:
     """H(s) = wn^2 / (s^2 + 2 zeta wn s + wn^2) in state form (y, y'), discretised exactly for an
     input held over ``dt_s`` (the exponential of the augmented matrix [[A, B], [0, 0]] dt)."""

@@ -94,6 +94,7 @@ __all__ = [
     "flight_metrics",
     "integrate",
     "lowpass",
+    "score_compiled",
     "setpoint_changes",
     "sigma_metrics",
     "sigma_window",
@@ -180,7 +181,10 @@ def setpoint_changes(target_m: np.ndarray, target_yaw_rad: np.ndarray | None = N
 def lowpass(t_s: np.ndarray, x: np.ndarray, tau_s: float = SIGMA_TAU_S) -> np.ndarray:
     """Causal first-order low-pass of ``x`` (n,) or (n, m) on the sample times ``t_s`` [s]:
     y_k = y_k−1 + (1 − exp(−(t_k − t_k−1)/τ)) (x_k − y_k−1), y = x at the first sample and at the
-    first finite sample after a NaN (a NaN input gives a NaN output), per column."""
+    first finite sample after a NaN (a NaN input gives a NaN output), per column.
+
+    In a process that flies compiled (:func:`score_compiled` was called), the loop runs compiled:
+    the same numbers, bit for bit."""
     if not (math.isfinite(tau_s) and tau_s > 0.0):
         raise MetricsError(f"tau_s must be a finite number > 0, got {tau_s!r}")
     xs = np.asarray(x, dtype=float)
@@ -189,20 +193,51 @@ def lowpass(t_s: np.ndarray, x: np.ndarray, tau_s: float = SIGMA_TAU_S) -> np.nd
     out = np.full((n, m), math.nan)
     if n == 0:
         return out.reshape(xs.shape)
-    alpha = np.concatenate(([0.0], -np.expm1(-np.diff(np.asarray(t_s, dtype=float)) / tau_s))).tolist()
-    for j in range(m):
-        xj = cols[:, j].tolist()
-        yj = [math.nan] * n
-        y = math.nan
-        for k in range(n):
-            v = xj[k]
-            if v != v:  # NaN: the filter restarts at the next finite sample
-                y = math.nan
-                continue
-            y = v if y != y else y + alpha[k] * (v - y)
-            yj[k] = y
-        out[:, j] = yj
+    alpha = np.concatenate(([0.0], -np.expm1(-np.diff(np.asarray(t_s, dtype=float)) / tau_s)))
+    compiled = _COMPILED[0]
+    if compiled is not None:
+        for j in range(m):
+            yj = np.full(n, math.nan)
+            compiled(alpha, np.ascontiguousarray(cols[:, j]), yj)
+            out[:, j] = yj
+    else:  # CPython: lists index faster than arrays
+        alpha_l = alpha.tolist()
+        for j in range(m):
+            yl = [math.nan] * n
+            _lowpass_column(alpha_l, cols[:, j].tolist(), yl)
+            out[:, j] = yl
     return out.reshape(xs.shape)
+
+
+def _lowpass_column(alpha: Any, x: Any, out: Any) -> None:
+    """:func:`lowpass` of one column ``x`` with the gains ``alpha`` into ``out`` (NaN where ``x``
+    is): lists in CPython, float64 arrays compiled (pure style)."""
+    y = math.nan
+    for k in range(len(x)):
+        v = x[k]
+        if v != v:  # NaN: the filter restarts at the next finite sample
+            y = math.nan
+            continue
+        y = v if y != y else y + alpha[k] * (v - y)
+        out[k] = y
+
+
+#: :func:`lowpass`'s compiled loop, once :func:`score_compiled` made it (None: CPython).
+_COMPILED: list[Any] = [None]
+
+
+def score_compiled() -> bool:
+    """Score with the compiled loop from now on in this process (the flight kernel's processes
+    call it: numba is loaded there already, and its cached twin loads in milliseconds). Commands
+    that only read logs never call it, so they never import numba. False (and CPython stays) when
+    the compiled path is off or unavailable."""
+    if _COMPILED[0] is None:
+        from smcpilot.jit import compile_pure, jit_enabled
+
+        if not jit_enabled(say=False):
+            return False
+        _COMPILED[0] = compile_pure([_lowpass_column])[_lowpass_column]
+    return True
 
 
 def _rms(x: np.ndarray) -> float | None:

@@ -38,6 +38,7 @@ from fc.core import FlightCore, TickOutput
 from fc.estimate import EST_DEAD_RECKONING, EST_OK
 from fc.flight import PipelineOutput, VehicleState
 from fc.modes.base import WATCH_ALWAYS
+from ground.logs.metrics import score_compiled
 from lab.fast import kernel as kernel_mod
 from lab.fast.mt import MT_FUNCTIONS, mt_export, mt_import
 from sim_bridge.faults import TIME_EPS_S
@@ -105,6 +106,8 @@ def compiled_kernel(law_functions: LawFunctions, full_stack: bool, measures_acce
         twins = compile_pure(fns, rebind={kernel_mod.fly_span: fly} if fly else None)
         k = _Kernel(twins[kernel_mod.fly_span], LawFunctions(*(twins[f] for f in law_functions)))
         _KERNELS[key] = k
+        # a process that flies compiled scores its flights compiled too (the σ low-pass's loop)
+        score_compiled()
     return k
 
 
