@@ -349,14 +349,6 @@ def _sig() -> tuple:
     return (arr2, arr2, types.int64, types.int64, types.float64, types.int64, types.float64[::1])
 
 
-def is_cached() -> bool:
-    """Whether the compiled span is in numba's cache (loading it then takes about half a second)."""
-    if jit_unavailable_reason() is not None:
-        return False
-    index = cache_index(_twins()[physics_span])
-    return index is not None and os.path.exists(index)
-
-
 def load(plants: Sequence[Any], *, compile_new: bool) -> tuple[CompiledPhysics | None, str | None]:
     """The compiled physics for ``plants`` (None and why not): from the cache, or compiled first
     when ``compile_new`` (a few seconds once, said on stderr)."""
