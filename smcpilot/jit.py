@@ -114,6 +114,7 @@ def compile_pure(
     *,
     cache: bool = True,
     rebind: Mapping[Callable[..., Any], Mapping[str, Callable[..., Any]]] | None = None,
+    inline: Iterable[Callable[..., Any]] = (),
 ) -> dict[Callable[..., Any], Any]:
     """Compiled twins of ``functions`` (a closed set: every pure function they call by name is in
     it): ``{original: numba dispatcher}``. Compilation itself happens lazily, at a twin's first
@@ -124,11 +125,20 @@ def compile_pure(
     Twins use numba's "numpy" error model: a division by zero gives inf or NaN instead of raising,
     so compiled code never stops half-way; callers check what comes out for finiteness and let
     CPython fly the step that went wrong, which raises as it always has.
+
+    ``inline``: functions of the set whose twins are inlined into their compiled callers (numba's
+    ``inline="always"``, at the level of its own IR), so a caller that calls them every tick pays
+    no call: neither the copying of their tuple arguments (some hundreds of floats for a pipeline's
+    parameters) nor the barrier a call puts in the optimiser's way. The same operations on the same
+    values: the results do not change by a bit. The choice is part of the twins' names, so cached
+    code compiled with another choice is never reused.
     """
     numba = numba_module()
     fns: tuple[Any, ...] = tuple(dict.fromkeys(functions))
     rebind = rebind or {}
-    tag = sources_hash(fns, extra=repr(sorted((f.__qualname__, sorted((n, t.__qualname__) for n, t in m.items())) for f, m in rebind.items())))
+    inlined = frozenset(inline)
+    tag = sources_hash(fns, extra=repr(sorted((f.__qualname__, sorted((n, t.__qualname__) for n, t in m.items())) for f, m in rebind.items()))
+                       + (repr(sorted(f"{f.__module__}.{f.__qualname__}" for f in inlined)) if inlined else ""))
     per_module: dict[int, dict[str, Any]] = {}  # one globals copy per module; a rebound function gets its own
     copies: list[tuple[dict[str, Any], Mapping[str, Callable[..., Any]]]] = []
     twins: dict[Callable[..., Any], Any] = {}
@@ -143,7 +153,7 @@ def compile_pure(
         twin.__qualname__ = f"{f.__qualname__}__{tag}"
         twin.__module__ = f.__module__
         twin.__doc__ = f.__doc__
-        twins[f] = numba.njit(cache=cache, error_model="numpy")(twin)
+        twins[f] = numba.njit(cache=cache, error_model="numpy", inline="always" if f in inlined else "never")(twin)
     for g, names in copies:  # now every twin exists: point the copies' names at them
         for name, value in list(g.items()):
             if isinstance(value, types.FunctionType) and value in twins:
