@@ -113,7 +113,7 @@ def compile_pure(
     functions: Iterable[Callable[..., Any]],
     *,
     cache: bool = True,
-    rebind: Mapping[Callable[..., Any], Mapping[str, Callable[..., Any]]] | None = None,
+    rebind: Mapping[Callable[..., Any], Mapping[str, Any]] | None = None,
     inline: Iterable[Callable[..., Any]] = (),
 ) -> dict[Callable[..., Any], Any]:
     """Compiled twins of ``functions`` (a closed set: every pure function they call by name is in
@@ -121,7 +121,9 @@ def compile_pure(
     call with new argument types.
 
     ``rebind`` gives a function of the set its own globals in which some names call other
-    functions of the set (e.g. a kernel written against one step function, compiled with another).
+    functions of the set (e.g. a kernel written against one step function, compiled with another),
+    or name a tuple (a NamedTuple) of functions of the set: the tuple of their twins, which
+    compiled code calls directly, as constants.
     Twins use numba's "numpy" error model: a division by zero gives inf or NaN instead of raising,
     so compiled code never stops half-way; callers check what comes out for finiteness and let
     CPython fly the step that went wrong, which raises as it always has.
@@ -137,7 +139,7 @@ def compile_pure(
     fns: tuple[Any, ...] = tuple(dict.fromkeys(functions))
     rebind = rebind or {}
     inlined = frozenset(inline)
-    tag = sources_hash(fns, extra=repr(sorted((f.__qualname__, sorted((n, t.__qualname__) for n, t in m.items())) for f, m in rebind.items()))
+    tag = sources_hash(fns, extra=repr(sorted((f.__qualname__, sorted((n, _rebound_name(t)) for n, t in m.items())) for f, m in rebind.items()))
                        + (repr(sorted(f"{f.__module__}.{f.__qualname__}" for f in inlined)) if inlined else ""))
     per_module: dict[int, dict[str, Any]] = {}  # one globals copy per module; a rebound function gets its own
     copies: list[tuple[dict[str, Any], Mapping[str, Callable[..., Any]]]] = []
@@ -159,8 +161,15 @@ def compile_pure(
             if isinstance(value, types.FunctionType) and value in twins:
                 g[name] = twins[value]
         for name, target in names.items():
-            g[name] = twins[target]
+            g[name] = type(target)(*(twins[t] for t in target)) if isinstance(target, tuple) else twins[target]
     return twins
+
+
+def _rebound_name(target: Any) -> str:
+    """What :func:`compile_pure`'s tag records of a rebound name's target (a function, or a tuple of them)."""
+    if isinstance(target, tuple):
+        return f"{type(target).__name__}({', '.join(t.__qualname__ for t in target)})"
+    return str(target.__qualname__)
 
 
 _ADDRESSED: Any = None

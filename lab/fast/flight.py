@@ -110,12 +110,16 @@ def compiled_kernel(law_functions: LawFunctions, full_stack: bool, measures_acce
         fns, _problems = pure_closure(roots)
         # the kernel calls the pipeline's step directly (no forwarding function in between: each
         # level copies the pipeline's parameters and state, some hundreds of floats, a tick)
-        fly: dict[str, Any] = {}
+        fly: dict[str, Any] = {"_kernel_law": kernel_mod._law_constant}
         if measures_accel:
             fly["_sensed"] = kernel_mod._sensed_imu
         if full_stack:
             fly["pipeline_step_sensed"] = pipeline_mod.pipeline_step_full_sensed
-        twins = compile_pure(fns, rebind={kernel_mod.fly_span: fly} if fly else None, inline=KERNEL_INLINE)
+        # the law's functions called directly, as constants (kernel_mod._kernel_law)
+        rebind: dict[Callable[..., Any], Any] = {kernel_mod.fly_span: fly, kernel_mod._law_constant: {"_LAW": law_functions}}
+        # (inlined, never a value of its own: a tuple of compiled functions returned as a value
+        # would carry their addresses, and numba cannot cache code that does)
+        twins = compile_pure((*fns, kernel_mod._law_constant), rebind=rebind, inline=(*KERNEL_INLINE, kernel_mod._law_constant))
         k = _Kernel(twins[kernel_mod.fly_span], LawFunctions(*(twins[f] for f in law_functions)))
         _KERNELS[key] = k
         # a process that flies compiled scores its flights compiled too (the σ low-pass's loop)

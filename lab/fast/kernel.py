@@ -153,6 +153,7 @@ def fly_span(
     each array handed to a call or viewed costs atomic reference counting.
     """
     tx, ty, tz, psi_target, _armed, landing, _hold, _vxy = cmd
+    law_k = _kernel_law(law)
     disarm_delay = fc_f[0]
     ground_s = fc_f[1]
     wkind, wa, wb, wc, wr = watch
@@ -345,7 +346,7 @@ def fly_span(
                 break
             sensed = _sensed(imu_on and _isfinite(f0) and _isfinite(f1) and _isfinite(f2), f0, f1, f2, est_new[6], est_new[7],
                              est_new[8], pp.gravity_mps2)  # fmt: skip
-            ps_new, out_new = pipeline_step_sensed(ps, est_new, cmd, pp, dt_ctrl, law, sensed)
+            ps_new, out_new = pipeline_step_sensed(ps, est_new, cmd, pp, dt_ctrl, law_k, sensed)
             mo = out_new[0]
             ul = out_new[6]
             if out_new[9] or not (_isfinite(mo[0] + mo[1] + mo[2] + mo[3]) and _isfinite(ul[0] + ul[1] + ul[2] + ul[3])):
@@ -556,9 +557,26 @@ def fly_span(
     return ps, es, out, est
 
 
+def _kernel_law(law):  # type: ignore[no-untyped-def]
+    """The law's functions the kernel calls: its argument. The compiled kernel rebinds this name
+    to :func:`_law_constant`, whose ``_LAW`` is rebound to the law's compiled functions: the kernel
+    (compiled per law anyway) then calls them directly, and can inline them, instead of through
+    the first-class functions it is handed (a C wrapper and an indirect call each time)."""
+    return law
+
+
+#: (rebound in the compiled kernel to the law's compiled functions, see :func:`_kernel_law`)
+_LAW = None
+
+
+def _law_constant(law):  # type: ignore[no-untyped-def]
+    """:func:`_kernel_law` of the compiled kernel: the law's compiled functions, constants."""
+    return _LAW
+
+
 #: the kernel and what it calls of its own (compiled with the pipeline's, the estimate's, the
 #: plant's and the random streams' pure functions: :data:`lab.fast.flight.KERNEL_FUNCTIONS`).
-KERNEL_FUNCTIONS = (fly_span, _sensed_none, _sensed_imu, _noisy3, _noise_draws, _watch_holds, _f32, _f32_overflows)
+KERNEL_FUNCTIONS = (fly_span, _sensed_none, _sensed_imu, _noisy3, _noise_draws, _watch_holds, _f32, _f32_overflows, _kernel_law)
 
 #: what the kernel calls for a tick's sensed quantities (rebound for a law that measures acceleration).
 _sensed = _sensed_none
