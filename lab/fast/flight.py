@@ -89,7 +89,7 @@ _KERNELS: dict[tuple, _Kernel] = {}
 #: the estimate, the position loop, the mixer, the RK4 step): a call copies its tuple arguments
 #: (the pipeline's parameters and state are some hundreds of floats) and stops the optimiser at its
 #: edge. About a quarter off a tick (the robustness study's flights of the adaptive PID-SMC: 1.6
-#: against 2.1 µs, the same bits); the law's own functions stay calls (first-class functions).
+#: against 2.1 µs, the same bits); the law's own functions stay calls, direct ones (kernel._kernel_law).
 KERNEL_INLINE = (
     pipeline_mod.pipeline_step_sensed, pipeline_mod.pipeline_step_full_sensed, pipeline_mod.actuate,
     position_mod.position_step, mixer_mod.mix, estimate_mod.estimate_step, rigid_body.rigid_body_substep_lag,
@@ -485,9 +485,10 @@ class _Bridge:
         return flown, code, t_after
 
     def _call(self, *args: Any) -> Any:
-        """The kernel, on these arguments: compiled for their types with the law's functions as
-        first-class functions (so numba can cache the kernel on disk), or, where that fails, for
-        the law's dispatchers (compiled in every process)."""
+        """The kernel, on these arguments: compiled for their types with the law's functions typed
+        as first-class functions (so numba can cache the kernel on disk; the compiled kernel calls
+        the law's functions it was compiled with, :func:`lab.fast.kernel._kernel_law`), or, where
+        that fails, for the law's dispatchers (compiled in every process)."""
         entry = self._entry
         if entry is None:
             entry = self._entry = _entry_point(self.kernel, args, self.core.flight)
