@@ -629,16 +629,21 @@ def apply_scenario(store: ParamStore, scenario: Scenario) -> FcConfig:
     return store.config
 
 
+def settings_for(scenario: Scenario) -> tuple[FcConfig, FcOptions]:
+    """The FC configuration and options a scenario flies (defaults, then the scenario's settings),
+    from one pass over them (:func:`config_for` and :func:`options_for` each make one)."""
+    store = ParamStore(FcConfig())
+    return apply_scenario(store, scenario), store.options
+
+
 def config_for(scenario: Scenario) -> FcConfig:
     """The FC configuration a scenario flies (defaults, then the scenario's settings)."""
-    return apply_scenario(ParamStore(FcConfig()), scenario)
+    return settings_for(scenario)[0]
 
 
 def options_for(scenario: Scenario) -> FcOptions:
     """The :class:`FcOptions` a scenario flies (``SYS_FAILURE_EN``, ``FS_POS_TMO`` from its parameters)."""
-    store = ParamStore(FcConfig())
-    apply_scenario(store, scenario)
-    return store.options
+    return settings_for(scenario)[1]
 
 
 def param_messages(mav: Any, config: FcConfig, options: FcOptions | None = None) -> list[Any]:

@@ -39,7 +39,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from fc import telemetry
 from fc.core import FlightCore, TickOutput
 from fc.flight import VehicleState
-from fc.params import FcOptions, config_for, options_for, param_messages
+from fc.params import FcOptions, config_for, param_messages, settings_for
 from lab.fast.kernel import LOG_IMU, LOG_TRUTH
 from lab.runner import simulate
 from sim_bridge.app import EXIT_DIVERGED
@@ -246,8 +246,7 @@ class _TlogRecorder:
 
 def fly_in_process(scenario: Scenario, tlog_path: Path, *, echo=None) -> FlightResult:
     """Fly ``scenario`` on the flight core in this process, logging to ``tlog_path``."""
-    config = config_for(scenario)
-    options = options_for(scenario)
+    config, options = settings_for(scenario)
     home = Home(*scenario.home) if scenario.home is not None else Home()
     events: list[tuple[float, str]] = []
 

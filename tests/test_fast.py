@@ -29,7 +29,7 @@ from fc.config import FcConfig
 from fc.core import FlightCore
 from fc.modes.auto import AutoMode, AutoPhase
 from fc.modes.rtl import RtlMode, RtlPhase
-from fc.params import config_for, options_for
+from fc.params import settings_for
 from lab.fast.flight import FastRecord
 from lab.fast.kernel import _watch_holds
 from lab.fast.mt import mt_export, mt_gauss, mt_import
@@ -55,8 +55,7 @@ def _bits(row: tuple[float, ...]) -> bytes:
 
 def _fly(sc: Scenario, fast: bool, *, truth: bool = False) -> dict[str, Any]:
     """One flight of ``sc``: what it recorded, raised and left behind."""
-    config = config_for(sc)
-    options = options_for(sc)
+    config, options = settings_for(sc)
     home = Home(*sc.home) if sc.home is not None else Home()
     events: list[tuple[float, int, str]] = []
     core = FlightCore(config, sc.vehicle, home=home, plan=sc.plan, estimator=options.estimator,

@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from test_logtools import LogBuilder, paper_target
 
 from ground.logs import load_log, summarize
@@ -395,6 +397,23 @@ def test_low_pass_compiled_is_the_cpython_loop_bit_for_bit() -> None:
     assert y_py.tobytes() == y_jit.tobytes()
     assert y_jit_1d.tobytes() == y_py[:, 1].tobytes()
     assert np.isnan(y_py[:5, 2]).all() and np.isfinite(y_py[5:, 0]).sum() > 2900
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 50), st.integers(1, 5), st.integers(0, 2**32 - 1))
+def test_row_reductions_are_numpys_bit_for_bit(n: int, m: int, seed: int) -> None:
+    """The scoring's column-by-column row sums, norms and any() are numpy's own reductions along
+    axis 1, bit for bit (wide magnitudes, so a different summation order would show), C or F order."""
+    from ground.logs.metrics import _row_any, _row_norm, _row_sum
+
+    rng = np.random.default_rng(seed)
+    x = rng.standard_normal((n, m)) * 10.0 ** rng.integers(-9, 9, (n, m))
+    x[rng.random((n, m)) < 0.05] = np.nan
+    for a in (x, np.asfortranarray(x), x[::-1]):
+        assert _row_sum(a).tobytes() == np.sum(a, axis=1).tobytes()
+        assert _row_norm(a).tobytes() == np.linalg.norm(a, axis=1).tobytes()
+        b = a > 0.0
+        assert np.array_equal(_row_any(b), np.any(b, axis=1))
 
 
 def test_sigma_window_is_the_last_seconds_of_flight_before_landing() -> None:

@@ -131,20 +131,47 @@ def integrate(t_s: np.ndarray, f: np.ndarray, mask: np.ndarray) -> float:
     finite ``f`` (units of f times seconds; 0.0 when there is no such interval)."""
     if t_s.size < 2:
         return 0.0
+    return _integral(np.diff(t_s), f, mask)
+
+
+def _integral(dt_s: np.ndarray, f: np.ndarray, mask: np.ndarray) -> float:
+    """:func:`integrate` on the sample intervals ``dt_s`` (``np.diff(t_s)``, at least one)."""
     ok = mask & np.isfinite(f)
     pair = ok[:-1] & ok[1:]
     if not pair.any():
         return 0.0
-    dt = np.diff(t_s)[pair]
-    return float(np.sum(0.5 * (f[:-1][pair] + f[1:][pair]) * dt))
+    return float(np.sum(0.5 * (f[:-1][pair] + f[1:][pair]) * dt_s[pair]))
 
 
-def _span(t_s: np.ndarray, mask: np.ndarray) -> float:
-    """Σ of the intervals whose both ends are in ``mask``, s."""
-    if t_s.size < 2:
-        return 0.0
-    pair = mask[:-1] & mask[1:]
-    return float(np.sum(np.diff(t_s)[pair]))
+def _span(dt_s: np.ndarray, mask: np.ndarray) -> float:
+    """Σ of the intervals ``dt_s`` (``np.diff(t_s)``) whose both ends are in ``mask``, s."""
+    return float(np.sum(dt_s[mask[:-1] & mask[1:]]))
+
+
+def _row_sum(x: np.ndarray) -> np.ndarray:
+    """Σ over the few columns of ``x`` (n, m), left to right: ``np.sum(x, axis=1)``'s numbers, bit
+    for bit (numpy reduces a row in that order), without its slow reduction along a short axis."""
+    if x.shape[1] == 0:
+        return np.zeros(x.shape[0])
+    out = x[:, 0].copy()
+    for j in range(1, x.shape[1]):
+        out += x[:, j]
+    return out
+
+
+def _row_any(b: np.ndarray) -> np.ndarray:
+    """``np.any(b, axis=1)`` of a boolean (n, m) with few columns, column by column."""
+    if b.shape[1] == 0:
+        return np.zeros(b.shape[0], dtype=bool)
+    out = b[:, 0].copy()
+    for j in range(1, b.shape[1]):
+        out |= b[:, j]
+    return out
+
+
+def _row_norm(x: np.ndarray) -> np.ndarray:
+    """``np.linalg.norm(x, axis=1)`` of a real (n, m) with few columns, bit for bit."""
+    return np.sqrt(_row_sum(x * x))
 
 
 def tilt_rad(roll_rad: np.ndarray, pitch_rad: np.ndarray) -> np.ndarray:
@@ -168,9 +195,9 @@ def setpoint_changes(target_m: np.ndarray, target_yaw_rad: np.ndarray | None = N
     if n:
         changed[0] = True
         given = np.isfinite(target_m)
-        changed[1:] |= np.any(given[1:] != given[:-1], axis=1)
+        changed[1:] |= _row_any(given[1:] != given[:-1])
         with np.errstate(invalid="ignore"):
-            changed[1:] |= np.any(np.abs(np.diff(target_m, axis=0)) > tolerance, axis=1)
+            changed[1:] |= _row_any(np.abs(np.diff(target_m, axis=0)) > tolerance)
             if target_yaw_rad is not None:
                 yaw_given = np.isfinite(target_yaw_rad)
                 changed[1:] |= yaw_given[1:] != yaw_given[:-1]
@@ -250,9 +277,10 @@ def sigma_metrics(t_s: np.ndarray, sigma: np.ndarray, window: np.ndarray, tau_s:
     ``window`` of σ low-passed with ``tau_s`` over the whole series (:func:`lowpass`), and of σ
     minus that low-pass. None for a channel without finite samples; None for both when no
     channel has one."""
-    y = lowpass(t_s, sigma, tau_s)
-    lpf = [_rms(y[window, j]) for j in range(sigma.shape[1])]
-    dither = [_rms(sigma[window, j] - y[window, j]) for j in range(sigma.shape[1])]
+    y = lowpass(t_s, sigma, tau_s)[window]
+    s = sigma[window]
+    lpf = [_rms(y[:, j]) for j in range(sigma.shape[1])]
+    dither = [_rms(s[:, j] - y[:, j]) for j in range(sigma.shape[1])]
     if all(v is None for v in lpf):
         return None, None
     return lpf, dither
@@ -262,7 +290,7 @@ def sigma_window(t_s: np.ndarray, sigma: np.ndarray, holding: np.ndarray | None,
     """Mask of the last ``window_s`` seconds ending at the last sample with a finite σ (any
     channel) while ``holding`` (in flight); if σ is never finite while holding, at the last
     finite σ at all."""
-    finite = np.any(np.isfinite(sigma), axis=1) if sigma.size else np.zeros(t_s.size, dtype=bool)
+    finite = _row_any(np.isfinite(sigma)) if sigma.size else np.zeros(t_s.size, dtype=bool)
     if holding is not None and np.any(finite & holding):
         finite = finite & holding
     if not finite.any():
@@ -419,8 +447,9 @@ def flight_metrics(
     n = t.size
     if not np.all(np.isfinite(t)):
         raise MetricsError(f"t_s must be finite: sample {int(np.flatnonzero(~np.isfinite(t))[0])} is {t[~np.isfinite(t)][0]}")
-    if n > 1 and np.any(np.diff(t) < 0.0):
-        raise MetricsError(f"t_s must not decrease: sample {int(np.flatnonzero(np.diff(t) < 0.0)[0]) + 1} goes back in time")
+    dt = np.diff(t)  # the sample intervals, s (every integral's)
+    if n > 1 and np.any(dt < 0.0):
+        raise MetricsError(f"t_s must not decrease: sample {int(np.flatnonzero(dt < 0.0)[0]) + 1} goes back in time")
     pos = _array("position_m", position_m, n, 3)
     tgt = _array("target_m", target_m, n, 3)
     eul = _array("euler_rad", euler_rad, n, 3)
@@ -448,10 +477,10 @@ def flight_metrics(
     seg_idx = np.maximum.accumulate(np.where(seg, np.arange(n), 0)) if n else np.zeros(0, dtype=int)
     since = t - t[seg_idx] if n else t
 
-    err_p = np.linalg.norm(pos - tgt, axis=1)
+    err_p = _row_norm(pos - tgt)
     d_att = eul - ref
     d_att[:, 2] = _wrap_pi(d_att[:, 2])
-    err_a = np.linalg.norm(d_att, axis=1)
+    err_a = _row_norm(d_att)
     tilt = tilt_rad(eul[:, 0], eul[:, 1])
     alt = pos[:, 2]
     if vel is not None:
@@ -459,16 +488,15 @@ def flight_metrics(
     else:
         climb = np.full(n, math.nan)
         if n > 1:
-            dt = np.diff(t)
             with np.errstate(invalid="ignore", divide="ignore"):
                 climb[1:] = np.where(dt > 0.0, np.diff(alt) / np.where(dt > 0.0, dt, 1.0), math.nan)
 
-    flight_time = _span(t, flying)
-    armed_time = _span(t, arm)
-    effort = integrate(t, np.sum(mot * mot, axis=1), arm)
+    flight_time = _span(dt, flying) if n > 1 else 0.0
+    armed_time = _span(dt, arm) if n > 1 else 0.0
+    effort = _integral(dt, _row_sum(mot * mot), arm) if n > 1 else 0.0
     if n > 1:
         pair = arm[:-1] & arm[1:]
-        steps = np.sum(np.abs(np.diff(mot, axis=0)), axis=1)
+        steps = _row_sum(np.abs(np.diff(mot, axis=0)))
         tv = float(np.sum(steps[pair & np.isfinite(steps)]))
     else:
         tv = 0.0
@@ -485,8 +513,15 @@ def flight_metrics(
 
     flew, spun = flight_time > 0.0, armed_time > 0.0  # without any interval an integral says nothing: None
 
+    flying_pair = flying[:-1] & flying[1:]
+    dt_flying = dt[flying_pair]
+
     def over_flight(f: np.ndarray) -> float | None:
-        return integrate(t, f, flying) if flew else None
+        if not flew:
+            return None
+        if np.isfinite(f).all():  # every interval of the window counts (the common case: the same sum, fewer steps)
+            return float(np.sum(0.5 * (f[:-1][flying_pair] + f[1:][flying_pair]) * dt_flying))
+        return _integral(dt, f, flying)
 
     out: dict[str, Any] = {
         "samples": int(n),

@@ -86,7 +86,7 @@ def _status(row: dict[str, Any], status: str) -> None:
 
 def _fly_in_process(unit: Unit, row: dict[str, Any], tlog: Path | None, trace: bool = True) -> Trace | None:
     from fc.core import FlightCore
-    from fc.params import config_for, options_for
+    from fc.params import settings_for
     from ground.logs.metrics import flight_metrics
     from lab.fast.flight import FastRecord
     from lab.metrics import MetricsRecorder
@@ -96,8 +96,7 @@ def _fly_in_process(unit: Unit, row: dict[str, Any], tlog: Path | None, trace: b
     from smcpilot.geo import Home
 
     sc = unit.scenario
-    config = config_for(sc)
-    options = options_for(sc)
+    config, options = settings_for(sc)
     recorder = None
     home = Home(*sc.home) if sc.home is not None else Home()
 
@@ -144,8 +143,9 @@ def _fly_in_process(unit: Unit, row: dict[str, Any], tlog: Path | None, trace: b
         status, message = "error", f"the control law failed in flight: {core.law_fault}"
     row["sim_s"] = round(core.t_us * 1e-6, 6)
     a = rec.arrays()
-    keep = a["t_s"] >= unit.score_from_s
-    if np.count_nonzero(keep) >= 2:
+    # the rows from score_from_s on: a slice (the rows are in time order), no copies
+    keep = slice(int(np.searchsorted(a["t_s"], unit.score_from_s, side="left")), None)
+    if a["t_s"][keep].size >= 2:
         metrics = flight_metrics(
             a["t_s"][keep], a["position_m"][keep], a["target_m"][keep], a["euler_rad"][keep], a["euler_ref_rad"][keep],
             a["motors"][keep], a["armed"][keep], a["landing"][keep], fault_starts_s=unit.fault_starts_s,

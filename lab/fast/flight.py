@@ -24,7 +24,7 @@ import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 
@@ -50,8 +50,7 @@ from sim_bridge.sensors import VehicleObservation
 from smcpilot.errors import DivergenceError
 from smcpilot.faults import MAX_DELAY_S, SENSORS
 from smcpilot.frames import quat_from_euler
-from smcpilot.jit import JIT_ENV, compile_pure, jit_enabled, say_once
-from smcpilot.jit import addressed as _addressed
+from smcpilot.jit import JIT_ENV, compile_pure, jit_enabled, numba_module, say_once
 from smcpilot.jit import cache_index as _cache_index
 
 __all__ = ["FastRecord", "fast_simulate", "fast_unsupported", "compiled_kernel"]
@@ -77,13 +76,8 @@ class FastRecord:
     truth: bool = False
 
 
-class _Kernel(NamedTuple):
-    #: the compiled kernel and the law's compiled functions (numba dispatchers).
-    fly: Any
-    law: Any
-
-
-_KERNELS: dict[tuple, _Kernel] = {}
+#: the compiled kernels of this process (numba dispatchers), by the law's functions and the kind of law.
+_KERNELS: dict[tuple, Any] = {}
 
 #: what the kernel calls every tick, compiled into it rather than called (the pipeline's step,
 #: the estimate, the position loop, the mixer, the RK4 step): a call copies its tuple arguments
@@ -96,7 +90,7 @@ KERNEL_INLINE = (
 )
 
 
-def compiled_kernel(law_functions: LawFunctions, full_stack: bool, measures_accel: bool = False) -> _Kernel:
+def compiled_kernel(law_functions: LawFunctions, full_stack: bool, measures_accel: bool = False) -> Any:
     """The compiled kernel for a law's functions (compiled once per process and law; numba's
     cache keeps the compiled pieces on disk): a whole-stack law's pipeline, and the IMU's
     acceleration in the law's ``meas`` for a law that measures it."""
@@ -110,18 +104,17 @@ def compiled_kernel(law_functions: LawFunctions, full_stack: bool, measures_acce
         fns, _problems = pure_closure(roots)
         # the kernel calls the pipeline's step directly (no forwarding function in between: each
         # level copies the pipeline's parameters and state, some hundreds of floats, a tick)
-        fly: dict[str, Any] = {"_kernel_law": kernel_mod._law_constant}
+        fly: dict[str, Any] = {}
         if measures_accel:
             fly["_sensed"] = kernel_mod._sensed_imu
         if full_stack:
             fly["pipeline_step_sensed"] = pipeline_mod.pipeline_step_full_sensed
-        # the law's functions called directly, as constants (kernel_mod._kernel_law)
-        rebind: dict[Callable[..., Any], Any] = {kernel_mod.fly_span: fly, kernel_mod._law_constant: {"_LAW": law_functions}}
-        # (inlined, never a value of its own: a tuple of compiled functions returned as a value
-        # would carry their addresses, and numba cannot cache code that does)
-        twins = compile_pure((*fns, kernel_mod._law_constant), rebind=rebind, inline=(*KERNEL_INLINE, kernel_mod._law_constant))
-        k = _Kernel(twins[kernel_mod.fly_span], LawFunctions(*(twins[f] for f in law_functions)))
-        _KERNELS[key] = k
+        # the law's functions called directly, as constants (kernel_mod._kernel_law, inlined)
+        rebind: dict[Callable[..., Any], Any] = {kernel_mod._kernel_law: {"_LAW": law_functions}}
+        if fly:
+            rebind[kernel_mod.fly_span] = fly
+        twins = compile_pure(fns, rebind=rebind, inline=(*KERNEL_INLINE, kernel_mod._kernel_law))
+        k = _KERNELS[key] = twins[kernel_mod.fly_span]
         # a process that flies compiled scores its flights compiled too (the σ low-pass's loop)
         score_compiled()
     return k
@@ -130,78 +123,35 @@ def compiled_kernel(law_functions: LawFunctions, full_stack: bool, measures_acce
 _ENTRIES: dict[tuple, Callable[..., Any] | None] = {}
 
 
-def _entry_point(kernel: _Kernel, args: tuple, flight: Any) -> Callable[..., Any]:
-    """The kernel's compiled entry point for ``args`` (see :meth:`_Bridge._call`)."""
-    from smcpilot.jit import numba_module
-
-    numba = numba_module()
-    types = numba.types
-    typeof = numba.typeof
-    quick = (id(kernel), _type_key(args[1:]))
+def _entry_point(kernel: Any, args: tuple, flight: Any) -> Callable[..., Any]:
+    """The kernel's compiled entry point for ``args`` (see :meth:`_Bridge._call`): compiled (or
+    loaded from numba's cache) once per process for their types; raises
+    :class:`KernelUnavailable` if numba cannot compile it."""
+    quick = (id(kernel), _type_key(args))
     found: Any = _ENTRIES.get(quick, _MISSING)
     if found is _MISSING:
-        arg_types = tuple(typeof(a) for a in args[1:])
-        key = (id(kernel), arg_types)
+        typeof = numba_module().typeof
+        sig = tuple(typeof(a) for a in args)
+        key = (id(kernel), sig)
         found = _ENTRIES.get(key, _MISSING)
-        if found is not _MISSING:
-            _ENTRIES[quick] = found
-    else:
-        arg_types = ()
-        key = quick
-    if found is not _MISSING:
-        if found is None:
-            raise KernelUnavailable("compiling it failed before in this process")
-        return found  # type: ignore[no-any-return]
-    try:
-        ps = flight.pipeline_state
-        f64 = types.float64
-        k_t = typeof(flight.params.law)
-        state_t = typeof(ps.law)
-        v4 = types.UniTuple(f64, 4)
-        full = flight.law.full_stack
-        sensed = 3 if flight.measures_accel else 0  # the IMU's acceleration follows the state in meas
-        if full:
-            init_args = (typeof(VehicleState(*(0.0,) * 12)), k_t)
-            step_args = (types.UniTuple(f64, 12 + sensed), types.UniTuple(f64, 16), state_t, f64, k_t, v4, typeof(ps.u_prev))
-        else:
-            init_args = (types.UniTuple(f64, 8), k_t)
-            step_args = (types.UniTuple(f64, 8 + sensed), types.UniTuple(f64, 16), state_t, f64, k_t, v4, typeof(ps.u_prev))
-        law = kernel.law
-        sigs = []
-        for fn, fargs in ((law.initial_state, init_args), (law.step, step_args)):
-            fn.compile(fargs)
-            sigs.append(fn.overloads[fargs].signature)
-        new_t = sigs[1].return_type[1]
-        aw_args = (state_t, new_t, v4, types.UniTuple(types.boolean, 4), k_t)
-        law.anti_windup.compile(aw_args)
-        sigs.append(law.anti_windup.overloads[aw_args].signature)
-        law_t = types.NamedTuple(tuple(types.FunctionType(s) for s in sigs), LawFunctions)
-        sig = (law_t, *arg_types)
-        what = f"the flight kernel for the law {flight.law.name}"
-        index = _cache_index(kernel.fly)
-        if index is not None and not os.path.exists(index):
-            say_once(f"compiling {what} (once after an install or a change; cached on disk)...")
-        t0 = time.perf_counter()
-        kernel.fly.compile(sig)
-        if kernel.fly.stats.cache_misses.get(sig):
-            say_once(f"compiled {what} in {time.perf_counter() - t0:.1f} s")
-        kernel_entry = kernel.fly.overloads[sig].entry_point
-        # the law's functions by their addresses: unboxed at no cost on every call
-        law_fns = LawFunctions(*(_addressed(fn, s) for fn, s in zip(law, sigs)))
-
-        def entry(_law: Any, *rest: Any) -> Any:
-            return kernel_entry(law_fns, *rest)
-
-    except Exception as exc:  # numba's typing of first-class functions has limits: compile per process instead
-        try:
-            kernel.fly.compile(tuple(typeof(a) for a in args))
-        except Exception as exc2:  # the law is in the pure style but numba cannot type it (e.g. its state's shape changes)
-            _ENTRIES[key] = None
-            raise KernelUnavailable(_first_line(exc2)) from None
-        say_once(f"the flight kernel is compiled in every process ({type(exc).__name__}: {_first_line(exc)})")
-        entry = kernel.fly
-    _ENTRIES[key] = _ENTRIES[quick] = entry
-    return entry
+        if found is _MISSING:
+            what = f"the flight kernel for the law {flight.law.name}"
+            index = _cache_index(kernel)
+            if index is not None and not os.path.exists(index):
+                say_once(f"compiling {what} (once after an install or a change; cached on disk)...")
+            t0 = time.perf_counter()
+            try:
+                kernel.compile(sig)
+            except Exception as exc:  # the law is in the pure style but numba cannot type it (e.g. its state's shape changes)
+                _ENTRIES[key] = _ENTRIES[quick] = None
+                raise KernelUnavailable(_first_line(exc)) from None
+            if kernel.stats.cache_misses.get(sig):
+                say_once(f"compiled {what} in {time.perf_counter() - t0:.1f} s")
+            found = _ENTRIES[key] = kernel.overloads[sig].entry_point  # (no dispatch: the types are known)
+        _ENTRIES[quick] = found
+    if found is None:
+        raise KernelUnavailable("compiling it failed before in this process")
+    return found  # type: ignore[no-any-return]
 
 
 _MISSING = object()
@@ -263,7 +213,7 @@ def fast_unsupported(core: FlightCore, plant: object, physics_hz: float, rate_hz
         fast_note(why)
         return why
     if not compile_new and law.origin != "built-in" and os.environ.get(JIT_ENV, "").strip() != "1":
-        index = _cache_index(compiled_kernel(core.flight.law_functions, law.full_stack, core.flight.measures_accel).fly)
+        index = _cache_index(compiled_kernel(core.flight.law_functions, law.full_stack, core.flight.measures_accel))
         if index is None or not os.path.exists(index):
             why = (f"the law {law.name} has no compiled kernel yet (compiling takes 10-30 s once; "
                    f"campaigns do it, or set {JIT_ENV}=1)")  # fmt: skip
@@ -421,7 +371,7 @@ class _Bridge:
         rec = self.record
         t_call = time.perf_counter()
         ps, es, out, est = self._call(
-            self.kernel.law, flight.params, flight.pipeline_state, cmd, armed, flight.position_hold, core.config.period_s,
+            flight.params, flight.pipeline_state, cmd, armed, flight.position_hold, core.config.period_s,
             core._est_params, core._est, core.t0_us, self.fc_f, tuple(core.commander.current.watch()) if armed else (0, 0.0, 0.0, 0.0, 0.0),
             plan_next, plant_s, plant_f, plant.params, eff, paper, self.env_f, wind, add_forces, ff, ft,
             self.gust, self.gust_std, self.gusts_on, self.noise_std, self.noise_on, gmt, ggs, nmt, ngs,
@@ -485,10 +435,7 @@ class _Bridge:
         return flown, code, t_after
 
     def _call(self, *args: Any) -> Any:
-        """The kernel, on these arguments: compiled for their types with the law's functions typed
-        as first-class functions (so numba can cache the kernel on disk; the compiled kernel calls
-        the law's functions it was compiled with, :func:`lab.fast.kernel._kernel_law`), or, where
-        that fails, for the law's dispatchers (compiled in every process)."""
+        """The kernel, on these arguments (compiled for their types, :func:`_entry_point`)."""
         entry = self._entry
         if entry is None:
             entry = self._entry = _entry_point(self.kernel, args, self.core.flight)

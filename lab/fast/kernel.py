@@ -109,7 +109,7 @@ def _sensed_imu(ok: bool, f0: float, f1: float, f2: float, phi: float, theta: fl
 
 
 def fly_span(
-    law, pp, ps, cmd, armed, position_hold, dt_ctrl, ep, es, t0_us, fc_f, watch, plan_next_s,
+    pp, ps, cmd, armed, position_hold, dt_ctrl, ep, es, t0_us, fc_f, watch, plan_next_s,
     plant_s, plant_f, rbp, eff, paper, env_f, wind, add_forces, fault_force, fault_torque,
     gust, gust_std, gusts_on, noise_std, noise_on, gmt, ggs, nmt, ngs,
     t_us, step_us, substeps, dt_phys, n_ticks, rec, rec_every, rec_truth, rec_k0, sigma_ok, io, io_f, obs,
@@ -123,7 +123,7 @@ def fly_span(
     in ``io[0]``) and ``io[3]`` is that tick's time.
 
     Arguments, by group (the driver, :mod:`lab.fast.flight`, builds them from the live objects):
-    the law's functions, the pipeline's params/state/inputs, armed, position hold, the control
+    the pipeline's params/state/inputs, armed, position hold, the control
     period; the estimator's params/state; the time of the first tick (µs); ``fc_f`` = [disarm
     delay s, ground-armed s]; the mode's watch (kind, a, b, c, r); the next plan step's time (s
     since the first tick; inf: none); the plant's 17 states (array, updated), ``plant_f`` = [heading
@@ -153,7 +153,7 @@ def fly_span(
     each array handed to a call or viewed costs atomic reference counting.
     """
     tx, ty, tz, psi_target, _armed, landing, _hold, _vxy = cmd
-    law_k = _kernel_law(law)
+    law_k = _kernel_law()
     disarm_delay = fc_f[0]
     ground_s = fc_f[1]
     wkind, wa, wb, wc, wr = watch
@@ -557,20 +557,17 @@ def fly_span(
     return ps, es, out, est
 
 
-def _kernel_law(law):  # type: ignore[no-untyped-def]
-    """The law's functions the kernel calls: its argument. The compiled kernel rebinds this name
-    to :func:`_law_constant`, whose ``_LAW`` is rebound to the law's compiled functions: the kernel
-    (compiled per law anyway) then calls them directly, and can inline them, instead of through
-    the first-class functions it is handed (a C wrapper and an indirect call each time)."""
-    return law
-
-
-#: (rebound in the compiled kernel to the law's compiled functions, see :func:`_kernel_law`)
+#: the law's functions (:class:`fc.control.law.LawFunctions`) the kernel calls: rebound per law
+#: when the kernel is compiled (:func:`lab.fast.flight.compiled_kernel`); never set here, as the
+#: kernel only ever flies compiled.
 _LAW = None
 
 
-def _law_constant(law):  # type: ignore[no-untyped-def]
-    """:func:`_kernel_law` of the compiled kernel: the law's compiled functions, constants."""
+def _kernel_law():  # type: ignore[no-untyped-def]
+    """The law's functions the kernel calls: :data:`_LAW`, which the compiled kernel (one per law)
+    holds as constants. So it calls them directly, with no C wrapper and indirect call as for
+    functions handed to it. Inlined, never a value of its own: a tuple of compiled functions
+    made a value would carry their addresses, and numba cannot cache code that does."""
     return _LAW
 
 
