@@ -39,8 +39,7 @@ def mt_export(rng: random.Random) -> tuple[np.ndarray, np.ndarray]:
 
 def mt_import(rng: random.Random, mt: np.ndarray, gs: np.ndarray) -> None:
     """Set ``rng`` to the state held in the arrays."""
-    version = rng.getstate()[0]
-    rng.setstate((version, tuple(mt.tolist()), float(gs[1]) if gs[0] != 0.0 else None))
+    rng.setstate((rng.VERSION, tuple(mt.tolist()), float(gs[1]) if gs[0] != 0.0 else None))
 
 
 def _twist(mt: np.ndarray) -> None:
