@@ -135,8 +135,8 @@ def add_batch_arguments(sub: argparse._SubParsersAction) -> None:
     c = sub.add_parser("batch", help="campaign flights in batches, per core: vehicle-ticks/s against CPython (same run; ratio)")
     c.add_argument("--seeds", type=int, default=1, help="seeds of the robustness study's cases x controllers flown compiled (default 1: 70 flights)")
     c.add_argument("--duration", type=float, default=20.0, metavar="S", help="simulated seconds a flight (default 20, the study's)")
-    c.add_argument("--cpython", type=int, default=7, metavar="N",
-                   help="flights of them flown in CPython for the baseline, spread over the controllers and cases (default 7)")  # fmt: skip
+    c.add_argument("--cpython", type=int, default=14, metavar="N",
+                   help="flights of them flown in CPython for the baseline, spread over the controllers and cases (default 14: two of each controller)")  # fmt: skip
     c.add_argument("--repeat", type=int, default=2, help="rounds of CPython and compiled, alternately; the best of each is reported (default 2)")
     c.add_argument("--engine", action="store_true",
                    help="also the same flights on a local cluster of 2 workers, in batches and one flight per task")  # fmt: skip
