@@ -5,11 +5,14 @@ that the benches work and what they print."""
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import pytest
 
 from lab.cli import main
 from smcpilot.jit import jit_enabled
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.mark.parametrize("argv", [["--seeds", "0"], ["--cpython", "0"], ["--repeat", "0"], ["--duration", "0"], ["--duration", "nan"]])
@@ -42,3 +45,29 @@ def test_bench_batch_flies_the_study_in_cpython_and_compiled(capsys: pytest.Capt
     assert "flights not ok" not in out, out  # every flight ok or crashed, as the study's are
     share = re.search(r"([\d.]+)% of the ticks\)", out)
     assert share is not None and float(share.group(1)) > 90.0, out  # the kernel flies nearly all of them
+
+
+def test_bench_fast_bad_repeat_is_a_one_line_error(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "fast", "--repeat", "0"]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.strip() == "smcpilot bench: error: --repeat must be at least 1"
+
+
+@pytest.mark.slow
+def test_bench_fast_flies_a_scenario_both_ways_with_and_without_the_log(capsys: pytest.CaptureFixture[str]) -> None:
+    """One example scenario: its row in each table, the ratio the quotient of the two speeds."""
+    argv = ["bench", "fast", str(ROOT / "examples" / "scenarios" / "hover.toml"), "--repeat", "1"]
+    if not jit_enabled(say=False):
+        assert main(argv) == 1
+        assert "the compiled path is off" in capsys.readouterr().out
+        return
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    m = re.search(r"^hover\s+(\d+)\s+(\d+)\s+(\d+)\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)x\s+(-?[\d.]+)$", out, re.M)
+    assert m is not None, out
+    ticks, py_us, fast_us, ratio = int(m.group(1)), float(m.group(4)), float(m.group(5)), float(m.group(6))
+    assert ticks == 10001  # 20 s at 500 Hz, the first tick included
+    assert ratio == pytest.approx(py_us / fast_us, rel=0.05)
+    logged = re.search(r"^hover\s+(\d+)\s+(\d+)\s+([\d.]+)x$", out, re.M)
+    assert logged is not None, out
+    assert float(logged.group(3)) == pytest.approx(int(logged.group(2)) / int(logged.group(1)), rel=0.05)
