@@ -135,12 +135,18 @@ def integrate(t_s: np.ndarray, f: np.ndarray, mask: np.ndarray) -> float:
 
 
 def _integral(dt_s: np.ndarray, f: np.ndarray, mask: np.ndarray) -> float:
-    """:func:`integrate` on the sample intervals ``dt_s`` (``np.diff(t_s)``, at least one)."""
+    """:func:`integrate` on the sample intervals ``dt_s`` (``np.diff(t_s)``)."""
     ok = mask & np.isfinite(f)
     pair = ok[:-1] & ok[1:]
     if not pair.any():
         return 0.0
-    return float(np.sum(0.5 * (f[:-1][pair] + f[1:][pair]) * dt_s[pair]))
+    return _trapezoid(f, pair, dt_s[pair])
+
+
+def _trapezoid(f: np.ndarray, pair: np.ndarray, dt_pair_s: np.ndarray) -> float:
+    """Σ ½ (f_k + f_k+1)(t_k+1 − t_k) over the intervals ``pair`` selects, whose lengths are
+    ``dt_pair_s`` (the trapezoid sum every integral here is)."""
+    return float(np.sum(0.5 * (f[:-1][pair] + f[1:][pair]) * dt_pair_s))
 
 
 def _span(dt_s: np.ndarray, mask: np.ndarray) -> float:
@@ -491,9 +497,11 @@ def flight_metrics(
             with np.errstate(invalid="ignore", divide="ignore"):
                 climb[1:] = np.where(dt > 0.0, np.diff(alt) / np.where(dt > 0.0, dt, 1.0), math.nan)
 
-    flight_time = _span(dt, flying) if n > 1 else 0.0
-    armed_time = _span(dt, arm) if n > 1 else 0.0
-    effort = _integral(dt, _row_sum(mot * mot), arm) if n > 1 else 0.0
+    flying_pair = flying[:-1] & flying[1:]  # the in-flight window's intervals (every in-flight integral's)
+    dt_flying = dt[flying_pair]
+    flight_time = float(np.sum(dt_flying))
+    armed_time = _span(dt, arm)
+    effort = _integral(dt, _row_sum(mot * mot), arm)
     if n > 1:
         pair = arm[:-1] & arm[1:]
         steps = _row_sum(np.abs(np.diff(mot, axis=0)))
@@ -513,14 +521,11 @@ def flight_metrics(
 
     flew, spun = flight_time > 0.0, armed_time > 0.0  # without any interval an integral says nothing: None
 
-    flying_pair = flying[:-1] & flying[1:]
-    dt_flying = dt[flying_pair]
-
     def over_flight(f: np.ndarray) -> float | None:
         if not flew:
             return None
         if np.isfinite(f).all():  # every interval of the window counts (the common case: the same sum, fewer steps)
-            return float(np.sum(0.5 * (f[:-1][flying_pair] + f[1:][flying_pair]) * dt_flying))
+            return _trapezoid(f, flying_pair, dt_flying)
         return _integral(dt, f, flying)
 
     out: dict[str, Any] = {

@@ -39,15 +39,15 @@ def add_arguments(sub: argparse._SubParsersAction) -> None:
 
 def _flight_s(sc, fast: bool) -> tuple[float, int]:  # type: ignore[no-untyped-def]
     from fc.core import FlightCore
-    from fc.params import config_for, options_for
+    from fc.params import settings_for
     from lab.fast.flight import FastRecord
     from lab.metrics import MetricsRecorder
     from lab.runner import simulate
     from sim_bridge.build import plant_for
     from smcpilot.geo import Home
 
-    core = FlightCore(config_for(sc), sc.vehicle, home=Home(*sc.home) if sc.home is not None else Home(), plan=sc.plan,
-                      estimator=options_for(sc).estimator)  # fmt: skip
+    config, options = settings_for(sc)
+    core = FlightCore(config, sc.vehicle, home=Home(*sc.home) if sc.home is not None else Home(), plan=sc.plan, estimator=options.estimator)
     plant = plant_for(sc)
     rec = MetricsRecorder(core)
     t0 = time.perf_counter()
